@@ -1,0 +1,300 @@
+//! On-disk formats: the measurements table, Parquet/JSON artifacts with
+//! provenance, and atomic writes (temporary file, then rename).
+//!
+//! Measurements schema (CSV or Parquet): `observable: str, x: f64, value: f64,
+//! error: f64` with `error` the 1σ measurement uncertainty.
+
+use anyhow::{anyhow, bail, Context, Result};
+use polars::prelude::*;
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+
+/// One measured value.
+#[derive(Clone, Debug)]
+pub struct Measurement {
+    pub observable: String,
+    pub x: f64,
+    pub value: f64,
+    pub error: f64,
+    /// Where it was read from: the CSV line or Parquet row (1-based), 0 if made in memory.
+    pub line: usize,
+}
+
+impl PartialEq for Measurement {
+    fn eq(&self, o: &Self) -> bool {
+        self.observable == o.observable && self.x == o.x && self.value == o.value && self.error == o.error
+    }
+}
+
+impl Measurement {
+    pub fn new(observable: &str, x: f64, value: f64, error: f64) -> Self {
+        Measurement { observable: observable.to_string(), x, value, error, line: 0 }
+    }
+
+    /// "line N" for CSV, "row N" for Parquet, for error messages.
+    pub fn location(&self, path: &Path) -> String {
+        let is_parquet = path.extension().map(|e| e == "parquet" || e == "pq").unwrap_or(false);
+        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
+    }
+}
+
+/// Where a run came from: written into every artifact.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct Provenance {
+    pub mdpipe_version: String,
+    pub config_hash: String,
+    pub data_hash: String,
+    pub seed: u64,
+    pub command: String,
+}
+
+impl Provenance {
+    pub fn new(config_hash: String, data_hash: String, seed: u64, command: &str) -> Self {
+        Provenance { mdpipe_version: env!("CARGO_PKG_VERSION").to_string(), config_hash, data_hash, seed, command: command.to_string() }
+    }
+
+    pub fn key_values(&self) -> Vec<(String, String)> {
+        vec![
+            ("mdpipe_version".into(), self.mdpipe_version.clone()),
+            ("config_hash".into(), self.config_hash.clone()),
+            ("data_hash".into(), self.data_hash.clone()),
+            ("seed".into(), self.seed.to_string()),
+            ("command".into(), self.command.clone()),
+        ]
+    }
+}
+
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    let digest = Sha256::digest(bytes);
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Hash of the measurements themselves (not of the file's formatting).
+pub fn measurements_hash(data: &[Measurement]) -> String {
+    let mut h = Sha256::new();
+    for m in data {
+        h.update(m.observable.as_bytes());
+        for v in [m.x, m.value, m.error] {
+            h.update(v.to_le_bytes());
+        }
+    }
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn temp_path(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+}
+
+/// Writes through `write` into a temporary sibling, then renames it into place,
+/// so readers never see a half-written artifact.
+pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> Result<()>) -> Result<()> {
+    if let Some(dir) = path.parent() {
+        if !dir.as_os_str().is_empty() {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating directory {}", dir.display()))?;
+        }
+    }
+    let tmp = temp_path(path);
+    let result: Result<()> = (|| {
+        let mut f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+        write(&mut f)?;
+        f.sync_all().ok();
+        Ok(())
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e.context(format!("writing {}", path.display())));
+    }
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+}
+
+pub fn write_text_atomic(path: &Path, text: &str) -> Result<()> {
+    use std::io::Write;
+    write_atomic(path, |f| Ok(f.write_all(text.as_bytes())?))
+}
+
+pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    write_text_atomic(path, &text)
+}
+
+/// Writes a DataFrame as Parquet with provenance in the file's key-value metadata.
+pub fn write_parquet_atomic(path: &Path, df: &mut DataFrame, provenance: Option<&Provenance>) -> Result<()> {
+    write_atomic(path, |f| {
+        let kv = provenance.map(|p| KeyValueMetadata::from_static(p.key_values()));
+        ParquetWriter::new(f).with_key_value_metadata(kv).finish(df)?;
+        Ok(())
+    })
+}
+
+pub fn read_parquet(path: &Path) -> Result<DataFrame> {
+    let f = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    ParquetReader::new(f).finish().map_err(|e| anyhow!("reading Parquet file {}: {e}", path.display()))
+}
+
+/// Builds a DataFrame from named f64 columns (all the same length).
+pub fn f64_frame(columns: Vec<(String, Vec<f64>)>) -> Result<DataFrame> {
+    let height = columns.first().map(|c| c.1.len()).unwrap_or(0);
+    let cols: Vec<Column> = columns.into_iter().map(|(name, v)| Column::new(name.into(), v)).collect();
+    Ok(DataFrame::new(height, cols)?)
+}
+
+/// Reads a measurements table, CSV or Parquet by extension, validating every row.
+pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let rows = match ext.as_str() {
+        "parquet" | "pq" => read_measurements_parquet(path)?,
+        _ => read_measurements_csv(path)?,
+    };
+    if rows.is_empty() {
+        bail!("{}: no measurements in file", path.display());
+    }
+    Ok(rows)
+}
+
+const MEASUREMENT_COLUMNS: [&str; 4] = ["observable", "x", "value", "error"];
+
+fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
+    let file = path.display();
+    if m.observable.trim().is_empty() {
+        bail!("{file}: {where_}, field 'observable': empty observable name");
+    }
+    for (field, v) in [("x", m.x), ("value", m.value), ("error", m.error)] {
+        if !v.is_finite() {
+            bail!("{file}: {where_}, field '{field}': value is {v}, must be a finite number");
+        }
+    }
+    if m.error <= 0.0 {
+        bail!("{file}: {where_}, field 'error': {} is not a positive 1-sigma error", m.error);
+    }
+    Ok(())
+}
+
+fn read_measurements_csv(path: &Path) -> Result<Vec<Measurement>> {
+    let file = path.display();
+    let mut reader = csv::ReaderBuilder::new()
+        .comment(Some(b'#'))
+        .trim(csv::Trim::All)
+        .from_path(path)
+        .with_context(|| format!("opening measurements file {file}"))?;
+    let headers = reader.headers().with_context(|| format!("{file}: reading header"))?.clone();
+    let mut idx = [0usize; 4];
+    for (k, name) in MEASUREMENT_COLUMNS.iter().enumerate() {
+        idx[k] = headers
+            .iter()
+            .position(|h| h == *name)
+            .ok_or_else(|| anyhow!("{file}: line 1: missing column '{name}' (expected columns: observable, x, value, error; found: {})", headers.iter().collect::<Vec<_>>().join(", ")))?;
+    }
+    let mut out = Vec::new();
+    for rec in reader.records() {
+        let rec = rec.with_context(|| format!("{file}: malformed CSV"))?;
+        let line = rec.position().map(|p| p.line()).unwrap_or(0);
+        let where_ = format!("line {line}");
+        let field = |k: usize| rec.get(idx[k]).unwrap_or("");
+        let num = |k: usize| -> Result<f64> {
+            let s = field(k);
+            s.parse::<f64>().map_err(|_| anyhow!("{file}: {where_}, field '{}': cannot parse {:?} as a number", MEASUREMENT_COLUMNS[k], s))
+        };
+        let m = Measurement { observable: field(0).to_string(), x: num(1)?, value: num(2)?, error: num(3)?, line: line as usize };
+        validate_row(path, &where_, &m)?;
+        out.push(m);
+    }
+    Ok(out)
+}
+
+fn read_measurements_parquet(path: &Path) -> Result<Vec<Measurement>> {
+    let file = path.display();
+    let df = read_parquet(path)?;
+    let col = |name: &str| df.column(name).map_err(|_| anyhow!("{file}: missing column '{name}' (expected columns: observable, x, value, error)"));
+    let obs = col("observable")?.str().map_err(|_| anyhow!("{file}: column 'observable' must be a string column"))?.clone();
+    let num = |name: &str| -> Result<Float64Chunked> {
+        let c = col(name)?.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?;
+        Ok(c.f64()?.clone())
+    };
+    let (x, value, error) = (num("x")?, num("value")?, num("error")?);
+    let mut out = Vec::with_capacity(df.height());
+    for i in 0..df.height() {
+        let where_ = format!("row {}", i + 1);
+        let get = |c: &Float64Chunked, name: &str| c.get(i).ok_or_else(|| anyhow!("{file}: {where_}, field '{name}': missing value"));
+        let m = Measurement {
+            observable: obs.get(i).ok_or_else(|| anyhow!("{file}: {where_}, field 'observable': missing value"))?.to_string(),
+            x: get(&x, "x")?,
+            value: get(&value, "value")?,
+            error: get(&error, "error")?,
+            line: i + 1,
+        };
+        validate_row(path, &where_, &m)?;
+        out.push(m);
+    }
+    Ok(out)
+}
+
+/// Writes measurements as CSV or Parquet by extension.
+pub fn write_measurements(path: &Path, data: &[Measurement], provenance: Option<&Provenance>) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if ext == "parquet" || ext == "pq" {
+        let obs: Vec<&str> = data.iter().map(|m| m.observable.as_str()).collect();
+        let mut df = DataFrame::new(
+            data.len(),
+            vec![
+                Column::new("observable".into(), obs),
+                Column::new("x".into(), data.iter().map(|m| m.x).collect::<Vec<_>>()),
+                Column::new("value".into(), data.iter().map(|m| m.value).collect::<Vec<_>>()),
+                Column::new("error".into(), data.iter().map(|m| m.error).collect::<Vec<_>>()),
+            ],
+        )?;
+        write_parquet_atomic(path, &mut df, provenance)
+    } else {
+        let mut text = String::new();
+        if let Some(p) = provenance {
+            text.push_str(&format!("# mdpipe {} | {} | seed {}\n", p.mdpipe_version, p.command, p.seed));
+        }
+        text.push_str("observable,x,value,error\n");
+        for m in data {
+            text.push_str(&format!("{},{},{},{}\n", m.observable, m.x, m.value, m.error));
+        }
+        write_text_atomic(path, &text)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmpdir(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("mdpipe-artifacts-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn measurements_round_trip_csv_and_parquet() {
+        let data = vec![
+            Measurement::new("height", 0.1, 59.9, 0.1),
+            Measurement::new("velocity", 0.2, 1.9, 0.2),
+        ];
+        let d = tmpdir("rt");
+        for name in ["m.csv", "m.parquet"] {
+            let p = d.join(name);
+            write_measurements(&p, &data, None).unwrap();
+            assert_eq!(read_measurements(&p).unwrap(), data);
+        }
+    }
+
+    #[test]
+    fn csv_errors_name_file_line_and_field() {
+        let d = tmpdir("bad");
+        let p = d.join("bad.csv");
+        std::fs::write(&p, "observable,x,value,error\nheight,0.1,59.9,0.1\nheight,0.2,NaN,0.1\n").unwrap();
+        let msg = format!("{:#}", read_measurements(&p).unwrap_err());
+        assert!(msg.contains("bad.csv") && msg.contains("line 3") && msg.contains("'value'"), "{msg}");
+
+        std::fs::write(&p, "observable,x,value,error\nheight,0.1,59.9,-0.1\n").unwrap();
+        let msg = format!("{:#}", read_measurements(&p).unwrap_err());
+        assert!(msg.contains("line 2") && msg.contains("'error'"), "{msg}");
+
+        std::fs::write(&p, "observable,x,value\nheight,0.1,59.9\n").unwrap();
+        let msg = format!("{:#}", read_measurements(&p).unwrap_err());
+        assert!(msg.contains("missing column 'error'"), "{msg}");
+    }
+}

@@ -1,0 +1,199 @@
+//! The Kennedy–O'Hagan likelihood with one independent block per observable:
+//!
+//! `y_b - η_b(x, θ) ~ N(0, K_φb(x, x) + diag(σ_b²))`, "no MD" being `K = 0`.
+//!
+//! Scaling follows the paper: each observable is standardized by the mean and
+//! population standard deviation of its measured values (so the discrepancy
+//! hyperparameters are comparable across observables), while x is used as is
+//! (x = t/1 s, or pT/1 GeV). The returned log-likelihood includes the Jacobian
+//! of that standardization, so it is the density of the data in their own
+//! units and evidences are comparable with any other analysis of the same data.
+
+use crate::artifacts::Measurement;
+use crate::gp::{gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyGram, DiscrepancyKernel};
+use crate::models::Simulator;
+use anyhow::{bail, Result};
+use std::cell::RefCell;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+/// Measurements of one observable, standardized.
+#[derive(Clone, Debug)]
+pub struct ObservableBlock {
+    pub name: String,
+    /// Index of this observable in the simulator's `observable_names`.
+    pub model_index: usize,
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub error: Vec<f64>,
+    /// Standardization: `y_std = (y - mean) / scale`.
+    pub mean: f64,
+    pub scale: f64,
+    pub gram: DiscrepancyGram,
+}
+
+impl ObservableBlock {
+    pub fn new(name: &str, model_index: usize, rows: &[&Measurement]) -> Result<Self> {
+        if rows.len() < 2 {
+            bail!("observable '{name}' has {} measurement(s); at least 2 are needed to standardize it", rows.len());
+        }
+        let mut rows: Vec<&Measurement> = rows.to_vec();
+        rows.sort_by(|a, b| a.x.total_cmp(&b.x));
+        let y: Vec<f64> = rows.iter().map(|m| m.value).collect();
+        let mean = y.iter().sum::<f64>() / y.len() as f64;
+        let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / y.len() as f64;
+        // A constant observable (e.g. acceleration in a drag-free world) has no
+        // spread; fall back to the typical error so the scale stays meaningful.
+        let mean_err = rows.iter().map(|m| m.error).sum::<f64>() / rows.len() as f64;
+        let scale = if var.sqrt() > 1e-12 * mean.abs().max(1.0) { var.sqrt() } else { mean_err };
+        let x: Vec<f64> = rows.iter().map(|m| m.x).collect();
+        Ok(ObservableBlock {
+            name: name.to_string(),
+            model_index,
+            gram: DiscrepancyGram::new(&x),
+            x,
+            y,
+            error: rows.iter().map(|m| m.error).collect(),
+            mean,
+            scale,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+}
+
+/// Per-thread scratch so that evaluations allocate nothing.
+struct Workspace {
+    chol: Vec<CholeskyWorkspace>,
+    eta: Vec<f64>,
+    resid: Vec<f64>,
+    xr: Vec<f64>,
+}
+
+static NEXT_ID: AtomicU64 = AtomicU64::new(1);
+
+thread_local! {
+    static WORKSPACES: RefCell<Vec<(u64, Workspace)>> = const { RefCell::new(Vec::new()) };
+}
+
+/// Log-likelihood of the calibration parameters `[θ, φ_1, φ_2, …]`.
+pub struct MdLikelihood {
+    id: u64,
+    pub simulator: Arc<dyn Simulator>,
+    pub blocks: Vec<ObservableBlock>,
+    pub kernel: Option<DiscrepancyKernel>,
+    pub n_theta: usize,
+    log_jacobian: f64,
+}
+
+impl MdLikelihood {
+    pub fn new(simulator: Arc<dyn Simulator>, blocks: Vec<ObservableBlock>, kernel: Option<DiscrepancyKernel>) -> Self {
+        let n_theta = simulator.parameter_names().len();
+        let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
+        MdLikelihood { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), simulator, blocks, kernel, n_theta, log_jacobian }
+    }
+
+    pub fn n_hyper(&self) -> usize {
+        self.kernel.map(|k| k.n_hyper()).unwrap_or(0)
+    }
+
+    pub fn dim(&self) -> usize {
+        self.n_theta + self.blocks.len() * self.n_hyper()
+    }
+
+    /// Parameter names: θ names, then `<observable>.<hyper>` per block.
+    pub fn parameter_names(&self) -> Vec<String> {
+        let mut names = self.simulator.parameter_names();
+        if let Some(k) = self.kernel {
+            for b in &self.blocks {
+                for h in k.hyper_names() {
+                    names.push(format!("{}.{}", b.name, h));
+                }
+            }
+        }
+        names
+    }
+
+    /// The discrepancy hyperparameters of block `b` within a parameter vector.
+    pub fn hyper_of<'a>(&self, params: &'a [f64], b: usize) -> &'a [f64] {
+        let nh = self.n_hyper();
+        &params[self.n_theta + b * nh..self.n_theta + (b + 1) * nh]
+    }
+
+    fn new_workspace(&self) -> Workspace {
+        let nmax = self.blocks.iter().map(|b| b.len()).max().unwrap_or(0);
+        Workspace {
+            chol: self.blocks.iter().map(|b| CholeskyWorkspace::new(b.len())).collect(),
+            eta: vec![0.0; nmax],
+            resid: vec![0.0; nmax],
+            xr: vec![0.0; nmax],
+        }
+    }
+
+    pub fn log_likelihood(&self, params: &[f64]) -> f64 {
+        WORKSPACES.with(|cell| {
+            let mut list = cell.borrow_mut();
+            let pos = match list.iter().position(|(id, _)| *id == self.id) {
+                Some(p) => p,
+                None => {
+                    if list.len() >= 16 {
+                        list.remove(0);
+                    }
+                    list.push((self.id, self.new_workspace()));
+                    list.len() - 1
+                }
+            };
+            self.log_likelihood_with(params, &mut list[pos].1)
+        })
+    }
+
+    fn log_likelihood_with(&self, params: &[f64], ws: &mut Workspace) -> f64 {
+        let theta = &params[..self.n_theta];
+        let mut total = self.log_jacobian;
+        for (b, block) in self.blocks.iter().enumerate() {
+            let n = block.len();
+            let eta = &mut ws.eta[..n];
+            self.simulator.predict(block.model_index, &block.x, theta, eta);
+            let resid = &mut ws.resid[..n];
+            let inv_scale = 1.0 / block.scale;
+            for i in 0..n {
+                resid[i] = (block.y[i] - eta[i]) * inv_scale;
+            }
+            match self.kernel {
+                None => {
+                    // Diagonal covariance: no factorization needed.
+                    for i in 0..n {
+                        let s = block.error[i] * inv_scale;
+                        let z = resid[i] / s;
+                        total += -0.5 * (z * z + 2.0 * s.ln() + LN_2PI);
+                    }
+                }
+                Some(kernel) => {
+                    let chol = &mut ws.chol[b];
+                    block.gram.fill_lower(kernel, self.hyper_of(params, b), &mut chol.factor, &mut ws.xr[..n]);
+                    for i in 0..n {
+                        let s = block.error[i] * inv_scale;
+                        chol.factor[i * n + i] += s * s;
+                    }
+                    if chol.factorize().is_err() {
+                        return f64::NEG_INFINITY;
+                    }
+                    total += gaussian_logpdf_factored(chol, resid);
+                }
+            }
+        }
+        if total.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            total
+        }
+    }
+}
+
+const LN_2PI: f64 = 1.837_877_066_409_345_5;

@@ -1,0 +1,386 @@
+//! Gaussian-process building blocks shared by the model-discrepancy term and
+//! the emulators: covariance kernels, a jittered Cholesky on top of faer, and
+//! the Gaussian log-density.
+//!
+//! Matrices are dense, column-major `&[f64]` of size `n*n`; everything that
+//! runs inside a sampler works in caller-provided buffers so that a likelihood
+//! evaluation does not allocate.
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt::factor::{cholesky_in_place, cholesky_in_place_scratch, LltParams};
+use faer::{MatMut, MatRef, Par, Spec};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// The paper's two discrepancy kernels (Jaiswal et al. 2025, eqs. for Kernel I/II).
+///
+/// Kernel I:  `s² + c̄² (x x')^r exp(-|x-x'|²/2ℓ²)`;
+/// Kernel II: the same without `s²`.
+/// The `(x x')^r` factor lets the discrepancy grow (r > 0) away from x = 0,
+/// where for the ball drop model and truth coincide by construction.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum DiscrepancyKernel {
+    #[serde(rename = "I")]
+    KernelI,
+    #[serde(rename = "II")]
+    KernelII,
+}
+
+impl DiscrepancyKernel {
+    /// Hyperparameter names in the order they appear in parameter vectors.
+    pub fn hyper_names(self) -> &'static [&'static str] {
+        match self {
+            DiscrepancyKernel::KernelI => &["cbar", "ell", "r", "s"],
+            DiscrepancyKernel::KernelII => &["cbar", "ell", "r"],
+        }
+    }
+
+    pub fn n_hyper(self) -> usize {
+        self.hyper_names().len()
+    }
+
+    pub fn parse(s: &str) -> Option<Option<DiscrepancyKernel>> {
+        match s.trim() {
+            "none" | "None" | "no-md" | "nomd" => Some(None),
+            "I" | "1" | "i" => Some(Some(DiscrepancyKernel::KernelI)),
+            "II" | "2" | "ii" => Some(Some(DiscrepancyKernel::KernelII)),
+            _ => None,
+        }
+    }
+
+    pub fn label(kernel: Option<DiscrepancyKernel>) -> &'static str {
+        match kernel {
+            None => "none",
+            Some(DiscrepancyKernel::KernelI) => "I",
+            Some(DiscrepancyKernel::KernelII) => "II",
+        }
+    }
+}
+
+/// `x^r` with the convention `0^r = 0` for r > 0 and `0^0 = 1`.
+#[inline]
+pub fn pow_r(x: f64, r: f64) -> f64 {
+    if x == 0.0 {
+        if r == 0.0 {
+            1.0
+        } else {
+            0.0
+        }
+    } else {
+        x.powf(r)
+    }
+}
+
+/// Kernel evaluation between two sets of inputs, written into `out`
+/// (column-major, `xa.len()` rows by `xb.len()` columns).
+pub fn discrepancy_cross_cov(kernel: DiscrepancyKernel, hyper: &[f64], xa: &[f64], xb: &[f64], out: &mut [f64]) {
+    let (cbar, ell, r) = (hyper[0], hyper[1], hyper[2]);
+    let s2 = match kernel {
+        DiscrepancyKernel::KernelI => hyper[3] * hyper[3],
+        DiscrepancyKernel::KernelII => 0.0,
+    };
+    let c2 = cbar * cbar;
+    let inv_two_ell2 = 0.5 / (ell * ell);
+    let n = xa.len();
+    for (j, &xj) in xb.iter().enumerate() {
+        let pj = pow_r(xj, r);
+        for (i, &xi) in xa.iter().enumerate() {
+            let d = xi - xj;
+            out[i + j * n] = s2 + c2 * pow_r(xi, r) * pj * (-d * d * inv_two_ell2).exp();
+        }
+    }
+}
+
+/// Precomputed inputs for filling `K(x, x)` fast inside a sampler: squared
+/// distances are fixed, only the hyperparameters change.
+#[derive(Clone, Debug)]
+pub struct DiscrepancyGram {
+    pub x: Vec<f64>,
+    ln_x: Vec<f64>,
+    /// Lower triangle of squared distances, packed by column.
+    sq_dist: Vec<f64>,
+}
+
+impl DiscrepancyGram {
+    pub fn new(x: &[f64]) -> Self {
+        let n = x.len();
+        let mut sq_dist = Vec::with_capacity(n * (n + 1) / 2);
+        for j in 0..n {
+            for i in j..n {
+                let d = x[i] - x[j];
+                sq_dist.push(d * d);
+            }
+        }
+        DiscrepancyGram { x: x.to_vec(), ln_x: x.iter().map(|v| v.ln()).collect(), sq_dist }
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Writes the lower triangle of `K(x,x)` (column-major `n*n`) and returns it.
+    /// `xr` is scratch of length n for `x_i^r`.
+    #[inline]
+    pub fn fill_lower(&self, kernel: DiscrepancyKernel, hyper: &[f64], out: &mut [f64], xr: &mut [f64]) {
+        let n = self.x.len();
+        let (cbar, ell, r) = (hyper[0], hyper[1], hyper[2]);
+        let s2 = match kernel {
+            DiscrepancyKernel::KernelI => hyper[3] * hyper[3],
+            DiscrepancyKernel::KernelII => 0.0,
+        };
+        let c2 = cbar * cbar;
+        for i in 0..n {
+            // x^r = exp(r ln x): one exp per point instead of one powf per pair.
+            xr[i] = if self.x[i] == 0.0 { pow_r(0.0, r) } else { (r * self.ln_x[i]).exp() };
+        }
+        let neg_inv_two_ell2 = -0.5 / (ell * ell);
+        let mut k = 0;
+        for j in 0..n {
+            let cj = c2 * xr[j];
+            for i in j..n {
+                out[i + j * n] = s2 + cj * xr[i] * (self.sq_dist[k] * neg_inv_two_ell2).exp();
+                k += 1;
+            }
+        }
+    }
+}
+
+/// Squared-exponential ARD kernel `σ² exp(-½ Σ_k (a_k-b_k)²/ℓ_k²)`, used by the emulators.
+#[inline]
+pub fn se_ard(a: &[f64], b: &[f64], var: f64, lengths: &[f64]) -> f64 {
+    let mut q = 0.0;
+    for k in 0..a.len() {
+        let d = (a[k] - b[k]) / lengths[k];
+        q += d * d;
+    }
+    var * (-0.5 * q).exp()
+}
+
+/// Number of times a matrix needed jitter to factorize, process-wide. Reported
+/// in run summaries so that regularisation is never silent.
+static JITTER_EVENTS: AtomicUsize = AtomicUsize::new(0);
+
+pub fn jitter_events() -> usize {
+    JITTER_EVENTS.load(Ordering::Relaxed)
+}
+
+pub fn reset_jitter_events() {
+    JITTER_EVENTS.store(0, Ordering::Relaxed)
+}
+
+/// Relative jitters tried in turn, as multiples of the mean diagonal.
+const JITTER_LADDER: [f64; 6] = [0.0, 1e-12, 1e-10, 1e-8, 1e-6, 1e-4];
+
+/// Reusable scratch for repeated Cholesky factorizations of one size.
+pub struct CholeskyWorkspace {
+    n: usize,
+    /// Factor (lower triangle), column-major.
+    pub factor: Vec<f64>,
+    backup: Vec<f64>,
+    stack: MemBuffer,
+}
+
+/// Why a factorization failed even with the largest jitter.
+#[derive(Debug, Clone)]
+pub struct NotPositiveDefinite {
+    pub n: usize,
+    pub max_jitter: f64,
+}
+
+impl std::fmt::Display for NotPositiveDefinite {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}x{} matrix is not positive definite even with jitter {:.1e}", self.n, self.n, self.max_jitter)
+    }
+}
+impl std::error::Error for NotPositiveDefinite {}
+
+impl CholeskyWorkspace {
+    pub fn new(n: usize) -> Self {
+        let req = cholesky_in_place_scratch::<f64>(n, Par::Seq, Spec::<LltParams, f64>::default());
+        CholeskyWorkspace { n, factor: vec![0.0; n * n], backup: vec![0.0; n * n], stack: MemBuffer::new(req) }
+    }
+
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// Factorizes the symmetric matrix whose lower triangle is in `self.factor`
+    /// (column-major), in place. On failure it retries with growing diagonal
+    /// jitter and counts the event; it returns the jitter used.
+    pub fn factorize(&mut self) -> Result<f64, NotPositiveDefinite> {
+        let n = self.n;
+        self.backup.copy_from_slice(&self.factor);
+        let mean_diag = (0..n).map(|i| self.backup[i * n + i]).sum::<f64>() / n.max(1) as f64;
+        for (attempt, &rel) in JITTER_LADDER.iter().enumerate() {
+            if attempt > 0 {
+                self.factor.copy_from_slice(&self.backup);
+                for i in 0..n {
+                    self.factor[i * n + i] += rel * mean_diag.abs().max(f64::MIN_POSITIVE);
+                }
+            }
+            let a = MatMut::from_column_major_slice_mut(&mut self.factor, n, n);
+            let ok = cholesky_in_place(
+                a,
+                Default::default(),
+                Par::Seq,
+                MemStack::new(&mut self.stack),
+                Spec::<LltParams, f64>::default(),
+            )
+            .is_ok();
+            if ok && (0..n).all(|i| self.factor[i * n + i].is_finite()) {
+                if attempt > 0 {
+                    let count = JITTER_EVENTS.fetch_add(1, Ordering::Relaxed);
+                    if count == 0 {
+                        eprintln!(
+                            "warning: covariance matrix ({n}x{n}) was not numerically positive definite; \
+                             added jitter {:.1e} x mean diagonal (further events are counted in the run summary)",
+                            rel
+                        );
+                    }
+                }
+                return Ok(rel * mean_diag);
+            }
+        }
+        Err(NotPositiveDefinite { n, max_jitter: *JITTER_LADDER.last().unwrap() })
+    }
+
+    /// `log det A` from the factor.
+    pub fn log_det(&self) -> f64 {
+        let n = self.n;
+        2.0 * (0..n).map(|i| self.factor[i * n + i].ln()).sum::<f64>()
+    }
+
+    /// Solves `L z = b` in place (forward substitution).
+    pub fn solve_lower_in_place(&self, b: &mut [f64]) {
+        let l = MatRef::from_column_major_slice(&self.factor, self.n, self.n);
+        let rhs = MatMut::from_column_major_slice_mut(b, self.n, 1);
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, rhs, Par::Seq);
+    }
+
+    /// Solves `Lᵀ z = b` in place (backward substitution).
+    pub fn solve_upper_in_place(&self, b: &mut [f64]) {
+        let l = MatRef::from_column_major_slice(&self.factor, self.n, self.n);
+        let rhs = MatMut::from_column_major_slice_mut(b, self.n, 1);
+        faer::linalg::triangular_solve::solve_upper_triangular_in_place(l.transpose(), rhs, Par::Seq);
+    }
+
+    /// Solves `A z = b` in place using the factor.
+    pub fn solve_in_place(&self, b: &mut [f64]) {
+        self.solve_lower_in_place(b);
+        self.solve_upper_in_place(b);
+    }
+}
+
+/// `log N(r | 0, A)` where `ws` already holds the Cholesky factor of `A`.
+/// `r` is overwritten with `L⁻¹ r`.
+pub fn gaussian_logpdf_factored(ws: &CholeskyWorkspace, r: &mut [f64]) -> f64 {
+    ws.solve_lower_in_place(r);
+    let quad: f64 = r.iter().map(|z| z * z).sum();
+    -0.5 * (quad + ws.log_det() + r.len() as f64 * (2.0 * std::f64::consts::PI).ln())
+}
+
+/// `log N(r | 0, A)` for a dense covariance (convenience, allocates).
+pub fn gaussian_logpdf(r: &[f64], cov: &[f64]) -> Result<f64, NotPositiveDefinite> {
+    let n = r.len();
+    let mut ws = CholeskyWorkspace::new(n);
+    ws.factor.copy_from_slice(cov);
+    ws.factorize()?;
+    let mut z = r.to_vec();
+    Ok(gaussian_logpdf_factored(&ws, &mut z))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn logpdf_matches_diagonal_closed_form() {
+        let r = [0.3, -1.2, 0.7];
+        let var = [0.5, 2.0, 1.5];
+        let mut cov = vec![0.0; 9];
+        for i in 0..3 {
+            cov[i * 3 + i] = var[i];
+        }
+        let expected: f64 = (0..3)
+            .map(|i| -0.5 * (r[i] * r[i] / var[i] + var[i].ln() + (2.0 * std::f64::consts::PI).ln()))
+            .sum();
+        let got = gaussian_logpdf(&r, &cov).unwrap();
+        assert!((got - expected).abs() < 1e-12, "{got} vs {expected}");
+    }
+
+    #[test]
+    fn logpdf_matches_2x2_closed_form() {
+        // [[a, b],[b, c]] inverse and determinant by hand.
+        let (a, b, c) = (2.0, 0.6, 1.0);
+        let det: f64 = a * c - b * b;
+        let r = [0.4, -0.9];
+        let quad = (c * r[0] * r[0] - 2.0 * b * r[0] * r[1] + a * r[1] * r[1]) / det;
+        let expected = -0.5 * (quad + det.ln() + 2.0 * (2.0 * std::f64::consts::PI).ln());
+        let got = gaussian_logpdf(&r, &[a, b, b, c]).unwrap();
+        assert!((got - expected).abs() < 1e-12);
+    }
+
+    #[test]
+    fn singular_matrix_gets_jitter_and_is_counted() {
+        let before = jitter_events();
+        // Rank-one matrix: exactly singular.
+        let v = [1.0, 2.0, 3.0];
+        let mut ws = CholeskyWorkspace::new(3);
+        for j in 0..3 {
+            for i in 0..3 {
+                ws.factor[i + 3 * j] = v[i] * v[j];
+            }
+        }
+        let jitter = ws.factorize().expect("jitter should rescue a PSD matrix");
+        assert!(jitter > 0.0);
+        assert!(jitter_events() > before);
+    }
+
+    #[test]
+    fn indefinite_matrix_is_an_error_not_a_silent_answer() {
+        let mut ws = CholeskyWorkspace::new(2);
+        ws.factor.copy_from_slice(&[1.0, 3.0, 3.0, 1.0]);
+        assert!(ws.factorize().is_err());
+    }
+
+    #[test]
+    fn gram_fill_matches_cross_cov() {
+        let x = [0.1, 0.35, 0.8, 1.0];
+        let h = [1.3, 0.4, 1.7, 0.2];
+        let g = DiscrepancyGram::new(&x);
+        let mut lower = vec![0.0; 16];
+        let mut xr = vec![0.0; 4];
+        g.fill_lower(DiscrepancyKernel::KernelI, &h, &mut lower, &mut xr);
+        let mut full = vec![0.0; 16];
+        discrepancy_cross_cov(DiscrepancyKernel::KernelI, &h, &x, &x, &mut full);
+        for j in 0..4 {
+            for i in j..4 {
+                assert!((lower[i + 4 * j] - full[i + 4 * j]).abs() < 1e-14);
+            }
+        }
+        // Kernel I at x = x' = 1: s² + c̄².
+        assert!((full[15] - (0.04 + 1.69)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn solve_recovers_rhs() {
+        let a = [4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 2.0];
+        let mut ws = CholeskyWorkspace::new(3);
+        ws.factor.copy_from_slice(&a);
+        ws.factorize().unwrap();
+        let x = [1.0, -2.0, 0.5];
+        let mut b = [0.0; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                b[i] += a[i + 3 * j] * x[j];
+            }
+        }
+        ws.solve_in_place(&mut b);
+        for i in 0..3 {
+            assert!((b[i] - x[i]).abs() < 1e-12);
+        }
+    }
+}

@@ -1,0 +1,25 @@
+//! mdpipe: Bayesian calibration of simulators with a Kennedy–O'Hagan
+//! model-discrepancy term (Jaiswal, Shen, Furnstahl, Heinz & Pratola 2025).
+//!
+//! Stages: `design` → `ingest` → `emulator` → `calibrate` → `diagnose`,
+//! each reading and writing Parquet artifacts (see ARCHITECTURE.md).
+
+pub mod artifacts;
+pub mod calibrate;
+pub mod config;
+pub mod gp;
+pub mod models;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// A progress bar on stderr; indicatif hides it when stderr is not a terminal
+/// (batch jobs), so logs stay clean.
+pub fn progress_bar(len: u64, message: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{msg:48} [{elapsed_precise}] {wide_bar} {percent:>3}%")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    pb.set_message(message.to_string());
+    pb
+}

@@ -1,0 +1,158 @@
+//! The ball-drop experiment of Jaiswal et al. (2025), after Kennedy & O'Hagan.
+//!
+//! Conventions: `v` is the downward speed (m/s), `h` the height (m),
+//! `dh/dt = -v`. The truth integrates `dv/dt = g + f(v)` for an extra force
+//! per unit mass `f` (drag, buoyancy, ...); the base model has `f = 0`.
+
+use crate::artifacts::Measurement;
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+
+pub const OBSERVABLES: [&str; 3] = ["height", "velocity", "acceleration"];
+
+/// Extra physics acting on the ball, per unit mass, in m/s².
+/// Signs: positive values decelerate a falling ball.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExtraForces {
+    /// Quadratic (form) drag coefficient k in `-k v|v|`, 1/m.
+    pub quadratic_drag: f64,
+    /// Linear (Stokes) drag coefficient b in `-b v`, 1/s.
+    pub linear_drag: f64,
+    /// Constant upward force per unit mass (buoyancy, thrust), m/s².
+    pub constant_force: f64,
+    /// Gravity gradient: g grows as the ball falls, `g (1 + γ (h0 - h))`, γ in 1/m.
+    /// Tiny on Earth, it stands for any height-dependent force.
+    pub height_gradient: f64,
+}
+
+impl ExtraForces {
+    pub fn none() -> Self {
+        Self::default()
+    }
+
+    /// Acceleration (downward positive) at speed v and depth `drop = h0 - h`.
+    #[inline]
+    pub fn acceleration(&self, g: f64, v: f64, drop: f64) -> f64 {
+        g * (1.0 + self.height_gradient * drop) - self.quadratic_drag * v * v.abs() - self.linear_drag * v - self.constant_force
+    }
+}
+
+/// Initial conditions and gravity.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BallDropSetup {
+    pub h0: f64,
+    pub g: f64,
+    pub v0: f64,
+}
+
+impl Default for BallDropSetup {
+    fn default() -> Self {
+        BallDropSetup { h0: 60.0, g: 9.8, v0: 0.0 }
+    }
+}
+
+/// State of the ball at time t: (height, velocity, acceleration).
+pub fn truth_state(setup: &BallDropSetup, forces: &ExtraForces, t: f64) -> [f64; 3] {
+    // Classical RK4 on (drop, v) with a fixed small step: the right-hand side
+    // is smooth, so 1e-4 s steps give errors far below 1e-10.
+    let steps = ((t.abs() / 1e-4).ceil() as usize).max(1);
+    let dt = t / steps as f64;
+    let (mut drop, mut v) = (0.0_f64, setup.v0);
+    let f = |drop: f64, v: f64| (v, forces.acceleration(setup.g, v, drop));
+    for _ in 0..steps {
+        let (k1d, k1v) = f(drop, v);
+        let (k2d, k2v) = f(drop + 0.5 * dt * k1d, v + 0.5 * dt * k1v);
+        let (k3d, k3v) = f(drop + 0.5 * dt * k2d, v + 0.5 * dt * k2v);
+        let (k4d, k4v) = f(drop + dt * k3d, v + dt * k3v);
+        drop += dt / 6.0 * (k1d + 2.0 * k2d + 2.0 * k3d + k4d);
+        v += dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
+    }
+    [setup.h0 - drop, v, forces.acceleration(setup.g, v, drop)]
+}
+
+/// The drag-free model: `h = h0 - v0 t - g t²/2`, `v = v0 + g t`, `a = g`.
+#[inline]
+pub fn model_value(observable: usize, h0: f64, g: f64, v0: f64, t: f64) -> f64 {
+    match observable {
+        0 => h0 - v0 * t - 0.5 * g * t * t,
+        1 => v0 + g * t,
+        _ => g,
+    }
+}
+
+pub fn observable_index(name: &str) -> Option<usize> {
+    OBSERVABLES.iter().position(|o| *o == name)
+}
+
+/// Options for mock measurements.
+#[derive(Clone, Debug)]
+pub struct MockOptions {
+    pub setup: BallDropSetup,
+    pub forces: ExtraForces,
+    /// Measurement times (s).
+    pub times: Vec<f64>,
+    /// 1σ errors of height, velocity, acceleration.
+    pub sigma: [f64; 3],
+}
+
+impl Default for MockOptions {
+    fn default() -> Self {
+        MockOptions {
+            setup: BallDropSetup::default(),
+            forces: ExtraForces { quadratic_drag: 0.4, ..ExtraForces::none() },
+            times: default_times(),
+            sigma: [0.1, 0.2, 0.3],
+        }
+    }
+}
+
+/// Ten equally spaced times over (0, 1] s.
+pub fn default_times() -> Vec<f64> {
+    (1..=10).map(|i| i as f64 * 0.1).collect()
+}
+
+/// Draws noisy measurements of the truth.
+pub fn mock_measurements<R: Rng>(opts: &MockOptions, rng: &mut R) -> Vec<Measurement> {
+    let mut out = Vec::new();
+    for (k, name) in OBSERVABLES.iter().enumerate() {
+        let noise = Normal::new(0.0, opts.sigma[k]).expect("sigma must be positive");
+        for &t in &opts.times {
+            let truth = truth_state(&opts.setup, &opts.forces, t)[k];
+            out.push(Measurement::new(name, t, truth + noise.sample(rng), opts.sigma[k]));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rk4_matches_closed_form_quadratic_drag() {
+        // From rest: v = sqrt(g/k) tanh(sqrt(gk) t), drop = ln cosh(sqrt(gk) t)/k.
+        let setup = BallDropSetup::default();
+        let forces = ExtraForces { quadratic_drag: 0.4, ..ExtraForces::none() };
+        let (g, k) = (setup.g, 0.4);
+        for &t in &[0.1, 0.5, 1.0, 2.0] {
+            let s = truth_state(&setup, &forces, t);
+            let w = (g * k).sqrt() * t;
+            let v = (g / k).sqrt() * w.tanh();
+            let h = setup.h0 - w.cosh().ln() / k;
+            assert!((s[0] - h).abs() < 1e-9, "h at {t}: {} vs {h}", s[0]);
+            assert!((s[1] - v).abs() < 1e-9);
+            assert!((s[2] - (g - k * v * v)).abs() < 1e-8);
+        }
+    }
+
+    #[test]
+    fn no_forces_truth_equals_model() {
+        let setup = BallDropSetup { h0: 60.0, g: 9.8, v0: 0.7 };
+        for &t in &[0.0, 0.3, 1.0] {
+            let s = truth_state(&setup, &ExtraForces::none(), t);
+            for k in 0..3 {
+                assert!((s[k] - model_value(k, 60.0, 9.8, 0.7, t)).abs() < 1e-9);
+            }
+        }
+    }
+}
