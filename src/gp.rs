@@ -96,21 +96,35 @@ pub fn discrepancy_cross_cov(kernel: DiscrepancyKernel, hyper: &[f64], xa: &[f64
 pub struct DiscrepancyGram {
     pub x: Vec<f64>,
     ln_x: Vec<f64>,
-    /// Lower triangle of squared distances, packed by column.
-    sq_dist: Vec<f64>,
+    /// Distinct squared distances (equally spaced inputs have only n of them).
+    unique_sq_dist: Vec<f64>,
+    /// For the packed lower triangle (by column), the index into `unique_sq_dist`.
+    pair_index: Vec<u32>,
 }
 
 impl DiscrepancyGram {
     pub fn new(x: &[f64]) -> Self {
         let n = x.len();
-        let mut sq_dist = Vec::with_capacity(n * (n + 1) / 2);
+        let mut unique_sq_dist: Vec<f64> = Vec::new();
+        let mut pair_index = Vec::with_capacity(n * (n + 1) / 2);
         for j in 0..n {
             for i in j..n {
                 let d = x[i] - x[j];
-                sq_dist.push(d * d);
+                let d2 = d * d;
+                // Lags of an equally spaced grid agree to rounding; merging them
+                // changes K by ~1e-13 relative and saves most of the exp calls.
+                let tol = 1e-13 * d2.max(1e-300);
+                let k = match unique_sq_dist.iter().position(|u| (u - d2).abs() <= tol) {
+                    Some(k) => k,
+                    None => {
+                        unique_sq_dist.push(d2);
+                        unique_sq_dist.len() - 1
+                    }
+                };
+                pair_index.push(k as u32);
             }
         }
-        DiscrepancyGram { x: x.to_vec(), ln_x: x.iter().map(|v| v.ln()).collect(), sq_dist }
+        DiscrepancyGram { x: x.to_vec(), ln_x: x.iter().map(|v| v.ln()).collect(), unique_sq_dist, pair_index }
     }
 
     pub fn len(&self) -> usize {
@@ -121,10 +135,10 @@ impl DiscrepancyGram {
         self.x.is_empty()
     }
 
-    /// Writes the lower triangle of `K(x,x)` (column-major `n*n`) and returns it.
-    /// `xr` is scratch of length n for `x_i^r`.
+    /// Writes the lower triangle of `K(x,x)` (column-major `n*n`).
+    /// `xr` is scratch of length n for `x_i^r`; `corr` of length `n_unique()`.
     #[inline]
-    pub fn fill_lower(&self, kernel: DiscrepancyKernel, hyper: &[f64], out: &mut [f64], xr: &mut [f64]) {
+    pub fn fill_lower(&self, kernel: DiscrepancyKernel, hyper: &[f64], out: &mut [f64], xr: &mut [f64], corr: &mut [f64]) {
         let n = self.x.len();
         let (cbar, ell, r) = (hyper[0], hyper[1], hyper[2]);
         let s2 = match kernel {
@@ -137,14 +151,21 @@ impl DiscrepancyGram {
             xr[i] = if self.x[i] == 0.0 { pow_r(0.0, r) } else { (r * self.ln_x[i]).exp() };
         }
         let neg_inv_two_ell2 = -0.5 / (ell * ell);
+        for (c, d2) in corr.iter_mut().zip(&self.unique_sq_dist) {
+            *c = (d2 * neg_inv_two_ell2).exp();
+        }
         let mut k = 0;
         for j in 0..n {
             let cj = c2 * xr[j];
             for i in j..n {
-                out[i + j * n] = s2 + cj * xr[i] * (self.sq_dist[k] * neg_inv_two_ell2).exp();
+                out[i + j * n] = s2 + cj * xr[i] * corr[self.pair_index[k] as usize];
                 k += 1;
             }
         }
+    }
+
+    pub fn n_unique(&self) -> usize {
+        self.unique_sq_dist.len()
     }
 }
 
@@ -173,6 +194,35 @@ pub fn reset_jitter_events() {
 
 /// Relative jitters tried in turn, as multiples of the mean diagonal.
 const JITTER_LADDER: [f64; 6] = [0.0, 1e-12, 1e-10, 1e-8, 1e-6, 1e-4];
+
+/// Below this size a plain unblocked factorization beats faer's blocked
+/// kernel, whose set-up cost dominates for the discrepancy blocks (n ≈ 10)
+/// evaluated millions of times; `mdpipe bench` measures the difference.
+const SMALL_N: usize = 24;
+
+/// Left-looking unblocked Cholesky of the lower triangle (column-major).
+fn cholesky_unblocked(a: &mut [f64], n: usize) -> bool {
+    for j in 0..n {
+        let mut d = a[j + j * n];
+        for k in 0..j {
+            d -= a[j + k * n] * a[j + k * n];
+        }
+        if !(d > 0.0) || !d.is_finite() {
+            return false;
+        }
+        let d = d.sqrt();
+        a[j + j * n] = d;
+        let inv = 1.0 / d;
+        for i in j + 1..n {
+            let mut s = a[i + j * n];
+            for k in 0..j {
+                s -= a[i + k * n] * a[j + k * n];
+            }
+            a[i + j * n] = s * inv;
+        }
+    }
+    true
+}
 
 /// Reusable scratch for repeated Cholesky factorizations of one size.
 pub struct CholeskyWorkspace {
@@ -221,15 +271,12 @@ impl CholeskyWorkspace {
                     self.factor[i * n + i] += rel * mean_diag.abs().max(f64::MIN_POSITIVE);
                 }
             }
-            let a = MatMut::from_column_major_slice_mut(&mut self.factor, n, n);
-            let ok = cholesky_in_place(
-                a,
-                Default::default(),
-                Par::Seq,
-                MemStack::new(&mut self.stack),
-                Spec::<LltParams, f64>::default(),
-            )
-            .is_ok();
+            let ok = if n <= SMALL_N {
+                cholesky_unblocked(&mut self.factor, n)
+            } else {
+                let a = MatMut::from_column_major_slice_mut(&mut self.factor, n, n);
+                cholesky_in_place(a, Default::default(), Par::Seq, MemStack::new(&mut self.stack), Spec::<LltParams, f64>::default()).is_ok()
+            };
             if ok && (0..n).all(|i| self.factor[i * n + i].is_finite()) {
                 if attempt > 0 {
                     let count = JITTER_EVENTS.fetch_add(1, Ordering::Relaxed);
@@ -250,11 +297,31 @@ impl CholeskyWorkspace {
     /// `log det A` from the factor.
     pub fn log_det(&self) -> f64 {
         let n = self.n;
-        2.0 * (0..n).map(|i| self.factor[i * n + i].ln()).sum::<f64>()
+        // One log of the product instead of n logs, unless it could leave the normal range.
+        let mut prod = 1.0;
+        for i in 0..n {
+            prod *= self.factor[i * n + i];
+            if !(1e-150..=1e150).contains(&prod) {
+                return 2.0 * (0..n).map(|i| self.factor[i * n + i].ln()).sum::<f64>();
+            }
+        }
+        2.0 * prod.ln()
     }
 
     /// Solves `L z = b` in place (forward substitution).
     pub fn solve_lower_in_place(&self, b: &mut [f64]) {
+        let n = self.n;
+        if n <= SMALL_N {
+            let l = &self.factor;
+            for i in 0..n {
+                let mut s = b[i];
+                for k in 0..i {
+                    s -= l[i + k * n] * b[k];
+                }
+                b[i] = s / l[i + i * n];
+            }
+            return;
+        }
         let l = MatRef::from_column_major_slice(&self.factor, self.n, self.n);
         let rhs = MatMut::from_column_major_slice_mut(b, self.n, 1);
         faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, rhs, Par::Seq);
@@ -353,7 +420,8 @@ mod tests {
         let g = DiscrepancyGram::new(&x);
         let mut lower = vec![0.0; 16];
         let mut xr = vec![0.0; 4];
-        g.fill_lower(DiscrepancyKernel::KernelI, &h, &mut lower, &mut xr);
+        let mut corr = vec![0.0; g.n_unique()];
+        g.fill_lower(DiscrepancyKernel::KernelI, &h, &mut lower, &mut xr, &mut corr);
         let mut full = vec![0.0; 16];
         discrepancy_cross_cov(DiscrepancyKernel::KernelI, &h, &x, &x, &mut full);
         for j in 0..4 {

@@ -5,6 +5,7 @@
 //! each reading and writing Parquet artifacts (see ARCHITECTURE.md).
 
 pub mod artifacts;
+pub mod bench;
 pub mod calibrate;
 pub mod config;
 pub mod gp;

@@ -55,6 +55,23 @@ enum Command {
         #[arg(long)]
         sampler: Option<String>,
     },
+    /// Benchmarks: likelihood throughput (one core) and the full comparison grid
+    Bench {
+        #[arg(default_value = "pipeline/ball_drop.toml")]
+        config: PathBuf,
+        /// Likelihood evaluations per kernel
+        #[arg(long, default_value_t = 2_000_000)]
+        evaluations: usize,
+        /// Skip the comparison grid
+        #[arg(long)]
+        likelihood_only: bool,
+        #[arg(long)]
+        sampler: Option<String>,
+        #[arg(long, default_value = "outputs/bench")]
+        out: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Generate mock measurements from a built-in truth
     Simulate {
         #[command(subcommand)]
@@ -80,7 +97,7 @@ enum SimulateSystem {
         v0: f64,
         #[arg(long, default_value_t = 60.0)]
         h0: f64,
-        /// Number of measurement times, equally spaced over (0, t-max]
+        /// Number of measurement times, equally spaced over [0, t-max]
         #[arg(long, default_value_t = 10)]
         points: usize,
         #[arg(long, default_value_t = 1.0)]
@@ -129,6 +146,27 @@ fn run(cli: Cli) -> Result<()> {
             println!("{table}");
             println!("wrote {}/compare.md and compare.parquet", args.out.display());
         }
+        Command::Bench { config, evaluations, likelihood_only, sampler, out, seed } => {
+            let config = Config::load(&config)?;
+            for kernel in compare::KERNELS {
+                let b = mdpipe::bench::likelihood_throughput(&config, kernel, evaluations)?;
+                println!(
+                    "likelihood kernel={:<4} dim={:>2} points={}: {:>10.0} evaluations/s on one core ({:.1} ns each)",
+                    b.kernel, b.dim, b.n_points, b.evaluations_per_second_one_core, 1e9 / b.evaluations_per_second_one_core
+                );
+            }
+            if !likelihood_only {
+                let overrides = parse_overrides(None, None, None, sampler)?;
+                let (total, rows) = mdpipe::bench::compare_grid(&config, &overrides, seed, &out)?;
+                for r in &rows {
+                    println!(
+                        "{:<40} {:<8} {:>6.2} s  min ESS {:>6.0}  min ESS/s {:>8.0}  {}",
+                        r.case, r.sampler, r.seconds, r.min_ess, r.min_ess_per_second, if r.converged { "converged" } else { "NOT CONVERGED" }
+                    );
+                }
+                println!("full 9-case grid: {total:.2} s on {} threads", rayon::current_num_threads());
+            }
+        }
         Command::Simulate { system: SimulateSystem::BallDrop { seed, out, k, g, v0, h0, points, t_max, sigma } } => {
             if sigma.len() != 3 || sigma.iter().any(|s| !(*s > 0.0)) {
                 bail!("--sigma needs three positive errors (height, velocity, acceleration)");
@@ -136,7 +174,7 @@ fn run(cli: Cli) -> Result<()> {
             let opts = ball_drop::MockOptions {
                 setup: ball_drop::BallDropSetup { h0, g, v0 },
                 forces: ball_drop::ExtraForces { quadratic_drag: k, ..Default::default() },
-                times: (1..=points).map(|i| t_max * i as f64 / points as f64).collect(),
+                times: ball_drop::equally_spaced_times(points, t_max),
                 sigma: [sigma[0], sigma[1], sigma[2]],
             };
             let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);

@@ -18,13 +18,15 @@ pub struct EnsembleSettings {
     pub steps: usize,
     /// Steps discarded at the start.
     pub burn: usize,
+    /// Keep every `thin`-th step (memory only: thinning never adds information).
+    pub thin: usize,
     /// Stretch-move scale a (emcee's default is 2).
     pub stretch: f64,
 }
 
 impl Default for EnsembleSettings {
     fn default() -> Self {
-        EnsembleSettings { walkers: 0, steps: 3000, burn: 2000, stretch: 2.0 }
+        EnsembleSettings { walkers: 0, steps: 40000, burn: 10000, thin: 10, stretch: 2.0 }
     }
 }
 
@@ -73,7 +75,7 @@ impl Ensemble {
                 let mut rng = master.clone();
                 let mut x = vec![0.0; dim];
                 prior.sample(&mut rng, &mut x);
-                Walker { x, log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps * dim) }
+                Walker { x, log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim) }
             })
             .collect();
         walkers.par_iter_mut().for_each(|w| w.log_post = log_post(&w.x));
@@ -107,7 +109,7 @@ impl Ensemble {
                     })
                     .sum::<u64>();
             }
-            if step >= self.settings.burn {
+            if step >= self.settings.burn && (step - self.settings.burn) % self.settings.thin.max(1) == 0 {
                 for w in walkers.iter_mut() {
                     w.trace.extend_from_slice(&w.x);
                 }

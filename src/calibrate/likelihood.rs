@@ -74,6 +74,7 @@ struct Workspace {
     eta: Vec<f64>,
     resid: Vec<f64>,
     xr: Vec<f64>,
+    corr: Vec<f64>,
 }
 
 static NEXT_ID: AtomicU64 = AtomicU64::new(1);
@@ -133,6 +134,7 @@ impl MdLikelihood {
             eta: vec![0.0; nmax],
             resid: vec![0.0; nmax],
             xr: vec![0.0; nmax],
+            corr: vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)],
         }
     }
 
@@ -176,7 +178,7 @@ impl MdLikelihood {
                 }
                 Some(kernel) => {
                     let chol = &mut ws.chol[b];
-                    block.gram.fill_lower(kernel, self.hyper_of(params, b), &mut chol.factor, &mut ws.xr[..n]);
+                    block.gram.fill_lower(kernel, self.hyper_of(params, b), &mut chol.factor, &mut ws.xr[..n], &mut ws.corr);
                     for i in 0..n {
                         let s = block.error[i] * inv_scale;
                         chol.factor[i * n + i] += s * s;

@@ -106,9 +106,14 @@ impl Default for MockOptions {
     }
 }
 
-/// Ten equally spaced times over (0, 1] s.
+/// Ten equally spaced times over [0, 1] s. The first point at t = 0, where
+/// model and truth agree, is what lets the `(x x')^r` kernels pin g.
 pub fn default_times() -> Vec<f64> {
-    (1..=10).map(|i| i as f64 * 0.1).collect()
+    equally_spaced_times(10, 1.0)
+}
+
+pub fn equally_spaced_times(points: usize, t_max: f64) -> Vec<f64> {
+    (0..points).map(|i| t_max * i as f64 / (points.max(2) - 1) as f64).collect()
 }
 
 /// Draws noisy measurements of the truth.
