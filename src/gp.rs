@@ -366,7 +366,7 @@ mod tests {
     #[test]
     fn logpdf_matches_diagonal_closed_form() {
         let r = [0.3, -1.2, 0.7];
-        let var = [0.5, 2.0, 1.5];
+        let var: [f64; 3] = [0.5, 2.0, 1.5];
         let mut cov = vec![0.0; 9];
         for i in 0..3 {
             cov[i * 3 + i] = var[i];

@@ -43,12 +43,12 @@ pub struct SmcSettings {
 impl Default for SmcSettings {
     fn default() -> Self {
         SmcSettings {
-            particles: 1000,
+            particles: 2000,
             replicates: 4,
             ess_fraction: 0.5,
-            steps_per_dim: 2.0,
-            max_steps_per_dim: 10.0,
-            final_steps_per_dim: 4.0,
+            steps_per_dim: 3.0,
+            max_steps_per_dim: 12.0,
+            final_steps_per_dim: 15.0,
             target_acceptance: 0.234,
         }
     }

@@ -1,0 +1,155 @@
+//! The paper's ball-drop findings on the bundled mock data
+//! (`pipeline/ball_drop_data.csv`, made by `mdpipe simulate ball-drop --seed 1`),
+//! agreement of the two samplers, and clear errors on bad input.
+
+use mdpipe::calibrate::summary::{ParamSummary, Summary};
+use mdpipe::calibrate::{self, compare, diagnostics, Overrides, Problem};
+use mdpipe::config::{Config, SamplerKind};
+use mdpipe::gp::DiscrepancyKernel;
+use std::path::{Path, PathBuf};
+
+fn config() -> Config {
+    Config::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml").as_path()).unwrap()
+}
+
+fn tmp(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mdpipe-test-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn all_obs() -> Vec<String> {
+    ["height", "velocity", "acceleration"].iter().map(|s| s.to_string()).collect()
+}
+
+#[test]
+fn paper_findings_hold_on_bundled_data() {
+    let cfg = config();
+    let out = tmp("grid");
+    let cases = compare::run_grid(&cfg, &Overrides::default(), 1, &out, false).unwrap();
+    assert_eq!(cases.len(), 9);
+    let find = |n: usize, k: Option<DiscrepancyKernel>| -> &Summary {
+        &cases.iter().find(|c| c.observables.len() == n && c.kernel == k).unwrap().calibration.summary
+    };
+    for c in &cases {
+        let d = &c.calibration.summary.diagnostics;
+        let max_rhat = d.parameters.iter().map(|p| p.rhat).fold(0.0, f64::max);
+        assert!(max_rhat < 1.05, "{}: R-hat {max_rhat}", c.dir_name);
+    }
+    // No MD, all observables: narrow and biased.
+    let nomd = &find(3, None).parameters["g"];
+    let k2 = &find(3, Some(DiscrepancyKernel::KernelII)).parameters;
+    assert!(!nomd.covers(9.8), "no-MD g interval [{}, {}] should exclude 9.8", nomd.q025, nomd.q975);
+    assert!(nomd.width95() < k2["g"].width95());
+    // Kernel II, all observables: covers the truth.
+    assert!(k2["g"].covers(9.8), "Kernel II g [{}, {}]", k2["g"].q025, k2["g"].q975);
+    assert!(k2["v0"].covers(0.0), "Kernel II v0 [{}, {}]", k2["v0"].q025, k2["v0"].q975);
+    // Kernel I is wider than Kernel II for every observable set.
+    for n in 1..=3 {
+        let k1 = &find(n, Some(DiscrepancyKernel::KernelI)).parameters;
+        let k2 = &find(n, Some(DiscrepancyKernel::KernelII)).parameters;
+        assert!(k1["g"].width95() > k2["g"].width95(), "set {n}: Kernel I g width {} vs II {}", k1["g"].width95(), k2["g"].width95());
+    }
+    // The tables exist and name every case.
+    let md = std::fs::read_to_string(out.join("compare.md")).unwrap();
+    assert_eq!(md.lines().filter(|l| l.starts_with("| height")).count(), 9);
+    assert!(out.join("compare.parquet").exists());
+}
+
+/// Means and sds of θ from SMC and the ensemble sampler agree within 4×
+/// their combined Monte Carlo error.
+#[test]
+fn smc_and_ensemble_agree_on_ball_drop() {
+    let cfg = config();
+    for kernel in [None, Some(DiscrepancyKernel::KernelII)] {
+        let mut runs = Vec::new();
+        for sampler in [SamplerKind::Smc, SamplerKind::Ensemble] {
+            let ov = Overrides { kernel: Some(kernel), observables: Some(all_obs()), sampler: Some(sampler), ..Default::default() };
+            let problem = Problem::new(&cfg, &ov).unwrap();
+            let cal = calibrate::run(&problem, 21, false).unwrap();
+            runs.push(cal.chains);
+        }
+        for p in 0..2 {
+            let s: Vec<ParamSummary> = runs.iter().map(|c| ParamSummary::from_draws(&c.param(p))).collect();
+            let ess: Vec<f64> = runs.iter().map(|c| diagnostics::ess_bulk(&c.param_chains(p))).collect();
+            let mc = (s[0].sd.powi(2) / ess[0] + s[1].sd.powi(2) / ess[1]).sqrt();
+            assert!(
+                (s[0].mean - s[1].mean).abs() < 4.0 * mc,
+                "kernel {:?} param {p}: SMC mean {} vs ensemble {} (MC error {mc:.3e}; ESS {:?})",
+                kernel,
+                s[0].mean,
+                s[1].mean,
+                ess
+            );
+            let sd_err = 4.0 * (1.0 / (2.0 * ess[0]) + 1.0 / (2.0 * ess[1])).sqrt();
+            assert!((s[0].sd / s[1].sd - 1.0).abs() < sd_err, "kernel {:?} param {p}: sd {} vs {}", kernel, s[0].sd, s[1].sd);
+        }
+    }
+}
+
+#[test]
+fn calibrate_writes_artifacts_with_provenance() {
+    let cfg = config();
+    let problem = Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() }).unwrap();
+    let cal = calibrate::run(&problem, 5, false).unwrap();
+    let out = tmp("artifacts");
+    calibrate::write_outputs(&out, &problem, &cal).unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    for key in ["median", "q025", "q975", "q16", "q84", "mean", "sd"] {
+        assert!(summary["parameters"]["g"][key].is_number(), "missing {key}");
+        assert!(summary["parameters"]["acceleration.cbar"][key].is_number());
+    }
+    assert!(summary["log_evidence"].is_number() && summary["log_evidence_err"].is_number());
+    assert_eq!(summary["provenance"]["config_hash"].as_str().unwrap(), cfg.hash);
+    assert_eq!(summary["provenance"]["seed"].as_u64().unwrap(), 5);
+    let post = mdpipe::artifacts::read_parquet(&out.join("posterior.parquet")).unwrap();
+    assert!(post.column("height.ell").is_ok() && post.column("v0").is_ok());
+    assert_eq!(post.height(), cal.chains.n_draws());
+    let pred = mdpipe::artifacts::read_parquet(&out.join("predictions.parquet")).unwrap();
+    let x = pred.column("x").unwrap().f64().unwrap().clone();
+    // The grid extends beyond the data (extrapolation to 2 s).
+    assert!(x.iter().flatten().fold(f64::NEG_INFINITY, f64::max) >= 2.0 - 1e-12);
+    // No stray temporary files from the atomic writes.
+    assert!(std::fs::read_dir(&out).unwrap().all(|e| !e.unwrap().file_name().to_string_lossy().starts_with('.')));
+    // The model+δ band at the data should contain most measurements.
+    let rows: Vec<_> = cal.predictions.iter().filter(|r| r.kind == "data").collect();
+    let inside = rows
+        .iter()
+        .filter(|r| {
+            let m = problem.measurements.iter().find(|m| m.observable == r.observable && m.x == r.x).unwrap();
+            (m.value - r.model_md[2]).abs() < 3.0 * m.error + (r.model_md[4] - r.model_md[0])
+        })
+        .count();
+    assert!(inside as f64 >= 0.9 * rows.len() as f64, "{inside}/{}", rows.len());
+}
+
+fn err_of(data: &str) -> String {
+    let d = tmp("bad");
+    let p = d.join("bad.csv");
+    std::fs::write(&p, data).unwrap();
+    let ov = Overrides { data: Some(p), ..Default::default() };
+    match Problem::new(&config(), &ov) {
+        Ok(_) => panic!("bad input was accepted: {data}"),
+        Err(e) => format!("{e:#}"),
+    }
+}
+
+#[test]
+fn bad_input_names_file_line_and_field() {
+    let head = "observable,x,value,error\n";
+    let msg = err_of("observable,x,value\nheight,0,60,0.1\n");
+    assert!(msg.contains("bad.csv") && msg.contains("missing column 'error'"), "{msg}");
+    let msg = err_of(&format!("{head}height,0,60,0.1\nheight,0.1,nan,0.1\n"));
+    assert!(msg.contains("line 3") && msg.contains("'value'"), "{msg}");
+    let msg = err_of(&format!("{head}height,0,60,0.1\nheight,0.1,59,-0.1\n"));
+    assert!(msg.contains("line 3") && msg.contains("'error'"), "{msg}");
+    let msg = err_of(&format!("{head}height,0,60,0.1\nheight,0.1,59,0.1\nspeed,0.1,1,0.1\n"));
+    assert!(msg.contains("line 4") && msg.contains("'observable'") && msg.contains("speed"), "{msg}");
+
+    let cfg_text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
+    let d = tmp("badcfg");
+    let p = d.join("cfg.toml");
+    std::fs::write(&p, cfg_text.replace("min = 0.0\nmax = 20.0", "min = 20.0\nmax = 20.0")).unwrap();
+    let msg = format!("{:#}", Config::load(&p).unwrap_err());
+    assert!(msg.contains("cfg.toml") && msg.contains("parameters.g") && msg.contains("min < max"), "{msg}");
+}

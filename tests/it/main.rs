@@ -1,0 +1,6 @@
+//! Integration tests, in one binary so that the release build links once.
+
+mod ball_drop;
+mod closed_form;
+mod common;
+mod sbc;
