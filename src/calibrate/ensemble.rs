@@ -43,7 +43,11 @@ pub struct Ensemble {
 }
 
 struct Walker {
+    /// Position in unbounded coordinates.
     x: Vec<f64>,
+    prop: Vec<f64>,
+    /// The proposal mapped back to the parameter box.
+    scratch: Vec<f64>,
     log_post: f64,
     rng: Xoshiro256PlusPlus,
     accepted: u64,
@@ -61,10 +65,11 @@ impl Ensemble {
         n_walkers += n_walkers % 2;
         let a = self.settings.stretch;
         let mut master = Xoshiro256PlusPlus::seed_from_u64(seed);
-        let log_post = |x: &[f64]| {
-            let lp = prior.log_density(x);
-            if lp.is_finite() {
-                lp + likelihood.log_likelihood(x)
+        // Walkers move in the unbounded coordinates u (UniformPrior::to_unbounded).
+        let log_post = |u: &[f64], x: &mut [f64]| {
+            let log_prior = prior.from_unbounded_with_log_density(u, x);
+            if prior.contains(x) {
+                log_prior + likelihood.log_likelihood(x)
             } else {
                 f64::NEG_INFINITY
             }
@@ -73,12 +78,14 @@ impl Ensemble {
             .map(|_| {
                 master.jump();
                 let mut rng = master.clone();
+                let mut draw = vec![0.0; dim];
+                prior.sample(&mut rng, &mut draw);
                 let mut x = vec![0.0; dim];
-                prior.sample(&mut rng, &mut x);
-                Walker { x, log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim) }
+                prior.to_unbounded(&draw, &mut x);
+                Walker { x, prop: vec![0.0; dim], scratch: draw, log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim) }
             })
             .collect();
-        walkers.par_iter_mut().for_each(|w| w.log_post = log_post(&w.x));
+        walkers.par_iter_mut().for_each(|w| w.log_post = log_post(&w.x, &mut w.scratch));
         let mut evaluations = n_walkers as u64;
         let half = n_walkers / 2;
         let total_steps = self.settings.burn + self.settings.steps;
@@ -94,12 +101,14 @@ impl Ensemble {
                         // z ~ g(z) ∝ 1/sqrt(z) on [1/a, a].
                         let z = ((a - 1.0) * u + 1.0).powi(2) / a;
                         let partner = &others[j].x;
-                        let prop: Vec<f64> = (0..dim).map(|k| partner[k] + z * (w.x[k] - partner[k])).collect();
-                        let lp = log_post(&prop);
+                        for k in 0..dim {
+                            w.prop[k] = partner[k] + z * (w.x[k] - partner[k]);
+                        }
+                        let lp = log_post(&w.prop, &mut w.scratch);
                         let log_ratio = (dim as f64 - 1.0) * z.ln() + lp - w.log_post;
                         let r: f64 = w.rng.random();
                         if lp.is_finite() && (r.ln() < log_ratio || !w.log_post.is_finite()) {
-                            w.x = prop;
+                            std::mem::swap(&mut w.x, &mut w.prop);
                             w.log_post = lp;
                             if step >= self.settings.burn {
                                 w.accepted += 1;
@@ -111,7 +120,8 @@ impl Ensemble {
             }
             if step >= self.settings.burn && (step - self.settings.burn) % self.settings.thin.max(1) == 0 {
                 for w in walkers.iter_mut() {
-                    w.trace.extend_from_slice(&w.x);
+                    prior.from_unbounded(&w.x, &mut w.scratch);
+                    w.trace.extend_from_slice(&w.scratch);
                 }
             }
             if let Some(pb) = progress {

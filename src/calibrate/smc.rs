@@ -205,8 +205,8 @@ fn reindex(x: &[f64], dim: usize, ancestors: &[usize]) -> Vec<f64> {
     out
 }
 
-/// Lower Cholesky factor of the particles' covariance, scaled to a proposal.
-fn proposal_factor(x: &[f64], dim: usize, prior: &UniformPrior) -> Vec<f64> {
+/// Lower Cholesky factor of the particles' covariance (in the unbounded space).
+fn proposal_factor(x: &[f64], dim: usize) -> Vec<f64> {
     let n = x.len() / dim;
     let mut mean = vec![0.0; dim];
     for row in x.chunks(dim) {
@@ -224,15 +224,14 @@ fn proposal_factor(x: &[f64], dim: usize, prior: &UniformPrior) -> Vec<f64> {
             }
         }
     }
-    // A floor relative to the prior width keeps a collapsed cloud movable.
+    // A small floor keeps a collapsed cloud movable (u is O(1) under the prior).
     for k in 0..dim {
-        let w = prior.upper[k] - prior.lower[k];
-        ws.factor[k + k * dim] += (1e-9 * w) * (1e-9 * w);
+        ws.factor[k + k * dim] += 1e-18;
     }
     if ws.factorize().is_err() {
         let mut diag = vec![0.0; dim * dim];
         for k in 0..dim {
-            diag[k + k * dim] = 0.1 * (prior.upper[k] - prior.lower[k]);
+            diag[k + k * dim] = 0.1;
         }
         return diag;
     }
@@ -244,12 +243,14 @@ fn proposal_factor(x: &[f64], dim: usize, prior: &UniformPrior) -> Vec<f64> {
     ws.factor
 }
 
-/// Random-walk Metropolis moves of every particle at inverse temperature β.
+/// Random-walk Metropolis moves of every particle at inverse temperature β,
+/// in the unbounded coordinates u (target `L(x(u))^β π_u(u)`).
 /// Returns the acceptance rate and the number of likelihood evaluations.
 #[allow(clippy::too_many_arguments)]
 fn rwm_moves(
     x: &mut [f64],
     loglik: &mut [f64],
+    logprior: &mut [f64],
     rngs: &mut [Xoshiro256PlusPlus],
     dim: usize,
     factor: &[f64],
@@ -262,10 +263,12 @@ fn rwm_moves(
     let (accepted, evals) = x
         .par_chunks_mut(dim)
         .zip(loglik.par_iter_mut())
+        .zip(logprior.par_iter_mut())
         .zip(rngs.par_iter_mut())
-        .map(|((xi, li), rng)| {
+        .map(|(((xi, li), pi), rng)| {
             let mut z = vec![0.0; dim];
             let mut prop = vec![0.0; dim];
+            let mut prop_x = vec![0.0; dim];
             let (mut acc, mut evals) = (0u64, 0u64);
             for _ in 0..steps {
                 for zk in z.iter_mut() {
@@ -278,16 +281,19 @@ fn rwm_moves(
                     }
                     prop[i] = xi[i] + scale * s;
                 }
-                if !prior.contains(&prop) {
+                let lpi = prior.from_unbounded_with_log_density(&prop, &mut prop_x);
+                // Far out in u the logistic rounds onto a bound: outside the open box.
+                if !prior.contains(&prop_x) {
                     continue;
                 }
-                let lp = likelihood.log_likelihood(&prop);
+                let lp = likelihood.log_likelihood(&prop_x);
                 evals += 1;
-                let log_ratio = if li.is_finite() { beta * (lp - *li) } else if lp.is_finite() { f64::INFINITY } else { f64::NEG_INFINITY };
+                let log_ratio = if li.is_finite() { beta * (lp - *li) + lpi - *pi } else if lp.is_finite() { f64::INFINITY } else { f64::NEG_INFINITY };
                 let u: f64 = rng.random();
                 if u.ln() < log_ratio {
                     xi.copy_from_slice(&prop);
                     *li = lp;
+                    *pi = lpi;
                     acc += 1;
                 }
             }
@@ -310,9 +316,19 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
         .collect();
     master.long_jump();
 
+    // Particles live in the unbounded coordinates u; see UniformPrior::to_unbounded.
     let mut x = vec![0.0; n * dim];
-    x.par_chunks_mut(dim).zip(rngs.par_iter_mut()).for_each(|(row, rng)| prior.sample(rng, row));
-    let mut loglik: Vec<f64> = x.par_chunks(dim).map(|row| likelihood.log_likelihood(row)).collect();
+    let mut loglik: Vec<f64> = x
+        .par_chunks_mut(dim)
+        .zip(rngs.par_iter_mut())
+        .map(|(row, rng)| {
+            let mut draw = vec![0.0; dim];
+            prior.sample(rng, &mut draw);
+            prior.to_unbounded(&draw, row);
+            likelihood.log_likelihood(&draw)
+        })
+        .collect();
+    let mut logprior: Vec<f64> = x.chunks(dim).map(|u| prior.log_density_unbounded(u)).collect();
     let mut evaluations = n as u64;
     let mut eve: Vec<usize> = (0..n).collect();
 
@@ -346,11 +362,12 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
         let ancestors = multinomial_ancestors(&w, &mut master);
         x = reindex(&x, dim, &ancestors);
         loglik = ancestors.iter().map(|&a| loglik[a]).collect();
+        logprior = ancestors.iter().map(|&a| logprior[a]).collect();
         eve = ancestors.iter().map(|&a| eve[a]).collect();
 
-        let factor = proposal_factor(&x, dim, prior);
+        let factor = proposal_factor(&x, dim);
         let steps = ((base_steps * (settings.target_acceptance / last_acceptance.max(1e-3)).max(1.0)).ceil() as usize).min(max_steps);
-        let (acc, evals) = rwm_moves(&mut x, &mut loglik, &mut rngs, dim, &factor, scale, next, steps, prior, likelihood);
+        let (acc, evals) = rwm_moves(&mut x, &mut loglik, &mut logprior, &mut rngs, dim, &factor, scale, next, steps, prior, likelihood);
         evaluations += evals;
         last_acceptance = acc;
         scale *= (2.0 * (acc - settings.target_acceptance)).exp();
@@ -374,11 +391,17 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
     let unique_fraction = unique.len() as f64 / nf;
     x = reindex(&x, dim, &ancestors);
     loglik = ancestors.iter().map(|&a| loglik[a]).collect();
-    let factor = proposal_factor(&x, dim, prior);
+    logprior = ancestors.iter().map(|&a| logprior[a]).collect();
+    let factor = proposal_factor(&x, dim);
     let final_steps = (settings.final_steps_per_dim * dim as f64).ceil() as usize;
-    let (acc, evals) = rwm_moves(&mut x, &mut loglik, &mut rngs, dim, &factor, scale, 1.0, final_steps, prior, likelihood);
+    let (acc, evals) = rwm_moves(&mut x, &mut loglik, &mut logprior, &mut rngs, dim, &factor, scale, 1.0, final_steps, prior, likelihood);
     evaluations += evals;
     steps_log.push(SmcStep { beta: 1.0, mcmc_steps: final_steps, acceptance: acc });
+    let mut particles = vec![0.0; x.len()];
+    for (u, out) in x.chunks(dim).zip(particles.chunks_mut(dim)) {
+        prior.from_unbounded(u, out);
+    }
+    let x = particles;
 
     ReplicateOutput { particles: x, log_evidence: log_z, relative_variance, steps: steps_log, likelihood_evaluations: evaluations, unique_fraction }
 }

@@ -24,7 +24,7 @@ fn credible_intervals_have_nominal_coverage() {
     let prior = UniformPrior::new(names, vec![-2.0, -2.0, 0.0, 0.05, 0.0], vec![2.0, 2.0, 1.0, 1.0, 2.0]).unwrap();
     let x: Vec<f64> = (1..=8).map(|i| i as f64 / 8.0).collect();
     let err = vec![0.2; 8];
-    let datasets = 100;
+    let datasets = 200;
     let levels = [0.5, 0.9];
     // covered[param][level]
     let results: Vec<[[bool; 2]; 5]> = (0..datasets)
