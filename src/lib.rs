@@ -8,6 +8,7 @@ pub mod artifacts;
 pub mod bench;
 pub mod calibrate;
 pub mod config;
+pub mod demo;
 pub mod gp;
 pub mod models;
 

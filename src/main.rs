@@ -55,6 +55,13 @@ enum Command {
         #[arg(long)]
         sampler: Option<String>,
     },
+    /// The bundled ball-drop example end to end: mock data with concealed drag, then the 3x3 grid
+    Demo {
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, default_value = "outputs/demo")]
+        out: PathBuf,
+    },
     /// Benchmarks: likelihood throughput (one core) and the full comparison grid
     Bench {
         #[arg(default_value = "pipeline/ball_drop.toml")]
@@ -146,6 +153,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("{table}");
             println!("wrote {}/compare.md and compare.parquet", args.out.display());
         }
+        Command::Demo { seed, out } => mdpipe::demo::run(seed, &out)?,
         Command::Bench { config, evaluations, likelihood_only, sampler, out, seed } => {
             let config = Config::load(&config)?;
             for kernel in compare::KERNELS {
