@@ -79,6 +79,11 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// Locate the mismatch, name the missing physics, repair the model, show the fit improve
+    Diagnose {
+        #[command(flatten)]
+        args: CalibrationArgs,
+    },
     /// Generate mock measurements from a built-in truth
     Simulate {
         #[command(subcommand)]
@@ -152,6 +157,14 @@ fn run(cli: Cli) -> Result<()> {
             let table = std::fs::read_to_string(args.out.join("compare.md"))?;
             println!("{table}");
             println!("wrote {}/compare.md and compare.parquet", args.out.display());
+        }
+        Command::Diagnose { args } => {
+            let config = Config::load(&args.config)?;
+            let overrides = parse_overrides(args.data, None, None, None)?;
+            let settings = mdpipe::diagnose::DiagnoseSettings { show_progress: true, ..Default::default() };
+            let run = mdpipe::diagnose::run(&config, &overrides, args.seed, &settings, Some(&args.out))?;
+            mdpipe::diagnose::print(&run.diagnosis);
+            println!("wrote {}/diagnosis.json", args.out.display());
         }
         Command::Demo { seed, out } => mdpipe::demo::run(seed, &out)?,
         Command::Bench { config, evaluations, likelihood_only, sampler, out, seed } => {

@@ -53,22 +53,94 @@ impl Default for BallDropSetup {
 
 /// State of the ball at time t: (height, velocity, acceleration).
 pub fn truth_state(setup: &BallDropSetup, forces: &ExtraForces, t: f64) -> [f64; 3] {
-    // Classical RK4 on (drop, v) with a fixed small step: the right-hand side
-    // is smooth, so 1e-4 s steps give errors far below 1e-10.
-    let steps = ((t.abs() / 1e-4).ceil() as usize).max(1);
-    let dt = t / steps as f64;
-    let (mut drop, mut v) = (0.0_f64, setup.v0);
-    let f = |drop: f64, v: f64| (v, forces.acceleration(setup.g, v, drop));
-    for _ in 0..steps {
-        let (k1d, k1v) = f(drop, v);
-        let (k2d, k2v) = f(drop + 0.5 * dt * k1d, v + 0.5 * dt * k1v);
-        let (k3d, k3v) = f(drop + 0.5 * dt * k2d, v + 0.5 * dt * k2v);
-        let (k4d, k4v) = f(drop + dt * k3d, v + dt * k3v);
-        drop += dt / 6.0 * (k1d + 2.0 * k2d + 2.0 * k3d + k4d);
-        v += dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
-    }
-    [setup.h0 - drop, v, forces.acceleration(setup.g, v, drop)]
+    let mut out = [[0.0; 3]];
+    integrate(setup, forces, &[t], 1e-4, &mut out);
+    out[0]
 }
+
+/// Classical RK4 on (drop, v) from t = 0, reporting (height, velocity,
+/// acceleration) at each requested time t ≥ 0 (any order). The right-hand side
+/// is smooth, so the global error scales as dt⁴: 1e-4 s gives ~1e-13,
+/// 5e-3 s about 1e-8 on the ball drop.
+pub fn integrate(setup: &BallDropSetup, forces: &ExtraForces, times: &[f64], dt_max: f64, out: &mut [[f64; 3]]) {
+    let rhs = |drop: f64, v: f64| (v, forces.acceleration(setup.g, v, drop));
+    let rk4 = |drop: f64, v: f64, dt: f64| {
+        let (k1d, k1v) = rhs(drop, v);
+        let (k2d, k2v) = rhs(drop + 0.5 * dt * k1d, v + 0.5 * dt * k1v);
+        let (k3d, k3v) = rhs(drop + 0.5 * dt * k2d, v + 0.5 * dt * k2v);
+        let (k4d, k4v) = rhs(drop + dt * k3d, v + dt * k3v);
+        (drop + dt / 6.0 * (k1d + 2.0 * k2d + 2.0 * k3d + k4d), v + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
+    };
+    let mut order: Vec<usize> = (0..times.len()).collect();
+    order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
+    let (mut t, mut drop, mut v) = (0.0_f64, 0.0_f64, setup.v0);
+    for &i in &order {
+        let target = times[i].max(0.0);
+        let span = target - t;
+        if span > 0.0 {
+            let steps = (span / dt_max).ceil().max(1.0) as usize;
+            let dt = span / steps as f64;
+            for _ in 0..steps {
+                (drop, v) = rk4(drop, v, dt);
+            }
+            t = target;
+        }
+        out[i] = [setup.h0 - drop, v, forces.acceleration(setup.g, v, drop)];
+    }
+}
+
+/// RK4 step used inside calibration: 0.02 s keeps the solution error below
+/// 1e-5 of the data's 1σ errors over 0–2 s (tested), at 50 steps per second.
+pub const MODEL_DT: f64 = 0.02;
+
+/// A named physics correction for `mdpipe diagnose`: one extra force with
+/// one physical parameter and a uniform prior.
+#[derive(Clone, Copy, Debug)]
+pub struct Candidate {
+    pub name: &'static str,
+    pub description: &'static str,
+    pub parameter: &'static str,
+    pub units: &'static str,
+    pub bounds: (f64, f64),
+    /// Builds the extra forces for a value of the parameter.
+    pub forces: fn(f64) -> ExtraForces,
+}
+
+/// The ball-drop library of candidate corrections.
+pub const CANDIDATES: [Candidate; 4] = [
+    Candidate {
+        name: "linear_drag",
+        description: "Stokes (viscous) drag -b v, dominant for small, slow objects",
+        parameter: "b",
+        units: "1/s",
+        bounds: (0.0, 5.0),
+        forces: |b| ExtraForces { quadratic_drag: 0.0, linear_drag: b, constant_force: 0.0, height_gradient: 0.0 },
+    },
+    Candidate {
+        name: "quadratic_drag",
+        description: "form (Newton) drag -k v|v|, dominant at high Reynolds number",
+        parameter: "k",
+        units: "1/m",
+        bounds: (0.0, 2.0),
+        forces: |k| ExtraForces { quadratic_drag: k, linear_drag: 0.0, constant_force: 0.0, height_gradient: 0.0 },
+    },
+    Candidate {
+        name: "constant_force",
+        description: "a constant upward force per unit mass f (buoyancy, thrust); from kinematics alone it is degenerate with g",
+        parameter: "f",
+        units: "m/s^2",
+        bounds: (-10.0, 10.0),
+        forces: |f| ExtraForces { quadratic_drag: 0.0, linear_drag: 0.0, constant_force: f, height_gradient: 0.0 },
+    },
+    Candidate {
+        name: "field_gradient",
+        description: "a force growing linearly with the distance fallen, g (1 + γ (h0 - h)) (a field gradient, a stretching tether)",
+        parameter: "gamma",
+        units: "1/m",
+        bounds: (-0.05, 0.05),
+        forces: |gamma| ExtraForces { quadratic_drag: 0.0, linear_drag: 0.0, constant_force: 0.0, height_gradient: gamma },
+    },
+];
 
 /// The drag-free model: `h = h0 - v0 t - g t²/2`, `v = v0 + g t`, `a = g`.
 #[inline]
@@ -132,6 +204,22 @@ pub fn mock_measurements<R: Rng>(opts: &MockOptions, rng: &mut R) -> Vec<Measure
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn coarse_integration_matches_fine_at_unsorted_times() {
+        let setup = BallDropSetup::default();
+        let forces = ExtraForces { quadratic_drag: 0.4, linear_drag: 0.3, ..ExtraForces::none() };
+        let times = [1.0, 0.0, 0.35, 2.0];
+        let mut coarse = [[0.0; 3]; 4];
+        integrate(&setup, &forces, &times, MODEL_DT, &mut coarse);
+        for (i, &t) in times.iter().enumerate() {
+            let fine = truth_state(&setup, &forces, t);
+            for k in 0..3 {
+                // The smallest measurement error is 0.1: stay 1e4 times below it.
+                assert!((coarse[i][k] - fine[k]).abs() < 1e-5, "t={t} k={k}: {}", (coarse[i][k] - fine[k]).abs());
+            }
+        }
+    }
 
     #[test]
     fn rk4_matches_closed_form_quadratic_drag() {

@@ -35,3 +35,37 @@ impl Simulator for BallDropModel {
         }
     }
 }
+
+/// The ball drop augmented with one candidate correction: parameters
+/// (g, v0, <candidate parameter>), solved by RK4.
+#[derive(Clone, Debug)]
+pub struct AugmentedBallDrop {
+    pub h0: f64,
+    pub candidate: ball_drop::Candidate,
+}
+
+impl Simulator for AugmentedBallDrop {
+    fn parameter_names(&self) -> Vec<String> {
+        vec!["g".into(), "v0".into(), self.candidate.parameter.into()]
+    }
+    fn observable_names(&self) -> Vec<String> {
+        ball_drop::OBSERVABLES.iter().map(|s| s.to_string()).collect()
+    }
+    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
+        let setup = ball_drop::BallDropSetup { h0: self.h0, g: theta[0], v0: theta[1] };
+        let forces = (self.candidate.forces)(theta[2]);
+        // Stack buffer for the usual data sizes, so sampling does not allocate.
+        let mut stack = [[0.0; 3]; 64];
+        let mut heap = Vec::new();
+        let states: &mut [[f64; 3]] = if x.len() <= stack.len() {
+            &mut stack[..x.len()]
+        } else {
+            heap.resize(x.len(), [0.0; 3]);
+            &mut heap
+        };
+        ball_drop::integrate(&setup, &forces, x, ball_drop::MODEL_DT, states);
+        for (o, s) in out.iter_mut().zip(states.iter()) {
+            *o = s[observable];
+        }
+    }
+}
