@@ -33,11 +33,13 @@ pub struct DiagnoseSettings {
     pub strong_log_bf: f64,
     pub min_p_value: f64,
     pub show_progress: bool,
+    /// Refit the winner with MD on top (step 3); blind tests skip it.
+    pub repair: bool,
 }
 
 impl Default for DiagnoseSettings {
     fn default() -> Self {
-        DiagnoseSettings { kernel: DiscrepancyKernel::KernelII, strong_log_bf: 3.0, min_p_value: 1e-3, show_progress: false }
+        DiagnoseSettings { kernel: DiscrepancyKernel::KernelII, strong_log_bf: 3.0, min_p_value: 1e-3, show_progress: false, repair: true }
     }
 }
 
@@ -366,7 +368,7 @@ pub fn run(config: &Config, overrides: &Overrides, seed: u64, settings: &Diagnos
     // Repair: refit the winner with MD on top, to show δ shrink.
     let mut improvement = None;
     let mut repaired_md = None;
-    if named.is_some() {
+    if named.is_some() && settings.repair {
         let (cand, rep_problem, rep) = &candidate_runs[0];
         let cfg = with_candidate_bounds(config, cand);
         let sim = candidate_models(config).into_iter().find(|(c, _)| c.name == cand.name).unwrap().1;

@@ -194,7 +194,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             let opts = ball_drop::MockOptions {
                 setup: ball_drop::BallDropSetup { h0, g, v0 },
-                forces: ball_drop::ExtraForces { quadratic_drag: k, ..Default::default() },
+                forces: ball_drop::ExtraForces { quadratic_drag: k, ..ball_drop::ExtraForces::NONE },
                 times: ball_drop::equally_spaced_times(points, t_max),
                 sigma: [sigma[0], sigma[1], sigma[2]],
             };

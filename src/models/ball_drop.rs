@@ -12,7 +12,7 @@ pub const OBSERVABLES: [&str; 3] = ["height", "velocity", "acceleration"];
 
 /// Extra physics acting on the ball, per unit mass, in m/s².
 /// Signs: positive values decelerate a falling ball.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ExtraForces {
     /// Quadratic (form) drag coefficient k in `-k v|v|`, 1/m.
     pub quadratic_drag: f64,
@@ -23,17 +23,35 @@ pub struct ExtraForces {
     /// Gravity gradient: g grows as the ball falls, `g (1 + γ (h0 - h))`, γ in 1/m.
     /// Tiny on Earth, it stands for any height-dependent force.
     pub height_gradient: f64,
+    /// A periodic upward force `A sin(2π t / T)` (vortex shedding, a vibrating
+    /// tether). Deliberately *not* in the candidate library: blind tests use it
+    /// as the effect diagnose must call "unexplained".
+    pub oscillation_amplitude: f64,
+    pub oscillation_period: f64,
 }
 
 impl ExtraForces {
+    pub const NONE: ExtraForces = ExtraForces {
+        quadratic_drag: 0.0,
+        linear_drag: 0.0,
+        constant_force: 0.0,
+        height_gradient: 0.0,
+        oscillation_amplitude: 0.0,
+        oscillation_period: 1.0,
+    };
+
     pub fn none() -> Self {
-        Self::default()
+        Self::NONE
     }
 
-    /// Acceleration (downward positive) at speed v and depth `drop = h0 - h`.
+    /// Acceleration (downward positive) at speed v, depth `drop = h0 - h` and time t.
     #[inline]
-    pub fn acceleration(&self, g: f64, v: f64, drop: f64) -> f64 {
-        g * (1.0 + self.height_gradient * drop) - self.quadratic_drag * v * v.abs() - self.linear_drag * v - self.constant_force
+    pub fn acceleration(&self, g: f64, v: f64, drop: f64, t: f64) -> f64 {
+        let mut a = g * (1.0 + self.height_gradient * drop) - self.quadratic_drag * v * v.abs() - self.linear_drag * v - self.constant_force;
+        if self.oscillation_amplitude != 0.0 {
+            a -= self.oscillation_amplitude * (2.0 * std::f64::consts::PI * t / self.oscillation_period).sin();
+        }
+        a
     }
 }
 
@@ -63,12 +81,12 @@ pub fn truth_state(setup: &BallDropSetup, forces: &ExtraForces, t: f64) -> [f64;
 /// is smooth, so the global error scales as dt⁴: 1e-4 s gives ~1e-13,
 /// 5e-3 s about 1e-8 on the ball drop.
 pub fn integrate(setup: &BallDropSetup, forces: &ExtraForces, times: &[f64], dt_max: f64, out: &mut [[f64; 3]]) {
-    let rhs = |drop: f64, v: f64| (v, forces.acceleration(setup.g, v, drop));
-    let rk4 = |drop: f64, v: f64, dt: f64| {
-        let (k1d, k1v) = rhs(drop, v);
-        let (k2d, k2v) = rhs(drop + 0.5 * dt * k1d, v + 0.5 * dt * k1v);
-        let (k3d, k3v) = rhs(drop + 0.5 * dt * k2d, v + 0.5 * dt * k2v);
-        let (k4d, k4v) = rhs(drop + dt * k3d, v + dt * k3v);
+    let rhs = |drop: f64, v: f64, t: f64| (v, forces.acceleration(setup.g, v, drop, t));
+    let rk4 = |drop: f64, v: f64, t: f64, dt: f64| {
+        let (k1d, k1v) = rhs(drop, v, t);
+        let (k2d, k2v) = rhs(drop + 0.5 * dt * k1d, v + 0.5 * dt * k1v, t + 0.5 * dt);
+        let (k3d, k3v) = rhs(drop + 0.5 * dt * k2d, v + 0.5 * dt * k2v, t + 0.5 * dt);
+        let (k4d, k4v) = rhs(drop + dt * k3d, v + dt * k3v, t + dt);
         (drop + dt / 6.0 * (k1d + 2.0 * k2d + 2.0 * k3d + k4d), v + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
     };
     let mut order: Vec<usize> = (0..times.len()).collect();
@@ -80,12 +98,12 @@ pub fn integrate(setup: &BallDropSetup, forces: &ExtraForces, times: &[f64], dt_
         if span > 0.0 {
             let steps = (span / dt_max).ceil().max(1.0) as usize;
             let dt = span / steps as f64;
-            for _ in 0..steps {
-                (drop, v) = rk4(drop, v, dt);
+            for k in 0..steps {
+                (drop, v) = rk4(drop, v, t + k as f64 * dt, dt);
             }
             t = target;
         }
-        out[i] = [setup.h0 - drop, v, forces.acceleration(setup.g, v, drop)];
+        out[i] = [setup.h0 - drop, v, forces.acceleration(setup.g, v, drop, t)];
     }
 }
 
@@ -114,7 +132,7 @@ pub const CANDIDATES: [Candidate; 4] = [
         parameter: "b",
         units: "1/s",
         bounds: (0.0, 5.0),
-        forces: |b| ExtraForces { quadratic_drag: 0.0, linear_drag: b, constant_force: 0.0, height_gradient: 0.0 },
+        forces: |b| ExtraForces { linear_drag: b, ..ExtraForces::NONE },
     },
     Candidate {
         name: "quadratic_drag",
@@ -122,7 +140,7 @@ pub const CANDIDATES: [Candidate; 4] = [
         parameter: "k",
         units: "1/m",
         bounds: (0.0, 2.0),
-        forces: |k| ExtraForces { quadratic_drag: k, linear_drag: 0.0, constant_force: 0.0, height_gradient: 0.0 },
+        forces: |k| ExtraForces { quadratic_drag: k, ..ExtraForces::NONE },
     },
     Candidate {
         name: "constant_force",
@@ -130,15 +148,16 @@ pub const CANDIDATES: [Candidate; 4] = [
         parameter: "f",
         units: "m/s^2",
         bounds: (-10.0, 10.0),
-        forces: |f| ExtraForces { quadratic_drag: 0.0, linear_drag: 0.0, constant_force: f, height_gradient: 0.0 },
+        forces: |f| ExtraForces { constant_force: f, ..ExtraForces::NONE },
     },
     Candidate {
         name: "field_gradient",
-        description: "a force growing linearly with the distance fallen, g (1 + γ (h0 - h)) (a field gradient, a stretching tether)",
+        description: "gravity strengthening with the distance fallen, g (1 + γ (h0 - h)), as near an attracting body",
         parameter: "gamma",
         units: "1/m",
-        bounds: (-0.05, 0.05),
-        forces: |gamma| ExtraForces { quadratic_drag: 0.0, linear_drag: 0.0, constant_force: 0.0, height_gradient: gamma },
+        // γ ≥ 0 is the physical sign; a negative γ would mimic quadratic drag (both ∝ t²).
+        bounds: (0.0, 0.05),
+        forces: |gamma| ExtraForces { height_gradient: gamma, ..ExtraForces::NONE },
     },
 ];
 

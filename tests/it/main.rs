@@ -3,4 +3,5 @@
 mod ball_drop;
 mod closed_form;
 mod common;
+mod diagnose;
 mod sbc;

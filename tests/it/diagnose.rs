@@ -1,0 +1,136 @@
+//! `diagnose` on the ball drop: the concealed drag is named and repaired, and
+//! a seeded blind test over many data sets measures identification rates.
+
+use mdpipe::calibrate::Overrides;
+use mdpipe::config::Config;
+use mdpipe::diagnose::{self, DiagnoseSettings};
+use mdpipe::models::ball_drop::{self, ExtraForces, MockOptions};
+use rand::{Rng, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+fn config() -> Config {
+    Config::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml").as_path()).unwrap()
+}
+
+#[test]
+fn names_quadratic_drag_and_recovers_k_and_g() {
+    let cfg = config();
+    let out = std::env::temp_dir().join(format!("mdpipe-diagnose-{}", std::process::id()));
+    let run = diagnose::run(&cfg, &Overrides::default(), 1, &DiagnoseSettings::default(), Some(&out)).unwrap();
+    let d = &run.diagnosis;
+    assert_eq!(d.verdict.best, "quadratic_drag", "{}", d.verdict.statement);
+    let winner = &d.candidates[0];
+    assert!(winner.parameters["k"].covers(0.4), "k {:?}", winner.parameters["k"]);
+    assert!(winner.parameters["g"].covers(9.8), "g {:?}", winner.parameters["g"]);
+    assert!(d.verdict.statement.contains("quadratic drag") && d.verdict.statement.contains("acceleration"));
+    // The mismatch is located where drag acts: late times, data below the model.
+    let acc = d.mismatch.iter().find(|m| m.observable == "acceleration").unwrap();
+    assert!(acc.max_sigma > 3.0 && acc.sign == "below" && acc.grows_with_x);
+    // Repair: δ shrinks, χ²/dof drops to about 1.
+    let imp = d.improvement.as_ref().unwrap();
+    let before = imp.before[1].delta_max_sigma.values().cloned().fold(0.0, f64::max);
+    let after = imp.after[1].delta_max_sigma.values().cloned().fold(0.0, f64::max);
+    assert!(after < before / 3.0, "max |δ| before {before} after {after}");
+    assert!(imp.after[0].chi2_per_dof < 2.0 && imp.before[0].chi2_per_dof > 10.0);
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap()).unwrap();
+    for key in ["mismatch", "candidates", "verdict", "improvement"] {
+        assert!(!json[key].is_null(), "diagnosis.json lacks {key}");
+    }
+}
+
+/// Noise-free size of a concealed effect: the largest |truth - best drag-free
+/// fit| / σ over the data points, the fit being weighted least squares in
+/// (g, v0), which enter the drag-free model linearly.
+fn effect_size(opts: &MockOptions) -> f64 {
+    let h0 = opts.setup.h0;
+    // Rows (a_g, a_v0, target) per measurement.
+    let mut rows = Vec::new();
+    for &t in &opts.times {
+        let s = ball_drop::truth_state(&opts.setup, &opts.forces, t);
+        rows.push((-0.5 * t * t, -t, s[0] - h0, opts.sigma[0]));
+        rows.push((t, 1.0, s[1], opts.sigma[1]));
+        rows.push((1.0, 0.0, s[2], opts.sigma[2]));
+    }
+    let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(p, q, y, s) in &rows {
+        let w = 1.0 / (s * s);
+        a11 += w * p * p;
+        a12 += w * p * q;
+        a22 += w * q * q;
+        b1 += w * p * y;
+        b2 += w * q * y;
+    }
+    let det = a11 * a22 - a12 * a12;
+    let (g, v0) = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det);
+    rows.iter().map(|&(p, q, y, s)| ((y - p * g - q * v0) / s).abs()).fold(0.0, f64::max)
+}
+
+/// The concealed effect of a blind data set, and the verdict it deserves.
+fn blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> (ExtraForces, &'static str) {
+    let u: f64 = rng.random(); // magnitude, weak to strong
+    match k % 5 {
+        0 => (ExtraForces::NONE, "none"),
+        1 => (ExtraForces { linear_drag: 0.05 + 1.2 * u, ..ExtraForces::NONE }, "linear_drag"),
+        2 => (ExtraForces { quadratic_drag: 0.02 + 0.6 * u, ..ExtraForces::NONE }, "quadratic_drag"),
+        3 => (ExtraForces { height_gradient: 0.002 + 0.03 * u, ..ExtraForces::NONE }, "field_gradient"),
+        _ => (ExtraForces { oscillation_amplitude: 0.3 + 3.0 * u, oscillation_period: 0.4, ..ExtraForces::NONE }, "unexplained"),
+    }
+}
+
+#[test]
+fn blind_test_confusion_matrix() {
+    let mut cfg = config();
+    // Lighter sampling: 25 diagnoses must fit in the test budget; evidences
+    // still carry errors of ~0.1, far below the decision threshold of 3.
+    cfg.sampler.smc.particles = 600;
+    cfg.sampler.smc.replicates = 2;
+    cfg.predictions.draws = 300;
+    let settings = DiagnoseSettings { repair: false, ..Default::default() };
+    let dir = std::env::temp_dir().join(format!("mdpipe-blind-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(2026);
+    let mut rows = Vec::new();
+    for k in 0..25 {
+        let (forces, expected) = blind_effect(k, &mut rng);
+        let opts = MockOptions { forces, ..MockOptions::default() };
+        let data = ball_drop::mock_measurements(&opts, &mut rng);
+        let path = dir.join(format!("blind_{k}.csv"));
+        mdpipe::artifacts::write_measurements(&path, &data, None).unwrap();
+        let run = diagnose::run(&cfg, &Overrides { data: Some(path), ..Default::default() }, 100 + k as u64, &settings, None).unwrap();
+        rows.push((expected, run.diagnosis.verdict.best.clone(), effect_size(&opts)));
+    }
+    let labels = ["none", "linear_drag", "quadratic_drag", "field_gradient", "constant_force", "unexplained"];
+    let mut matrix: BTreeMap<(&str, String), usize> = BTreeMap::new();
+    for (e, p, _) in &rows {
+        *matrix.entry((e, p.clone())).or_default() += 1;
+    }
+    println!("confusion matrix (rows: concealed effect, columns: verdict)");
+    print!("{:>16}", "");
+    for l in labels {
+        print!("{l:>16}");
+    }
+    println!();
+    for e in labels.iter().filter(|l| **l != "constant_force") {
+        print!("{e:>16}");
+        for p in labels {
+            print!("{:>16}", matrix.get(&(*e, p.to_string())).copied().unwrap_or(0));
+        }
+        println!();
+    }
+    for (e, p, s) in &rows {
+        println!("  concealed {e:<15} verdict {p:<15} noise-free mismatch {s:.1}σ");
+    }
+    let nulls: Vec<_> = rows.iter().filter(|r| r.0 == "none").collect();
+    let false_alarms = nulls.iter().filter(|r| r.1 != "none").count();
+    assert!(false_alarms as f64 <= 0.05 * nulls.len() as f64, "{false_alarms} false alarms in {} null data sets", nulls.len());
+    let moderate: Vec<_> = rows.iter().filter(|r| r.0 != "none" && r.0 != "unexplained" && r.2 >= 3.0).collect();
+    let correct = moderate.iter().filter(|r| r.0 == r.1).count();
+    assert!(!moderate.is_empty());
+    assert!(correct as f64 >= 0.9 * moderate.len() as f64, "{correct}/{} moderate in-library effects named correctly", moderate.len());
+    // Outside the library: never a wrong name.
+    for r in rows.iter().filter(|r| r.0 == "unexplained") {
+        assert!(r.1 == "unexplained" || (r.1 == "none" && r.2 < 3.0), "out-of-library effect ({:.1}σ) called {}", r.2, r.1);
+    }
+}
