@@ -12,6 +12,7 @@ pub mod demo;
 pub mod diagnose;
 pub mod gp;
 pub mod models;
+pub mod report;
 
 use indicatif::{ProgressBar, ProgressStyle};
 

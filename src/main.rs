@@ -84,6 +84,14 @@ enum Command {
         #[command(flatten)]
         args: CalibrationArgs,
     },
+    /// Build a self-contained HTML report from run folders (calibrate, compare or diagnose outputs)
+    Report {
+        /// Run folders
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        #[arg(long, default_value = "report.html")]
+        out: PathBuf,
+    },
     /// Generate mock measurements from a built-in truth
     Simulate {
         #[command(subcommand)]
@@ -164,7 +172,12 @@ fn run(cli: Cli) -> Result<()> {
             let settings = mdpipe::diagnose::DiagnoseSettings { show_progress: true, ..Default::default() };
             let run = mdpipe::diagnose::run(&config, &overrides, args.seed, &settings, Some(&args.out))?;
             mdpipe::diagnose::print(&run.diagnosis);
-            println!("wrote {}/diagnosis.json", args.out.display());
+            mdpipe::report::write(&[args.out.clone()], &args.out.join("report.html"), "mdpipe diagnose")?;
+            println!("wrote {0}/diagnosis.json and {0}/report.html", args.out.display());
+        }
+        Command::Report { dirs, out } => {
+            mdpipe::report::write(&dirs, &out, "mdpipe report")?;
+            println!("wrote {}", out.display());
         }
         Command::Demo { seed, out } => mdpipe::demo::run(seed, &out)?,
         Command::Bench { config, evaluations, likelihood_only, sampler, out, seed } => {

@@ -242,6 +242,8 @@ pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result
     artifacts::write_json_atomic(&dir.join("summary.json"), &cal.summary)?;
     let mut pred = summary::predictions_frame(&cal.predictions)?;
     artifacts::write_parquet_atomic(&dir.join("predictions.parquet"), &mut pred, Some(prov))?;
-    let _ = problem;
+    // The measurements fitted, so that reports and re-analyses need nothing else.
+    let used: Vec<Measurement> = problem.measurements.iter().filter(|m| problem.observables().contains(&m.observable)).cloned().collect();
+    artifacts::write_measurements(&dir.join("measurements.parquet"), &used, Some(prov))?;
     Ok(())
 }
