@@ -49,6 +49,18 @@ pub fn run(seed: u64, out: &Path) -> Result<()> {
             println!("  log Bayes factor, Kernel II vs no MD: {:.1}", z2 - z0);
         }
     }
-    println!("\nArtifacts: {}/ (one folder per case, compare.md, compare.parquet)", grid_dir.display());
+
+    println!("\n3. Diagnosing: locate the mismatch, try the candidate physics, repair ...");
+    let diag_dir = out.join("diagnose");
+    let settings = crate::diagnose::DiagnoseSettings { show_progress: true, ..Default::default() };
+    let run = crate::diagnose::run(&config, &overrides, seed, &settings, Some(&diag_dir))?;
+    crate::diagnose::print(&run.diagnosis);
+
+    println!("\n4. Writing the report ...");
+    let report = out.join("report.html");
+    crate::report::write(&[diag_dir.clone(), grid_dir.clone()], &report, "mdpipe demo: a ball drop with concealed drag")?;
+    println!("\nVerdict: {}", run.diagnosis.verdict.statement);
+    println!("Artifacts: {}/ and {}/", grid_dir.display(), diag_dir.display());
+    println!("Report: {}", report.display());
     Ok(())
 }

@@ -43,10 +43,8 @@ pub struct Ensemble {
 }
 
 struct Walker {
-    /// Position in unbounded coordinates.
     x: Vec<f64>,
     prop: Vec<f64>,
-    /// The proposal mapped back to the parameter box.
     scratch: Vec<f64>,
     log_post: f64,
     rng: Xoshiro256PlusPlus,
@@ -65,11 +63,12 @@ impl Ensemble {
         n_walkers += n_walkers % 2;
         let a = self.settings.stretch;
         let mut master = Xoshiro256PlusPlus::seed_from_u64(seed);
-        // Walkers move in the unbounded coordinates u (UniformPrior::to_unbounded).
-        let log_post = |u: &[f64], x: &mut [f64]| {
-            let log_prior = prior.from_unbounded_with_log_density(u, x);
-            if prior.contains(x) {
-                log_prior + likelihood.log_likelihood(x)
+        // Walkers move in the parameters themselves: the stretch move is affine
+        // invariant there, and the logit map's heavy tails leave walkers stranded.
+        let log_post = |x: &[f64], _scratch: &mut [f64]| {
+            let lp = prior.log_density(x);
+            if lp.is_finite() {
+                lp + likelihood.log_likelihood(x)
             } else {
                 f64::NEG_INFINITY
             }
@@ -78,10 +77,9 @@ impl Ensemble {
             .map(|_| {
                 master.jump();
                 let mut rng = master.clone();
-                let mut draw = vec![0.0; dim];
-                prior.sample(&mut rng, &mut draw);
                 let mut x = vec![0.0; dim];
-                prior.to_unbounded(&draw, &mut x);
+                prior.sample(&mut rng, &mut x);
+                let draw = x.clone();
                 Walker { x, prop: vec![0.0; dim], scratch: draw, log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim) }
             })
             .collect();
@@ -120,8 +118,7 @@ impl Ensemble {
             }
             if step >= self.settings.burn && (step - self.settings.burn) % self.settings.thin.max(1) == 0 {
                 for w in walkers.iter_mut() {
-                    prior.from_unbounded(&w.x, &mut w.scratch);
-                    w.trace.extend_from_slice(&w.scratch);
+                    w.trace.extend_from_slice(&w.x);
                 }
             }
             if let Some(pb) = progress {

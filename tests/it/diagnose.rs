@@ -38,6 +38,17 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
     for key in ["mismatch", "candidates", "verdict", "improvement"] {
         assert!(!json[key].is_null(), "diagnosis.json lacks {key}");
     }
+    // The report is self-contained: every figure inline, nothing fetched from the network.
+    let html = mdpipe::report::build(&[out.clone()], "test").unwrap();
+    let figures = html.matches("<svg").count();
+    // Mismatch map, BF chart, 2 × (3 δ bands + 3 predictions), a corner plot per observable set.
+    assert!(figures >= 15, "{figures} figures");
+    for bad in ["src=\"http", "href=\"http", "url(http", "<script src", "<link"] {
+        assert!(!html.contains(bad), "external reference {bad}");
+    }
+    for label in ["x [s]", "acceleration [m/s²]", "log BF", "δ/σ", "truth"] {
+        assert!(html.contains(label), "report lacks label {label}");
+    }
 }
 
 /// Noise-free size of a concealed effect: the largest |truth - best drag-free
