@@ -285,14 +285,7 @@ pub fn mismatch_map(d: &Diagnosis, x_units: &str) -> Result<String> {
                 .x_desc(xd.as_str())
                 .y_desc("observable")
                 .y_labels(n * 2 + 1)
-                .y_label_formatter(&|v| {
-                    let k = v.floor() as usize;
-                    if (v - k as f64 - 0.5).abs() < 0.26 && k < names.len() {
-                        names[k].clone()
-                    } else {
-                        String::new()
-                    }
-                })
+                .y_label_formatter(&|v| category_label(&names, *v))
                 .draw());
             for (k, m) in rows.iter().enumerate() {
                 let xs: Vec<f64> = m.map.iter().map(|p| p.0).collect();
@@ -315,6 +308,16 @@ pub fn mismatch_map(d: &Diagnosis, x_units: &str) -> Result<String> {
         W + 120,
         60 + 70 * rows.len() as u32 + 60,
     )
+}
+
+/// Axis label for categories drawn at k + 0.5 on a numeric axis; blank elsewhere.
+fn category_label(names: &[String], v: f64) -> String {
+    let k = v.floor() as usize;
+    if (v - k as f64 - 0.5).abs() < 0.26 && k < names.len() {
+        names[k].clone()
+    } else {
+        String::new()
+    }
 }
 
 /// Blue (negative) – white – red (positive).
@@ -348,14 +351,7 @@ pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
                 .x_desc("candidate")
                 .y_desc("log BF")
                 .x_labels(2 * n + 1)
-                .x_label_formatter(&|v| {
-                    let k = v.floor() as usize;
-                    if (v - k as f64 - 0.5).abs() < 0.26 && k < names.len() {
-                        names[k].clone()
-                    } else {
-                        String::new()
-                    }
-                })
+                .x_label_formatter(&|v| category_label(&names, *v))
                 .draw());
             for (k, v) in vals.iter().take(n).enumerate() {
                 let colour = if k == n - 1 { RGBColor(30, 150, 60) } else if c[k].name == d.verdict.best { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
