@@ -503,6 +503,9 @@ pub fn build(dirs: &[PathBuf], title: &str) -> Result<String> {
         let p = &r.summary.provenance;
         html.push_str(&format!("<p style=\"font-size:12px;color:#666\">mdpipe {} · config {} · seed {}</p>", p.mdpipe_version, &p.config_hash.get(..12).unwrap_or(""), p.seed));
     }
+    // Records each figure's rendered size on the page, so a headless browser
+    // can check that every figure actually laid out (tests/it/diagnose.rs).
+    html.push_str("<script>window.addEventListener('load',function(){var s=[];document.querySelectorAll('figure svg').forEach(function(e){var r=e.getBoundingClientRect();s.push(Math.round(r.width)+'x'+Math.round(r.height));});document.body.setAttribute('data-figure-sizes',s.join(','));});</script>\n");
     html.push_str("</body></html>\n");
     Ok(html)
 }

@@ -49,6 +49,39 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
     for label in ["x [s]", "acceleration [m/s²]", "log BF", "δ/σ", "truth"] {
         assert!(html.contains(label), "report lacks label {label}");
     }
+    let report = out.join("report.html");
+    std::fs::write(&report, &html).unwrap();
+    check_in_browser(&report, figures);
+}
+
+/// Renders the report in headless Chromium and checks that every figure laid
+/// out with a non-zero size. CI installs Chromium (.ci/run); elsewhere the
+/// check is skipped with a message when no browser is installed.
+fn check_in_browser(report: &Path, figures: usize) {
+    let browser = ["chromium", "chromium-browser"].into_iter().find(|b| std::process::Command::new(b).arg("--version").output().is_ok());
+    let Some(browser) = browser else {
+        assert!(std::env::var("CI").is_err(), "CI must have Chromium to check the report");
+        eprintln!("skipping the browser check: no chromium installed");
+        return;
+    };
+    let profile = std::env::temp_dir().join(format!("mdpipe-chromium-{}", std::process::id()));
+    let out = std::process::Command::new(browser)
+        .args(["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--virtual-time-budget=5000", "--dump-dom"])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg(format!("file://{}", report.display()))
+        .output()
+        .expect("running chromium");
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let attr = dom.split("data-figure-sizes=\"").nth(1).and_then(|s| s.split('"').next()).unwrap_or_else(|| panic!("no figure sizes in the rendered DOM: {}", String::from_utf8_lossy(&out.stderr)));
+    let sizes: Vec<(u32, u32)> = attr
+        .split(',')
+        .map(|wh| {
+            let (w, h) = wh.split_once('x').unwrap();
+            (w.parse().unwrap(), h.parse().unwrap())
+        })
+        .collect();
+    assert_eq!(sizes.len(), figures, "rendered {} of {figures} figures", sizes.len());
+    assert!(sizes.iter().all(|&(w, h)| w > 100 && h > 100), "a figure rendered with no size: {sizes:?}");
 }
 
 /// Noise-free size of a concealed effect: the largest |truth - best drag-free
