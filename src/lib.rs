@@ -9,6 +9,7 @@ pub mod bench;
 pub mod calibrate;
 pub mod config;
 pub mod demo;
+pub mod design;
 pub mod diagnose;
 pub mod gp;
 pub mod models;

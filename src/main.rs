@@ -92,6 +92,17 @@ enum Command {
         #[arg(long, default_value = "report.html")]
         out: PathBuf,
     },
+    /// Maximin Latin-hypercube design with iEBE-MUSIC parameter files and a SLURM array script
+    Design {
+        /// Parameter-space spec, e.g. design/heavy_ion_2param.toml
+        spec: PathBuf,
+        #[arg(long)]
+        points: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Generate mock measurements from a built-in truth
     Simulate {
         #[command(subcommand)]
@@ -174,6 +185,16 @@ fn run(cli: Cli) -> Result<()> {
             mdpipe::diagnose::print(&run.diagnosis);
             mdpipe::report::write(&[args.out.clone()], &args.out.join("report.html"), "mdpipe diagnose")?;
             println!("wrote {0}/diagnosis.json and {0}/report.html", args.out.display());
+        }
+        Command::Design { spec, points, seed, out } => {
+            let bytes = std::fs::read(&spec).with_context(|| format!("reading {}", spec.display()))?;
+            let design_spec = mdpipe::design::DesignSpec::load(&spec)?;
+            let q = mdpipe::design::write_design(&design_spec, &artifacts::sha256_hex(&bytes), points, seed, &out)?;
+            println!(
+                "{} points in {} dimensions: minimum distance {:.4}, centered L2 discrepancy {:.5} (unit cube)",
+                q.points, q.dimensions, q.min_distance, q.centered_l2_discrepancy
+            );
+            println!("wrote {0}/design.parquet, {0}/parameters/parameter_*, {0}/submit.slurm, {0}/quality.json", out.display());
         }
         Command::Report { dirs, out } => {
             mdpipe::report::write(&dirs, &out, "mdpipe report")?;
