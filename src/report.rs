@@ -149,6 +149,14 @@ pub fn corner_plot(runs: &[&RunArtifacts], params: &[String], truth: &std::colle
                         }
                         let mut chart = p!(ChartBuilder::on(area).margin(6).x_label_area_size(34).y_label_area_size(40).build_cartesian_2d(xr.0..xr.1, 0.0..ymax * 1.15));
                         p!(chart.configure_mesh().x_desc(xlabel.as_str()).y_desc("density").x_labels(5).y_labels(4).draw());
+                        // The uniform prior's density, shaded (flat and low when the prior is wide).
+                        if let Some([lo, hi]) = runs.first().and_then(|r| r.summary.prior_bounds.get(&params[i]).copied()) {
+                            let dens = 1.0 / (hi - lo);
+                            let grey = RGBColor(160, 160, 160);
+                            p!(chart
+                                .draw_series(std::iter::once(Rectangle::new([(lo.max(xr.0), 0.0), (hi.min(xr.1), dens.min(ymax * 1.15))], grey.mix(0.35).filled())))
+                                .map(|s| s.label("prior").legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], grey.mix(0.5).filled()))));
+                        }
                         for (r, h) in runs.iter().zip(&hists) {
                             let c = kernel_colour(&r.summary.kernel);
                             let x = r.param(&params[i]).unwrap_or(&[]);
@@ -473,7 +481,7 @@ pub fn build(dirs: &[PathBuf], title: &str) -> Result<String> {
         let kernels: Vec<&str> = group.iter().map(|r| r.summary.kernel.as_str()).collect();
         figure(
             &mut html,
-            &format!("Observables {}: posteriors for kernels {} (no MD red, Kernel I blue, Kernel II green; truth dashed grey; shaded: median ± 68%).", set.join(", "), kernels.join(", ")),
+            &format!("Observables {}: posteriors for kernels {} (no MD red, Kernel I blue, Kernel II green; truth dashed grey; coloured bands: median ± 68%; grey: the uniform prior's density).", set.join(", "), kernels.join(", ")),
             &corner_plot(&group, &theta, &truth, &units)?,
         );
         html.push_str("<table><tr><th>kernel</th>");

@@ -126,6 +126,9 @@ pub struct Summary {
     pub parameter_order: Vec<String>,
     /// True values from the config, where known.
     pub truth: BTreeMap<String, f64>,
+    /// Uniform prior bounds of every parameter.
+    #[serde(default)]
+    pub prior_bounds: BTreeMap<String, [f64; 2]>,
     pub log_evidence: Option<f64>,
     pub log_evidence_err: Option<f64>,
     pub fit: FitQuality,
@@ -176,6 +179,7 @@ pub fn summarize(
         parameter_order: chains.names.clone(),
         parameters,
         truth,
+        prior_bounds: (0..problem.prior.dim()).map(|i| (problem.prior.names[i].clone(), [problem.prior.lower[i], problem.prior.upper[i]])).collect(),
         log_evidence: evidence.map(|e| e.0),
         log_evidence_err: evidence.map(|e| e.1),
         fit: fit_quality(problem, &theta_median),
