@@ -45,7 +45,6 @@ pub struct Ensemble {
 struct Walker {
     x: Vec<f64>,
     prop: Vec<f64>,
-    scratch: Vec<f64>,
     log_post: f64,
     rng: Xoshiro256PlusPlus,
     accepted: u64,
@@ -65,7 +64,7 @@ impl Ensemble {
         let mut master = Xoshiro256PlusPlus::seed_from_u64(seed);
         // Walkers move in the parameters themselves: the stretch move is affine
         // invariant there, and the logit map's heavy tails leave walkers stranded.
-        let log_post = |x: &[f64], _scratch: &mut [f64]| {
+        let log_post = |x: &[f64]| {
             let lp = prior.log_density(x);
             if lp.is_finite() {
                 lp + likelihood.log_likelihood(x)
@@ -79,11 +78,10 @@ impl Ensemble {
                 let mut rng = master.clone();
                 let mut x = vec![0.0; dim];
                 prior.sample(&mut rng, &mut x);
-                let draw = x.clone();
-                Walker { x, prop: vec![0.0; dim], scratch: draw, log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim) }
+                Walker { x, prop: vec![0.0; dim], log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim) }
             })
             .collect();
-        walkers.par_iter_mut().for_each(|w| w.log_post = log_post(&w.x, &mut w.scratch));
+        walkers.par_iter_mut().for_each(|w| w.log_post = log_post(&w.x));
         let mut evaluations = n_walkers as u64;
         let half = n_walkers / 2;
         let total_steps = self.settings.burn + self.settings.steps;
@@ -102,7 +100,7 @@ impl Ensemble {
                         for k in 0..dim {
                             w.prop[k] = partner[k] + z * (w.x[k] - partner[k]);
                         }
-                        let lp = log_post(&w.prop, &mut w.scratch);
+                        let lp = log_post(&w.prop);
                         let log_ratio = (dim as f64 - 1.0) * z.ln() + lp - w.log_post;
                         let r: f64 = w.rng.random();
                         if lp.is_finite() && (r.ln() < log_ratio || !w.log_post.is_finite()) {
