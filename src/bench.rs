@@ -85,3 +85,76 @@ pub fn compare_grid(config: &Config, overrides: &Overrides, seed: u64, out: &Pat
         .collect();
     Ok((total, rows))
 }
+
+#[derive(Debug, serde::Serialize)]
+pub struct EmulatorBench {
+    pub n_points: usize,
+    pub n_components: usize,
+    pub n_outputs: usize,
+    /// Marginal likelihood with gradient, component 0 at its optimum, one core.
+    pub marginal_likelihood_evals_per_second: f64,
+    /// One component's mean and variance, one core.
+    pub component_predictions_per_second_one_core: f64,
+    /// Every component's mean and variance (one θ), all cores.
+    pub emulator_predictions_per_second: f64,
+    /// Mean plus full observable-space covariance, all cores.
+    pub full_covariance_predictions_per_second: f64,
+}
+
+/// Training and prediction throughput of a stored emulator.
+pub fn emulator_throughput(dir: &Path, predictions: usize) -> Result<EmulatorBench> {
+    use rand::Rng;
+    use rayon::prelude::*;
+    let emu = crate::emulator::store::load(dir)?;
+    let table = emu.training_table();
+    let (n, d, k) = (table.n_points(), emu.n_parameters(), emu.n_components());
+    let lo = &emu.parts.input_lo;
+    let hi = &emu.parts.input_hi;
+    let unit: Vec<f64> = (0..n * d).map(|i| (table.inputs[i] - lo[i % d]) / (hi[i % d] - lo[i % d])).collect();
+    let scores = &emu.parts.scores[..n];
+    let hyper = &emu.parts.hypers[0];
+    let mut grad = vec![0.0; hyper.log_params.len()];
+    let reps = (2e8 / (n as f64).powi(3)).clamp(10.0, 2000.0) as usize;
+    let start = Instant::now();
+    for _ in 0..reps {
+        std::hint::black_box(crate::gp::ard_log_marginal_likelihood(emu.parts.kernel, hyper, &unit, scores, Some(&mut grad)).ok());
+    }
+    let lml_rate = reps as f64 / start.elapsed().as_secs_f64();
+
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+    let thetas: Vec<Vec<f64>> = (0..1024).map(|_| (0..d).map(|p| lo[p] + rng.random::<f64>() * (hi[p] - lo[p])).collect()).collect();
+    let mut scratch = emu.scratch();
+    let (mut m, mut v) = (vec![0.0; k], vec![0.0; k]);
+    let start = Instant::now();
+    for i in 0..predictions {
+        emu.predict_components(&thetas[i % thetas.len()], &mut m, &mut v, &mut scratch);
+        std::hint::black_box(&m);
+    }
+    let one_core = predictions as f64 * k as f64 / start.elapsed().as_secs_f64();
+
+    let start = Instant::now();
+    (0..predictions).into_par_iter().for_each_init(
+        || (emu.scratch(), vec![0.0; k], vec![0.0; k]),
+        |(s, m, v), i| {
+            emu.predict_components(&thetas[i % thetas.len()], m, v, s);
+            std::hint::black_box(&m);
+        },
+    );
+    let all_cores = predictions as f64 / start.elapsed().as_secs_f64();
+
+    let full = (predictions / 20).max(100);
+    let start = Instant::now();
+    (0..full).into_par_iter().for_each(|i| {
+        std::hint::black_box(emu.predict(&thetas[i % thetas.len()]));
+    });
+    let full_rate = full as f64 / start.elapsed().as_secs_f64();
+    Ok(EmulatorBench {
+        n_points: n,
+        n_components: k,
+        n_outputs: emu.n_outputs(),
+        marginal_likelihood_evals_per_second: lml_rate,
+        component_predictions_per_second_one_core: one_core,
+        emulator_predictions_per_second: all_cores,
+        full_covariance_predictions_per_second: full_rate,
+    })
+}

@@ -11,6 +11,7 @@ pub mod config;
 pub mod demo;
 pub mod design;
 pub mod diagnose;
+pub mod emulator;
 pub mod gp;
 pub mod models;
 pub mod report;

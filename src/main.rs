@@ -78,6 +78,9 @@ enum Command {
         out: PathBuf,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Benchmark this emulator folder (training and prediction throughput) instead
+        #[arg(long)]
+        emulator: Option<PathBuf>,
     },
     /// Locate the mismatch, name the missing physics, repair the model, show the fit improve
     Diagnose {
@@ -102,6 +105,31 @@ enum Command {
         seed: u64,
         #[arg(long)]
         out: PathBuf,
+    },
+    /// PCA + per-component GP emulator from simulator runs (long or wide table)
+    TrainEmulator {
+        /// Config with an [emulator] table (parameters, kernel, components, …)
+        config: PathBuf,
+        /// Training table (Parquet or CSV): design_id, observable, x, value, <parameters>
+        #[arg(long)]
+        training: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Check an emulator on a held-out design and by k-fold cross-validation
+    ValidateEmulator {
+        /// Emulator folder written by train-emulator
+        emulator: PathBuf,
+        /// Held-out validation table (same layout as the training table)
+        #[arg(long)]
+        validation: Option<PathBuf>,
+        /// Cross-validation folds (0 to skip)
+        #[arg(long, default_value_t = 5)]
+        folds: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
     },
     /// Generate mock measurements from a built-in truth
     Simulate {
@@ -196,12 +224,44 @@ fn run(cli: Cli) -> Result<()> {
             );
             println!("wrote {0}/design.parquet, {0}/parameters/parameter_*, {0}/submit.slurm, {0}/quality.json", out.display());
         }
+        Command::TrainEmulator { config, training, seed, out } => {
+            let (_, r) = mdpipe::emulator::train_and_save(&config, &training, &out, seed)?;
+            println!(
+                "{} design points x {} outputs -> {} principal components ({:.2}% of the variance); {} kernel, {} restarts each, {} failed",
+                r.n_points,
+                r.n_outputs,
+                r.n_components,
+                100.0 * r.explained_variance.iter().sum::<f64>(),
+                serde_json::to_value(r.kernel)?.as_str().unwrap_or(""),
+                r.restarts,
+                r.failures
+            );
+            println!("trained in {:.2} s; wrote {}/ (Parquet tables + emulator.json)", r.training_seconds, out.display());
+        }
+        Command::ValidateEmulator { emulator, validation, folds, seed } => {
+            let s = mdpipe::emulator::validate::run(&emulator, validation.as_deref(), folds, seed)?;
+            if let Some(h) = &s.holdout {
+                mdpipe::emulator::validate::print("held-out design", h);
+            }
+            if let Some(c) = &s.cross_validation {
+                mdpipe::emulator::validate::print(&format!("{folds}-fold cross-validation"), c);
+            }
+            println!("wrote {0}/validation.json and {0}/validation_parity.parquet", emulator.display());
+        }
         Command::Report { dirs, out } => {
             mdpipe::report::write(&dirs, &out, "mdpipe report")?;
             println!("wrote {}", out.display());
         }
         Command::Demo { seed, out } => mdpipe::demo::run(seed, &out)?,
-        Command::Bench { config, evaluations, likelihood_only, sampler, out, seed } => {
+        Command::Bench { emulator: Some(dir), .. } => {
+            let b = mdpipe::bench::emulator_throughput(&dir, 200_000)?;
+            println!("emulator: {} design points, {} components, {} outputs", b.n_points, b.n_components, b.n_outputs);
+            println!("  marginal likelihood + gradient: {:>10.0} evaluations/s (one core)", b.marginal_likelihood_evals_per_second);
+            println!("  one component, mean + variance: {:>10.0} predictions/s (one core)", b.component_predictions_per_second_one_core);
+            println!("  all components, mean + variance: {:>9.0} predictions/s ({} threads)", b.emulator_predictions_per_second, rayon::current_num_threads());
+            println!("  mean + full {}x{} covariance:  {:>10.0} predictions/s ({} threads)", b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second, rayon::current_num_threads());
+        }
+        Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator: None } => {
             let config = Config::load(&config)?;
             for kernel in compare::KERNELS {
                 let b = mdpipe::bench::likelihood_throughput(&config, kernel, evaluations)?;
