@@ -111,10 +111,12 @@ struct NegLogMarginal<'a> {
 
 const WALL: f64 = 1e3;
 /// Stop when the log marginal likelihood changes by less than this between
-/// iterations: about scipy L-BFGS-B's default relative `ftol` (2.2e-9) at the
-/// typical |log L| of a few hundred. Tighter only burns line-search
+/// iterations: scipy L-BFGS-B's default relative `ftol` (2.2e-9) at
+/// |log L| ≈ 5000, and looser below. Tighter only burns line-search
 /// evaluations on rounding noise.
-const COST_TOLERANCE: f64 = 1e-6;
+const COST_TOLERANCE: f64 = 1e-5;
+/// How far (in log units) outside the bounds the likelihood is still evaluated.
+const CLAMP_MARGIN: f64 = 2.0;
 
 impl NegLogMarginal<'_> {
     fn evaluate(&self, p: &[f64]) -> (f64, Vec<f64>) {
@@ -124,21 +126,27 @@ impl NegLogMarginal<'_> {
             }
         }
         self.evaluations.set(self.evaluations.get() + 1);
+        // Far outside the box exp() overflows, so the likelihood is taken at the
+        // point clamped to a margin around it and the wall does the rest.
+        let clamped: Vec<f64> = p.iter().zip(&self.bounds).map(|(&v, &(lo, hi))| v.clamp(lo - CLAMP_MARGIN, hi + CLAMP_MARGIN)).collect();
         let mut grad = vec![0.0; p.len()];
-        let hyper = ArdHyper { log_params: p.to_vec() };
+        let hyper = ArdHyper { log_params: clamped.clone() };
         let (cost, grad) = match ard_log_marginal_likelihood(self.kernel, &hyper, self.x, self.y, Some(&mut grad)) {
             Ok(lml) if lml.is_finite() => {
                 let mut cost = -lml;
                 let mut g: Vec<f64> = grad.iter().map(|v| -v).collect();
                 for (k, &(lo, hi)) in self.bounds.iter().enumerate() {
+                    if clamped[k] != p[k] {
+                        g[k] = 0.0;
+                    }
                     let excess = if p[k] < lo { p[k] - lo } else if p[k] > hi { p[k] - hi } else { 0.0 };
                     cost += WALL * excess * excess;
                     g[k] += 2.0 * WALL * excess;
                 }
                 (cost, g)
             }
-            // Not factorizable here: an infinite cost makes the line search step back.
-            _ => (f64::INFINITY, vec![0.0; p.len()]),
+            // Not factorizable even with jitter: a large finite cost makes the line search step back.
+            _ => (1e300, vec![0.0; p.len()]),
         };
         *self.cache.borrow_mut() = Some((p.to_vec(), cost, grad.clone()));
         (cost, grad)
@@ -357,7 +365,7 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
     let mut failures = 0;
     for (k, restart, out) in results {
         match out {
-            Ok(o) if o.log_marginal_likelihood.is_finite() => {
+            Ok(o) if o.log_marginal_likelihood.is_finite() && !o.outcome.starts_with("exit") => {
                 let lml = o.log_marginal_likelihood;
                 if best[k].as_ref().is_none_or(|(b, _)| lml > *b) {
                     best[k] = Some((lml, o.log_params));
@@ -366,7 +374,7 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
             }
             Ok(o) => {
                 failures += 1;
-                let outcome = format!("failed: non-finite likelihood ({})", o.outcome);
+                let outcome = format!("failed: {} (log L {})", o.outcome, o.log_marginal_likelihood);
                 runs.push(OptimizerRun { component: k, restart, log_marginal_likelihood: f64::NAN, iterations: o.iterations, evaluations: o.evaluations, outcome });
             }
             Err(e) => {
