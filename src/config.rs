@@ -21,6 +21,8 @@ pub struct Config {
     pub sampler: SamplerConfig,
     #[serde(default)]
     pub predictions: PredictionConfig,
+    /// Emulator training settings, when this config also drives `train-emulator`.
+    pub emulator: Option<crate::emulator::EmulatorSettings>,
     /// Where the file was read from; relative paths resolve against its folder.
     #[serde(skip)]
     pub path: PathBuf,
@@ -38,6 +40,8 @@ pub enum ModelConfig {
         #[serde(default = "default_h0")]
         h0: f64,
     },
+    /// A trained emulator (folder written by `mdpipe train-emulator`), relative to the config.
+    Emulator { artifact: PathBuf },
 }
 
 fn default_h0() -> f64 {

@@ -145,6 +145,8 @@ fn candidate_models(config: &Config) -> Vec<(ball_drop::Candidate, Arc<dyn Simul
             .iter()
             .map(|c| (*c, Arc::new(AugmentedBallDrop { h0: *h0, candidate: *c }) as Arc<dyn Simulator>))
             .collect(),
+        // No built-in library for emulated models: locate and MD repair only.
+        ModelConfig::Emulator { .. } => Vec::new(),
     }
 }
 

@@ -1,6 +1,9 @@
 //! The Kennedy–O'Hagan likelihood with one independent block per observable:
 //!
-//! `y_b - η_b(x, θ) ~ N(0, K_φb(x, x) + diag(σ_b²))`, "no MD" being `K = 0`.
+//! `y_b - η_b(x, θ) ~ N(0, K_φb(x, x) + diag(σ_b²) [+ C_emu,b(θ)])`, "no MD"
+//! being `K = 0`. `C_emu,b` is an emulator's predictive covariance restricted
+//! to block b (covariance between observables is not used, as the blocks are
+//! independent).
 //!
 //! Scaling follows the paper: each observable is standardized by the mean and
 //! population standard deviation of its measured values (so the discrepancy
@@ -91,13 +94,16 @@ pub struct MdLikelihood {
     pub kernel: Option<DiscrepancyKernel>,
     pub n_theta: usize,
     log_jacobian: f64,
+    /// The model adds its own predictive covariance (an emulator).
+    model_covariance: bool,
 }
 
 impl MdLikelihood {
     pub fn new(simulator: Arc<dyn Simulator>, blocks: Vec<ObservableBlock>, kernel: Option<DiscrepancyKernel>) -> Self {
         let n_theta = simulator.parameter_names().len();
         let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
-        MdLikelihood { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), simulator, blocks, kernel, n_theta, log_jacobian }
+        let model_covariance = simulator.has_model_covariance();
+        MdLikelihood { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), simulator, blocks, kernel, n_theta, log_jacobian, model_covariance }
     }
 
     pub fn n_hyper(&self) -> usize {
@@ -167,28 +173,31 @@ impl MdLikelihood {
             for i in 0..n {
                 resid[i] = (block.y[i] - eta[i]) * inv_scale;
             }
-            match self.kernel {
-                None => {
-                    // Diagonal covariance: no factorization needed.
-                    for i in 0..n {
-                        let s = block.error[i] * inv_scale;
-                        let z = resid[i] / s;
-                        total += -0.5 * (z * z + 2.0 * s.ln() + LN_2PI);
-                    }
+            if self.kernel.is_none() && !self.model_covariance {
+                // Diagonal covariance: no factorization needed.
+                for i in 0..n {
+                    let s = block.error[i] * inv_scale;
+                    let z = resid[i] / s;
+                    total += -0.5 * (z * z + 2.0 * s.ln() + LN_2PI);
                 }
-                Some(kernel) => {
-                    let chol = &mut ws.chol[b];
-                    block.gram.fill_lower(kernel, self.hyper_of(params, b), &mut chol.factor, &mut ws.xr[..n], &mut ws.corr);
-                    for i in 0..n {
-                        let s = block.error[i] * inv_scale;
-                        chol.factor[i * n + i] += s * s;
-                    }
-                    if chol.factorize().is_err() {
-                        return f64::NEG_INFINITY;
-                    }
-                    total += gaussian_logpdf_factored(chol, resid);
-                }
+                continue;
             }
+            let chol = &mut ws.chol[b];
+            match self.kernel {
+                Some(kernel) => block.gram.fill_lower(kernel, self.hyper_of(params, b), &mut chol.factor, &mut ws.xr[..n], &mut ws.corr),
+                None => chol.factor.iter_mut().for_each(|v| *v = 0.0),
+            }
+            if self.model_covariance {
+                self.simulator.add_model_covariance(block.model_index, &block.x, theta, inv_scale * inv_scale, &mut chol.factor);
+            }
+            for i in 0..n {
+                let s = block.error[i] * inv_scale;
+                chol.factor[i * n + i] += s * s;
+            }
+            if chol.factorize().is_err() {
+                return f64::NEG_INFINITY;
+            }
+            total += gaussian_logpdf_factored(chol, resid);
         }
         if total.is_nan() {
             f64::NEG_INFINITY

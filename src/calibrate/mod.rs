@@ -83,15 +83,18 @@ pub struct Problem {
     pub sampler: SamplerKind,
 }
 
-pub fn build_simulator(model: &ModelConfig) -> Arc<dyn Simulator> {
-    match model {
+pub fn build_simulator(config: &Config) -> Result<Arc<dyn Simulator>> {
+    Ok(match &config.model {
         ModelConfig::BallDrop { h0 } => Arc::new(BallDropModel { h0: *h0 }),
-    }
+        ModelConfig::Emulator { artifact } => Arc::new(
+            crate::models::EmulatedModel::load(&config.resolve(artifact)).with_context(|| format!("{}: [model] artifact", config.path.display()))?,
+        ),
+    })
 }
 
 impl Problem {
     pub fn new(config: &Config, overrides: &Overrides) -> Result<Problem> {
-        let simulator = build_simulator(&config.model);
+        let simulator = build_simulator(config)?;
         Self::with_simulator(config, overrides, simulator)
     }
 
@@ -137,7 +140,9 @@ impl Problem {
             if rows.is_empty() {
                 bail!("{}: no measurements of observable '{name}'", data_path.display());
             }
-            blocks.push(ObservableBlock::new(name, idx, &rows).with_context(|| data_path.display().to_string())?);
+            let block = ObservableBlock::new(name, idx, &rows).with_context(|| data_path.display().to_string())?;
+            simulator.check_inputs(idx, &block.x).with_context(|| data_path.display().to_string())?;
+            blocks.push(block);
         }
         let likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
 

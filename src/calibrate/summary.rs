@@ -253,7 +253,12 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
     for (b, block) in lik.blocks.iter().enumerate() {
         let x_max = cfg.x_max.unwrap_or(1.5 * block.x.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
         let npts = cfg.points.max(2);
-        let mut xs: Vec<(f64, &'static str)> = (0..npts).map(|i| (cfg.x_min + (x_max - cfg.x_min) * i as f64 / (npts - 1) as f64, "grid")).collect();
+        // An emulator knows only its training bins: no grid then.
+        let mut xs: Vec<(f64, &'static str)> = if problem.simulator.predicts_any_x() {
+            (0..npts).map(|i| (cfg.x_min + (x_max - cfg.x_min) * i as f64 / (npts - 1) as f64, "grid")).collect()
+        } else {
+            Vec::new()
+        };
         xs.extend(block.x.iter().map(|&x| (x, "data")));
         let xq: Vec<f64> = xs.iter().map(|p| p.0).collect();
         let m = xq.len();
@@ -308,6 +313,9 @@ fn conditional_delta(
     problem.simulator.predict(block.model_index, &block.x, theta, &mut eta);
     let mut ws = CholeskyWorkspace::new(n);
     discrepancy_cross_cov(kernel, hyper, &block.x, &block.x, &mut ws.factor);
+    if problem.simulator.has_model_covariance() {
+        problem.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), &mut ws.factor);
+    }
     for i in 0..n {
         let s = block.error[i] / block.scale;
         ws.factor[i * n + i] += s * s;

@@ -1,6 +1,9 @@
 //! Built-in simulators and the interface the calibration sees them through.
 
 pub mod ball_drop;
+pub mod emulated;
+
+pub use emulated::EmulatedModel;
 
 /// A deterministic model `η(x, θ)` for a set of named observables.
 ///
@@ -13,6 +16,22 @@ pub trait Simulator: Send + Sync {
     fn observable_names(&self) -> Vec<String>;
     /// `η(x_i, θ)` for observable `observable` (an index into `observable_names`).
     fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]);
+
+    /// Rejects measurement points the model cannot predict (an emulator knows only its bins).
+    fn check_inputs(&self, _observable: usize, _x: &[f64]) -> anyhow::Result<()> {
+        Ok(())
+    }
+    /// Whether `predict` works at any x (false for emulators: no prediction grid).
+    fn predicts_any_x(&self) -> bool {
+        true
+    }
+    /// Whether the model carries its own predictive covariance (emulators).
+    fn has_model_covariance(&self) -> bool {
+        false
+    }
+    /// Adds `inv_scale2 ×` the model's predictive covariance at (x, θ) to the
+    /// lower triangle of `lower` (column-major n × n).
+    fn add_model_covariance(&self, _observable: usize, _x: &[f64], _theta: &[f64], _inv_scale2: f64, _lower: &mut [f64]) {}
 }
 
 /// The drag-free ball-drop model with parameters (g, v0) and known h0.

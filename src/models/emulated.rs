@@ -1,0 +1,127 @@
+//! A trained emulator seen as a calibration model (`model = { kind = "emulator" }`).
+//! It predicts only at the x where it was trained (the analysis bins), and it
+//! carries its own predictive covariance into the likelihood.
+
+use super::Simulator;
+use crate::emulator::{Emulator, PredictScratch};
+use anyhow::{bail, Result};
+use std::cell::RefCell;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+pub struct EmulatedModel {
+    id: u64,
+    pub emulator: Emulator,
+    observables: Vec<String>,
+}
+
+/// Component predictions at the last θ seen by this thread: the likelihood
+/// asks for every observable block at one θ in turn.
+struct Cached {
+    id: u64,
+    theta: Vec<f64>,
+    means: Vec<f64>,
+    vars: Vec<f64>,
+    scratch: PredictScratch,
+}
+
+thread_local! {
+    static CACHE: RefCell<Vec<Cached>> = const { RefCell::new(Vec::new()) };
+}
+
+static NEXT_ID: AtomicU64 = AtomicU64::new(1);
+
+impl EmulatedModel {
+    pub fn new(emulator: Emulator) -> Self {
+        let observables = emulator.observable_names();
+        EmulatedModel { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), emulator, observables }
+    }
+
+    pub fn load(dir: &std::path::Path) -> Result<Self> {
+        Ok(Self::new(crate::emulator::store::load(dir)?))
+    }
+
+    fn with_components<R>(&self, theta: &[f64], f: impl FnOnce(&[f64], &[f64]) -> R) -> R {
+        CACHE.with(|cell| {
+            let mut list = cell.borrow_mut();
+            let pos = match list.iter().position(|c| c.id == self.id) {
+                Some(p) => p,
+                None => {
+                    if list.len() >= 8 {
+                        list.remove(0);
+                    }
+                    let k = self.emulator.n_components();
+                    list.push(Cached { id: self.id, theta: Vec::new(), means: vec![0.0; k], vars: vec![0.0; k], scratch: self.emulator.scratch() });
+                    list.len() - 1
+                }
+            };
+            let c = &mut list[pos];
+            if c.theta.as_slice() != theta {
+                self.emulator.predict_components(theta, &mut c.means, &mut c.vars, &mut c.scratch);
+                c.theta.clear();
+                c.theta.extend_from_slice(theta);
+            }
+            f(&c.means, &c.vars)
+        })
+    }
+
+    fn output(&self, observable: usize, x: f64) -> usize {
+        // check_inputs has verified every x the likelihood will ask for.
+        self.emulator.output_index(&self.observables[observable], x).unwrap_or_else(|| panic!("{} has no emulator output at x = {x}", self.observables[observable]))
+    }
+}
+
+impl Simulator for EmulatedModel {
+    fn parameter_names(&self) -> Vec<String> {
+        self.emulator.parts.parameter_names.clone()
+    }
+    fn observable_names(&self) -> Vec<String> {
+        self.observables.clone()
+    }
+    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
+        self.with_components(theta, |means, _| {
+            for (o, &xi) in out.iter_mut().zip(x) {
+                *o = self.emulator.output_mean_from_components(means, self.output(observable, xi)).0;
+            }
+        })
+    }
+    fn check_inputs(&self, observable: usize, x: &[f64]) -> Result<()> {
+        let name = &self.observables[observable];
+        for &xi in x {
+            if self.emulator.output_index(name, xi).is_none() {
+                let have: Vec<String> = self.emulator.outputs().iter().filter(|o| &o.observable == name).map(|o| o.x.to_string()).collect();
+                bail!("observable '{name}' is measured at x = {xi}, where the emulator has no output (it was trained at x = {})", have.join(", "));
+            }
+        }
+        Ok(())
+    }
+    fn predicts_any_x(&self) -> bool {
+        false
+    }
+    fn has_model_covariance(&self) -> bool {
+        true
+    }
+    fn add_model_covariance(&self, observable: usize, x: &[f64], theta: &[f64], inv_scale2: f64, lower: &mut [f64]) {
+        let n = x.len();
+        self.with_components(theta, |means, vars| {
+            // Indices and Jacobians on the stack for the usual bin counts.
+            let (mut idx_stack, mut jac_stack) = ([0usize; 64], [0.0f64; 64]);
+            let (mut idx_heap, mut jac_heap) = (Vec::new(), Vec::new());
+            let (idx, jac): (&mut [usize], &mut [f64]) = if n <= 64 {
+                (&mut idx_stack[..n], &mut jac_stack[..n])
+            } else {
+                idx_heap.resize(n, 0);
+                jac_heap.resize(n, 0.0);
+                (&mut idx_heap, &mut jac_heap)
+            };
+            for i in 0..n {
+                idx[i] = self.output(observable, x[i]);
+                jac[i] = self.emulator.output_mean_from_components(means, idx[i]).1;
+            }
+            for j in 0..n {
+                for i in j..n {
+                    lower[i + j * n] += inv_scale2 * self.emulator.output_cov_from_components(vars, idx[i], idx[j], jac[i], jac[j]);
+                }
+            }
+        })
+    }
+}
