@@ -467,7 +467,9 @@ pub fn build(dirs: &[PathBuf], title: &str) -> Result<String> {
         html.push_str("<h2>Posteriors</h2>\n");
     }
     for set in &sets {
-        let group: Vec<&RunArtifacts> = runs.iter().filter(|r| &r.summary.observables == set && !r.summary.parameter_order.iter().any(|p| p == "k" || p == "b" || p == "f" || p == "gamma")).collect();
+        // Candidate-augmented fits have extra parameters; diagnose shows them above.
+        let is_candidate = |r: &RunArtifacts| r.dir.file_name().and_then(|f| f.to_str()).is_some_and(|f| f.starts_with("candidate_") || f == "repaired_md");
+        let group: Vec<&RunArtifacts> = runs.iter().filter(|r| &r.summary.observables == set && !is_candidate(r)).collect();
         if group.is_empty() {
             continue;
         }

@@ -4,4 +4,5 @@ mod ball_drop;
 mod closed_form;
 mod common;
 mod diagnose;
+mod emulator;
 mod sbc;
