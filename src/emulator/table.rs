@@ -65,6 +65,26 @@ impl TrainingTable {
         }
     }
 
+    /// Writes the long table, Parquet or CSV by extension.
+    pub fn write(&self, path: &Path, provenance: Option<&crate::artifacts::Provenance>) -> Result<()> {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if ext == "parquet" || ext == "pq" {
+            return crate::artifacts::write_parquet_atomic(path, &mut self.to_long_frame()?, provenance);
+        }
+        let mut text = String::new();
+        if let Some(p) = provenance {
+            text.push_str(&format!("# mdpipe {} | {} | seed {}\n", p.mdpipe_version, p.command, p.seed));
+        }
+        text.push_str(&format!("design_id,observable,x,value,{}\n", self.parameter_names.join(",")));
+        for i in 0..self.n_points() {
+            let params: Vec<String> = self.input(i).iter().map(|v| v.to_string()).collect();
+            for (j, o) in self.outputs.iter().enumerate() {
+                text.push_str(&format!("{},{},{},{},{}\n", self.design_ids[i], o.observable, o.x, self.row(i)[j], params.join(",")));
+            }
+        }
+        crate::artifacts::write_text_atomic(path, &text)
+    }
+
     /// Long-format columns `design_id, observable, x, value`, for storing.
     pub fn to_long_frame(&self) -> Result<DataFrame> {
         let (n, m) = (self.n_points(), self.n_outputs());

@@ -2,6 +2,7 @@
 
 pub mod ball_drop;
 pub mod emulated;
+pub mod heavy_ion;
 
 pub use emulated::EmulatedModel;
 

@@ -5,4 +5,5 @@ mod closed_form;
 mod common;
 mod diagnose;
 mod emulator;
+mod heavy_ion;
 mod sbc;
