@@ -111,12 +111,10 @@ impl Problem {
             None => config.discrepancy.kernel()?,
         };
         let model_obs = simulator.observable_names();
-        let explicit = overrides.observables.as_ref().or(config.data.observables.as_ref());
-        // Without an explicit selection every row must belong to an observable
-        // the model knows, so a misspelt name is never silently dropped.
+        // Every row must belong to an observable the model knows, so that a
+        // misspelt name is an error, never silently dropped data.
         for m in &measurements {
-            let wanted = explicit.is_none_or(|sel| sel.contains(&m.observable));
-            if wanted && !model_obs.contains(&m.observable) {
+            if !model_obs.contains(&m.observable) {
                 bail!(
                     "{}, field 'observable': unknown observable '{}' (model '{}' predicts: {})",
                     m.location(&data_path),
@@ -126,9 +124,9 @@ impl Problem {
                 );
             }
         }
-        let selected: Vec<String> = match explicit {
-            Some(o) => o.clone(),
-            None => model_obs.iter().filter(|o| measurements.iter().any(|m| &m.observable == *o)).cloned().collect(),
+        let selected: Vec<String> = match (&overrides.observables, &config.data.observables) {
+            (Some(o), _) | (None, Some(o)) => o.clone(),
+            (None, None) => model_obs.iter().filter(|o| measurements.iter().any(|m| &m.observable == *o)).cloned().collect(),
         };
         if selected.is_empty() {
             bail!("no observables selected");
