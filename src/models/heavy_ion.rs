@@ -358,6 +358,9 @@ pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Res
     let points: Vec<HeavyIonParams> = (0..ids.len())
         .map(|i| HeavyIonParams::from_named(&names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect::<Vec<_>>()).with_context(|| format!("{}: row {}", design.display(), i + 1)))
         .collect::<anyhow::Result<_>>()?;
+    if points.is_empty() {
+        anyhow::bail!("{}: the design has no points", design.display());
+    }
     let pts = analysis_pt();
     let bar = crate::progress_bar(points.len() as u64, "heavy-ion stand-in over the design");
     let results: Vec<Vec<(&'static str, Vec<f64>)>> = points
