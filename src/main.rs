@@ -277,6 +277,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("  marginal likelihood + gradient: {:>10.0} evaluations/s (one core)", b.marginal_likelihood_evals_per_second);
             println!("  one component, mean + variance: {:>10.0} predictions/s (one core)", b.component_predictions_per_second_one_core);
             println!("  all components, mean + variance: {:>9.0} predictions/s ({} threads)", b.emulator_predictions_per_second, rayon::current_num_threads());
+            println!("  all components, batches of 256: {:>9.0} predictions/s ({} threads)", b.batched_predictions_per_second, rayon::current_num_threads());
             println!("  mean + full {}x{} covariance:  {:>10.0} predictions/s ({} threads)", b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second, rayon::current_num_threads());
         }
         Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator: None } => {

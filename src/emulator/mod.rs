@@ -59,8 +59,10 @@ pub struct EmulatorParts {
 #[derive(Clone, Debug)]
 struct FittedGp {
     alpha: Vec<f64>,
-    /// `L⁻¹` packed by rows (row i holds columns 0..=i).
+    /// `L⁻¹` packed by rows (row i holds columns 0..=i), for single predictions.
     linv_packed: Vec<f64>,
+    /// The Cholesky factor `L` (column-major), for batched predictions.
+    factor: Vec<f64>,
     signal_var: f64,
     constant: f64,
     noise_var: f64,
@@ -121,6 +123,7 @@ impl Emulator {
             let mut alpha = y.to_vec();
             chol.solve_in_place(&mut alpha);
             let linv = chol.lower_inverse();
+            let factor = chol.factor.clone();
             let mut linv_packed = Vec::with_capacity(n * (n + 1) / 2);
             for i in 0..n {
                 for j in 0..=i {
@@ -130,6 +133,7 @@ impl Emulator {
             gps.push(FittedGp {
                 alpha,
                 linv_packed,
+                factor,
                 signal_var: hyper.signal_var(),
                 constant: hyper.constant(),
                 noise_var: hyper.noise_var(),
@@ -191,6 +195,38 @@ impl Emulator {
             }
             means[c] = mean;
             vars[c] = (gp.signal_var + gp.constant + gp.noise_var - quad).max(gp.noise_var);
+        }
+    }
+
+    /// Component means and variances at many θ at once (row-major B × d in,
+    /// B × K out). The variances' triangular solves become one matrix solve,
+    /// which keeps bulk prediction fast for large designs.
+    pub fn predict_components_batch(&self, thetas: &[f64], means: &mut [f64], vars: &mut [f64]) {
+        let d = self.n_parameters();
+        let n = self.parts.design_ids.len();
+        let kc = self.n_components();
+        let b = thetas.len() / d;
+        let mut unit = vec![0.0; b * d];
+        for q in 0..b {
+            scale_to_unit(&self.parts.input_lo, &self.parts.input_hi, &thetas[q * d..(q + 1) * d], &mut unit[q * d..(q + 1) * d]);
+        }
+        let mut kstar = vec![0.0; n * b];
+        for (c, gp) in self.gps.iter().enumerate() {
+            for q in 0..b {
+                let u = &unit[q * d..(q + 1) * d];
+                let col = &mut kstar[q * n..(q + 1) * n];
+                for i in 0..n {
+                    let r2 = scaled_sq_dist(u, &self.unit_inputs[i * d..(i + 1) * d], &gp.inv_l2);
+                    col[i] = gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
+                }
+                means[q * kc + c] = dot(&gp.alpha, col);
+            }
+            let l = faer::MatRef::from_column_major_slice(&gp.factor, n, n);
+            faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b), faer::Par::Seq);
+            for q in 0..b {
+                let w = &kstar[q * n..(q + 1) * n];
+                vars[q * kc + c] = (gp.signal_var + gp.constant + gp.noise_var - dot(w, w)).max(gp.noise_var);
+            }
         }
     }
 

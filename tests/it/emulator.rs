@@ -154,6 +154,20 @@ fn mean_gradient_matches_finite_differences_and_reload_is_bit_identical() {
         assert!(a.mean.iter().zip(&b.mean).all(|(u, v)| u.to_bits() == v.to_bits()), "means differ after reload");
         assert!(a.cov.iter().zip(&b.cov).all(|(u, v)| u.to_bits() == v.to_bits()), "covariances differ after reload");
     }
+    // Batched predictions (one triangular matrix solve) agree with one-at-a-time ones.
+    let k = emu.n_components();
+    let thetas = [0.1, 0.2, 0.3, 0.37, 0.52, 0.71, 0.9, 0.05, 0.5];
+    let (mut bm, mut bv) = (vec![0.0; 3 * k], vec![0.0; 3 * k]);
+    emu.predict_components_batch(&thetas, &mut bm, &mut bv);
+    let mut scratch = emu.scratch();
+    let (mut m1, mut v1) = (vec![0.0; k], vec![0.0; k]);
+    for q in 0..3 {
+        emu.predict_components(&thetas[q * 3..q * 3 + 3], &mut m1, &mut v1, &mut scratch);
+        for c in 0..k {
+            assert!((bm[q * k + c] - m1[c]).abs() <= 1e-10 * m1[c].abs().max(1.0), "batched mean differs");
+            assert!((bv[q * k + c] - v1[c]).abs() <= 1e-8 * v1[c].abs() + 1e-11, "batched variance differs: {} vs {}", bv[q * k + c], v1[c]);
+        }
+    }
     // The covariance is a covariance: symmetric with a positive diagonal.
     let p = emu.predict(&theta);
     let m = emu.n_outputs();
