@@ -113,6 +113,9 @@ enum Command {
         /// Training table (Parquet or CSV): design_id, observable, x, value, <parameters>
         #[arg(long)]
         training: PathBuf,
+        /// The design the runs came from: every point must be in the table
+        #[arg(long)]
+        design: Option<PathBuf>,
         #[arg(long, default_value_t = 1)]
         seed: u64,
         #[arg(long)]
@@ -242,8 +245,8 @@ fn run(cli: Cli) -> Result<()> {
             );
             println!("wrote {0}/design.parquet, {0}/parameters/parameter_*, {0}/submit.slurm, {0}/quality.json", out.display());
         }
-        Command::TrainEmulator { config, training, seed, out } => {
-            let (_, r) = mdpipe::emulator::train_and_save(&config, &training, &out, seed)?;
+        Command::TrainEmulator { config, training, design, seed, out } => {
+            let (_, r) = mdpipe::emulator::train_and_save(&config, &training, design.as_deref(), &out, seed)?;
             println!(
                 "{} design points x {} outputs -> {} principal components ({:.2}% of the variance); {} kernel, {} restarts each, {} failed",
                 r.n_points,

@@ -24,7 +24,7 @@ pub mod validate;
 
 use crate::gp::{scaled_sq_dist, ArdHyper, ArdKernel, CholeskyWorkspace};
 use anyhow::{bail, Result};
-pub use table::{read_training_table, OutputKey, TrainingTable};
+pub use table::{check_against_design, read_training_table, OutputKey, TrainingTable};
 pub use train::{train, EmulatorSettings, TrainingReport};
 
 /// What training decides and a stored artifact holds; everything else is
@@ -369,12 +369,16 @@ fn scale_to_unit(lo: &[f64], hi: &[f64], theta: &[f64], out: &mut [f64]) {
 }
 
 /// `mdpipe train-emulator`: reads the settings and the table, trains, stores.
-pub fn train_and_save(config: &std::path::Path, training: &std::path::Path, out: &std::path::Path, seed: u64) -> Result<(Emulator, TrainingReport)> {
+/// With `design`, every design point must have runs in the table.
+pub fn train_and_save(config: &std::path::Path, training: &std::path::Path, design: Option<&std::path::Path>, out: &std::path::Path, seed: u64) -> Result<(Emulator, TrainingReport)> {
     use anyhow::Context;
     let settings = EmulatorSettings::load(config)?;
     let config_hash = crate::artifacts::sha256_hex(&std::fs::read(config).with_context(|| format!("reading {}", config.display()))?);
     let data_hash = crate::artifacts::sha256_hex(&std::fs::read(training).with_context(|| format!("reading {}", training.display()))?);
     let table = read_training_table(training, &settings.parameters)?;
+    if let Some(design) = design {
+        check_against_design(&table, design)?;
+    }
     let (emu, report) = train(&table, &settings, seed)?;
     let prov = crate::artifacts::Provenance::new(config_hash, data_hash, seed, &format!("train-emulator {} --training {}", config.display(), training.display()));
     store::save(out, &emu, &settings, &report, &prov)?;

@@ -358,3 +358,35 @@ pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<Tr
         values,
     })
 }
+
+/// Checks a training table against the design it was run from (`design.parquet`
+/// from `mdpipe design`, or a CSV with the same columns): every design point
+/// must be present, with the same parameter values. Missing points are named.
+pub fn check_against_design(table: &TrainingTable, design: &Path) -> Result<()> {
+    let raw = RawTable::read(design)?;
+    let ids: Vec<i64> = raw.numbers(design, "design_id")?.into_iter().map(|v| v as i64).collect();
+    let missing: Vec<i64> = ids.iter().copied().filter(|id| !table.design_ids.contains(id)).collect();
+    if !missing.is_empty() {
+        let shown: Vec<String> = missing.iter().take(20).map(|i| i.to_string()).collect();
+        bail!(
+            "{}: {} of the {} design points in {} have no runs ({}{}); rerun them, or train on the rest with a design that lists only the finished points",
+            table.path.display(),
+            missing.len(),
+            ids.len(),
+            design.display(),
+            shown.join(", "),
+            if missing.len() > 20 { ", …" } else { "" }
+        );
+    }
+    for (k, name) in table.parameter_names.iter().enumerate() {
+        let values = raw.numbers(design, name)?;
+        for (row, (id, v)) in ids.iter().zip(&values).enumerate() {
+            let i = table.design_ids.iter().position(|d| d == id).expect("checked above");
+            let t = table.input(i)[k];
+            if (t - v).abs() > 1e-9 * v.abs().max(1.0) {
+                bail!("{}: {}, field '{name}': design point {id} has {v} in the design but {t} in {}", design.display(), raw.location(row), table.path.display());
+            }
+        }
+    }
+    Ok(())
+}

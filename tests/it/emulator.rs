@@ -207,6 +207,16 @@ fn bad_tables_get_errors_naming_file_row_and_field() {
     let t = format!("{header}{}{}{}", good(0, 0.1), good(1, 0.5), good(2, 0.2));
     let e = error_of(&t, Some(5));
     assert!(e.contains("components = 5"), "{e}");
+    // A design point of the design that never made it into the table.
+    let dir = tmpdir("design");
+    let table_path = dir.join("runs.csv");
+    std::fs::write(&table_path, format!("{header}{}{}{}", good(0, 0.1), good(1, 0.5), good(3, 0.2))).unwrap();
+    let design = dir.join("design.csv");
+    let rows: String = (0..4).map(|i| format!("{i},{},{},{}\n", 0.1 * i as f64, 0.3 + 0.2 * (i % 2) as f64, 0.2 + 0.1 * i as f64)).collect();
+    std::fs::write(&design, format!("design_id,a,b,c\n{rows}")).unwrap();
+    let table = read_training_table(&table_path, &params()).unwrap();
+    let e = format!("{:#}", emulator::check_against_design(&table, &design).unwrap_err());
+    assert!(e.contains("1 of the 4 design points") && e.contains("(2)"), "{e}");
     // A parameter column that is not there.
     let t = "design_id,observable,x,value,a,b\n0,flow0,0.5,0.1,0.1,0.2\n";
     let e = error_of(t, None);
@@ -250,7 +260,7 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
             .replace("measurements = \"ball_drop_data.csv\"", "measurements = \"data.csv\"")
     );
     std::fs::write(dir.join("emulated.toml"), cfg_text).unwrap();
-    emulator::train_and_save(&dir.join("emulated.toml"), &dir.join("runs.csv"), &dir.join("emu"), 1).unwrap();
+    emulator::train_and_save(&dir.join("emulated.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1).unwrap();
     let emu_cfg = Config::load(&dir.join("emulated.toml")).unwrap();
     let emulated = Problem::new(&emu_cfg, &overrides).unwrap();
     let a = calibrate::run(&exact, 3, false).unwrap();
