@@ -33,7 +33,28 @@ struct Metadata {
 
 const FORMAT: u32 = 1;
 
+/// Writes the artifact folder as a whole: everything goes into a staging
+/// sibling that replaces `dir` only once complete, so an interrupted save
+/// never leaves old and new tables mixed.
 pub fn save(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report: &TrainingReport, provenance: &Provenance) -> Result<()> {
+    let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("emulator");
+    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    let staging = parent.join(format!(".{name}.partial-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&staging);
+    write_folder(&staging, emu, settings, report, provenance)?;
+    if dir.exists() {
+        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        std::fs::rename(dir, &old).with_context(|| format!("moving the previous {} aside", dir.display()))?;
+        std::fs::rename(&staging, dir).with_context(|| format!("moving the new emulator into {}", dir.display()))?;
+        let _ = std::fs::remove_dir_all(&old);
+    } else {
+        std::fs::rename(&staging, dir).with_context(|| format!("moving the new emulator into {}", dir.display()))?;
+    }
+    Ok(())
+}
+
+fn write_folder(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report: &TrainingReport, provenance: &Provenance) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let p = &emu.parts;
     let (n, m, d, r) = (p.design_ids.len(), p.outputs.len(), p.parameter_names.len(), p.singular_values.len());
