@@ -173,3 +173,42 @@ pub fn emulator_throughput(dir: &Path, predictions: usize) -> Result<EmulatorBen
         full_covariance_predictions_per_second: full_rate,
     })
 }
+
+/// Wall times of one heavy-ion stand-in design point, stage by stage.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct HeavyIonBench {
+    pub events: usize,
+    pub oversample: usize,
+    pub particles: usize,
+    pub smooth_tables_s: f64,
+    pub sampling_s: f64,
+    pub write_hdf5_s: f64,
+    pub write_text_s: f64,
+    pub ingest_s: f64,
+}
+
+/// Times one design point of `events` events at η/s = 0.1, ε_sw = 0.2 (Grad δf):
+/// the smooth Cooper–Frye tables, event sampling, writing each layout, and ingest.
+pub fn heavy_ion_point(events: usize, oversample: usize, dir: &Path) -> Result<HeavyIonBench> {
+    use crate::models::heavy_ion::{self, events as ev};
+    let p = heavy_ion::HeavyIonParams::parse("eta_s=0.1,e_sw=0.2")?;
+    let t = Instant::now();
+    let tables = ev::SmoothTables::new(&p, heavy_ion::DeltaF::Grad);
+    let smooth_tables_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let sampled = ev::sample_events(&tables, events, oversample, 1);
+    let sampling_s = t.elapsed().as_secs_f64();
+    let particles: f64 = sampled.iter().flat_map(|e| e.files.iter().filter(|f| f.name.contains("_diff_"))).map(|f| (0..f.rows()).map(|r| f.row(r)[f.columns - 1]).sum::<f64>()).sum();
+    let _ = std::fs::remove_dir_all(dir);
+    let (h5_dir, text_dir) = (dir.join("hdf5/0000"), dir.join("text/0000"));
+    let t = Instant::now();
+    ev::write_point(&h5_dir, &sampled, ev::Layout::Hdf5)?;
+    let write_hdf5_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    ev::write_point(&text_dir, &sampled, ev::Layout::Text)?;
+    let write_text_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    crate::ingest::ingest_runs(&dir.join("hdf5"), None, &crate::ingest::IngestSettings::default())?;
+    let ingest_s = t.elapsed().as_secs_f64();
+    Ok(HeavyIonBench { events, oversample, particles: particles as usize, smooth_tables_s, sampling_s, write_hdf5_s, write_text_s, ingest_s })
+}

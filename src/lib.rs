@@ -13,6 +13,7 @@ pub mod design;
 pub mod diagnose;
 pub mod emulator;
 pub mod gp;
+pub mod ingest;
 pub mod models;
 pub mod report;
 

@@ -81,6 +81,9 @@ enum Command {
         /// Benchmark this emulator folder (training and prediction throughput) instead
         #[arg(long)]
         emulator: Option<PathBuf>,
+        /// Benchmark one heavy-ion stand-in design point of this many events instead
+        #[arg(long)]
+        heavy_ion_events: Option<usize>,
     },
     /// Locate the mismatch, name the missing physics, repair the model, show the fit improve
     Diagnose {
@@ -103,6 +106,27 @@ enum Command {
         points: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Read iEBE-MUSIC runs (one folder per design point; combined HDF5 or per-event text files)
+    /// into a long table of spectra and v_n{2}; or convert a paper .dat table to measurements
+    Ingest {
+        /// Runs folder (RUNS_DIR/<design id>/...), or a 15-column paper table (.dat)
+        runs: PathBuf,
+        /// Analysis pT bin edges in GeV, comma-separated (default: 10 bins over 0-2 GeV)
+        #[arg(long, value_delimiter = ',')]
+        pt_bins: Option<Vec<f64>>,
+        /// Design (design.parquet) whose parameters are joined in; default RUNS_DIR/design.parquet if present
+        #[arg(long)]
+        design: Option<PathBuf>,
+        /// Design points with fewer good events are flagged and left out
+        #[arg(long, default_value_t = 10)]
+        min_events: usize,
+        /// auto (HDF5 if present), hdf5 or text
+        #[arg(long, default_value = "auto")]
+        format: String,
+        /// Output table (.parquet); for a .dat input, a measurements file (.csv or .parquet)
         #[arg(long)]
         out: PathBuf,
     },
@@ -143,21 +167,35 @@ enum Command {
 
 #[derive(Subcommand)]
 enum SimulateSystem {
-    /// Heavy-ion blast-wave stand-in for iEBE-MUSIC at one parameter point (smooth expectation values)
+    /// Heavy-ion blast-wave stand-in for iEBE-MUSIC. Writes event-by-event runs in iEBE-MUSIC's
+    /// layout (OUT/<design id>/: per-event text files and spvn_results.h5) for `mdpipe ingest`;
+    /// with an --out ending in .csv or .parquet and no --events, writes smooth expectation values
+    /// instead (a measurements file for --point, a training table for --design)
     HeavyIon {
         /// Parameter point, e.g. eta_s=0.1,e_sw=0.2 or T_kink=0.18,a_low=-1,a_high=1,eta_s_kink=0.1,e_sw=0.2
         #[arg(long, conflicts_with = "design", required_unless_present = "design")]
         point: Option<String>,
-        /// Run every point of a design.parquet instead, writing a long training table
+        /// Run every point of a design.parquet
         #[arg(long)]
         design: Option<PathBuf>,
         /// Particlization: none (f_eq) or grad (Grad 14-moment shear δf)
         #[arg(long, default_value = "grad")]
         delta_f: String,
-        /// Relative 1σ error attached to every value (the smooth model has no statistical noise)
+        /// Events per design point (default 100 when writing runs)
+        #[arg(long)]
+        events: Option<usize>,
+        /// Cooper–Frye samples per event (the count and v_n columns sum them; yields are per sample)
+        #[arg(long, default_value_t = mdpipe::models::heavy_ion::events::DEFAULT_OVERSAMPLE)]
+        oversample: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run layout: text, hdf5 or both
+        #[arg(long, default_value = "both")]
+        layout: String,
+        /// Smooth --point output only: relative 1σ error attached to every value
         #[arg(long, default_value_t = 0.01)]
         relative_error: f64,
-        /// Output measurements file (.csv or .parquet)
+        /// Runs folder, or a .csv/.parquet file for smooth values
         #[arg(long)]
         out: PathBuf,
     },
@@ -274,6 +312,16 @@ fn run(cli: Cli) -> Result<()> {
             println!("wrote {}", out.display());
         }
         Command::Demo { seed, out } => mdpipe::demo::run(seed, &out)?,
+        Command::Bench { heavy_ion_events: Some(events), out, .. } => {
+            let b = mdpipe::bench::heavy_ion_point(events, mdpipe::models::heavy_ion::events::DEFAULT_OVERSAMPLE, &out.join("heavy_ion"))?;
+            println!("heavy-ion stand-in, one design point: {} events x {} samples, {} particles in the files ({} threads)", b.events, b.oversample, b.particles, rayon::current_num_threads());
+            println!("  smooth Cooper-Frye tables {:>7.3} s", b.smooth_tables_s);
+            println!("  event sampling            {:>7.3} s", b.sampling_s);
+            println!("  write HDF5                {:>7.3} s", b.write_hdf5_s);
+            println!("  write text files          {:>7.3} s", b.write_text_s);
+            println!("  ingest (HDF5)             {:>7.3} s", b.ingest_s);
+            println!("  simulate, HDF5 layout     {:>7.3} s total", b.smooth_tables_s + b.sampling_s + b.write_hdf5_s);
+        }
         Command::Bench { emulator: Some(dir), .. } => {
             let b = mdpipe::bench::emulator_throughput(&dir, 200_000)?;
             println!("emulator: {} design points, {} components, {} outputs", b.n_points, b.n_components, b.n_outputs);
@@ -283,7 +331,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("  all components, batches of 256: {:>9.0} predictions/s ({} threads)", b.batched_predictions_per_second, rayon::current_num_threads());
             println!("  mean + full {}x{} covariance:  {:>10.0} predictions/s ({} threads)", b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second, rayon::current_num_threads());
         }
-        Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator: None } => {
+        Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator: None, heavy_ion_events: None } => {
             let config = Config::load(&config)?;
             for kernel in compare::KERNELS {
                 let b = mdpipe::bench::likelihood_throughput(&config, kernel, evaluations)?;
@@ -304,13 +352,56 @@ fn run(cli: Cli) -> Result<()> {
                 println!("full 9-case grid: {total:.2} s on {} threads", rayon::current_num_threads());
             }
         }
-        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, delta_f, relative_error, out } } => {
+        Command::Ingest { runs, pt_bins, design, min_events, format, out } => {
+            if runs.is_file() && runs.extension().is_some_and(|e| e == "dat") {
+                let data = artifacts::read_paper_table(&runs)?;
+                let prov = artifacts::Provenance::new(String::new(), artifacts::measurements_hash(&data), 0, &format!("ingest {}", runs.display()));
+                artifacts::write_measurements(&out, &data, Some(&prov))?;
+                println!("converted {} values from {} to {}", data.len(), runs.display(), out.display());
+                return Ok(());
+            }
+            let mut settings = mdpipe::ingest::IngestSettings { min_events, format: format.parse()?, ..Default::default() };
+            if let Some(edges) = pt_bins {
+                settings.pt_edges = edges;
+            }
+            let (ingested, design_df) = mdpipe::ingest::ingest_runs(&runs, design.as_deref(), &settings)?;
+            mdpipe::ingest::print_report(&ingested.report);
+            let report = mdpipe::ingest::write(&ingested, design_df.as_ref(), &out)?;
+            let good = ingested.report.points.iter().filter(|p| p.flagged.is_none()).count();
+            println!("wrote {} rows from {good} of {} design points to {} (report: {})", ingested.rows.len(), ingested.report.points.len(), out.display(), report.display());
+        }
+        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, delta_f, events, oversample, seed, layout, relative_error, out } } => {
             use mdpipe::models::heavy_ion;
             let df = match delta_f.as_str() {
                 "none" => heavy_ion::DeltaF::None,
                 "grad" => heavy_ion::DeltaF::Grad,
                 other => bail!("--delta-f: unknown value {other:?} (use none or grad)"),
             };
+            let smooth = events.is_none() && out.extension().is_some_and(|e| e == "csv" || e == "parquet");
+            if !smooth {
+                let n_events = events.unwrap_or(100);
+                let start = std::time::Instant::now();
+                let points: Vec<(i64, heavy_ion::HeavyIonParams)> = if let Some(design) = &design {
+                    let d = heavy_ion::read_design_points(design)?;
+                    std::fs::create_dir_all(&out)?;
+                    std::fs::copy(design, out.join("design.parquet")).with_context(|| format!("copying {} into {}", design.display(), out.display()))?;
+                    d.ids.into_iter().zip(d.points).collect()
+                } else {
+                    let point = point.clone().unwrap_or_default();
+                    let params = heavy_ion::HeavyIonParams::parse(&point)?;
+                    let named: Vec<(String, f64)> = point.split(',').filter_map(|kv| kv.split_once('=')).map(|(k, v)| (k.trim().to_string(), v.trim().parse().unwrap_or(f64::NAN))).collect();
+                    let mut cols = vec![("design_id".to_string(), vec![0.0])];
+                    cols.extend(named.into_iter().map(|(k, v)| (k, vec![v])));
+                    let mut frame = artifacts::f64_frame(cols)?;
+                    let prov = artifacts::Provenance::new(String::new(), String::new(), seed, &format!("simulate heavy-ion --point {point}"));
+                    std::fs::create_dir_all(&out)?;
+                    artifacts::write_parquet_atomic(&out.join("design.parquet"), &mut frame, Some(&prov))?;
+                    vec![(0, params)]
+                };
+                let n = heavy_ion::simulate_runs(&points, df, n_events, oversample, seed, layout.parse()?, &out)?;
+                println!("wrote {n} events ({} design points x {n_events}, delta-f {delta_f}) to {} in {:.1} s; next: mdpipe ingest {} --out TABLE.parquet", points.len(), out.display(), start.elapsed().as_secs_f64(), out.display());
+                return Ok(());
+            }
             if let Some(design) = design {
                 let table = heavy_ion::simulate_design(&design, df)?;
                 let data_hash = artifacts::sha256_hex(&std::fs::read(&design)?);

@@ -6,4 +6,5 @@ mod common;
 mod diagnose;
 mod emulator;
 mod heavy_ion;
+mod ingest;
 mod sbc;

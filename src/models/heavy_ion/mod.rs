@@ -36,6 +36,8 @@
 //!   too linear: about half of iEBE-MUSIC's below 0.7 GeV and up to 1.4–1.5×
 //!   it at 2 GeV (printed by `cargo test --release --test it stand_in -- --nocapture`).
 
+pub mod events;
+
 /// GeV·fm.
 const HBARC: f64 = 0.197_326_98;
 
@@ -221,28 +223,38 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
         DeltaF::Grad => fo.eta_s_sw / (3.0 * tau_gev * t * t * t),
     };
     let (na, np) = (q.azimuth, q.momentum_azimuth);
+    // Momentum-azimuth tables: the inner loop then needs one exp per point.
+    let tau = 2.0 * std::f64::consts::PI;
+    let trig: Vec<(f64, f64, f64, f64)> = (0..np)
+        .map(|ip| {
+            let phip = tau * ip as f64 / np as f64;
+            (phip.cos(), phip.sin(), (2.0 * phip).cos(), (3.0 * phip).cos())
+        })
+        .collect();
     let (mut n0, mut c2, mut c3) = (0.0, 0.0, 0.0);
     for &(u, wu) in &q.radial {
         let r = u * fo.radius;
         for ia in 0..na {
-            let phi = 2.0 * std::f64::consts::PI * ia as f64 / na as f64;
+            let phi = tau * ia as f64 / na as f64;
+            let (sin_phi, cos_phi) = phi.sin_cos();
             let rho = fo.rho_max * u.powf(PROFILE_EXPONENT) * (1.0 + 2.0 * fo.rho_n[0] * (2.0 * phi).cos() + 2.0 * fo.rho_n[1] * (3.0 * phi).cos());
             let (ch, sh) = (rho.cosh(), rho.sinh());
             for &(eta, we) in &q.rapidity {
                 let (che, she) = (eta.cosh(), eta.sinh());
                 let pz_star2 = (mt * she) * (mt * she);
-                for ip in 0..np {
-                    let phip = 2.0 * std::f64::consts::PI * ip as f64 / np as f64;
-                    let e_star = mt * ch * che - pt * sh * (phip - phi).cos();
+                let (a, b) = (mt * ch * che, pt * sh);
+                let w0 = wu * r * we * mt * che;
+                for &(cp, sp, c2p, c3p) in &trig {
+                    let e_star = a - b * (cp * cos_phi + sp * sin_phi);
                     let mut f = (-e_star / t_kin).exp();
                     if df_coeff != 0.0 {
                         let pt_star2 = e_star * e_star - m * m - pz_star2;
                         f *= 1.0 + df_coeff * (pt_star2 - 2.0 * pz_star2);
                     }
-                    let w = wu * r * we * mt * che * f;
+                    let w = w0 * f;
                     n0 += w;
-                    c2 += w * (2.0 * phip).cos();
-                    c3 += w * (3.0 * phip).cos();
+                    c2 += w * c2p;
+                    c3 += w * c3p;
                 }
             }
         }
@@ -339,13 +351,19 @@ pub fn mean_pt(p: &HeavyIonParams, species: &Species, delta_f: DeltaF) -> f64 {
     num / den
 }
 
-/// Runs the stand-in at every point of a design (`design.parquet` from
-/// `mdpipe design`: `design_id` plus one column per parameter), in parallel,
-/// and returns the long training table.
-pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Result<crate::emulator::TrainingTable> {
+/// A design's points: ids, parameter names and per-parameter columns, and the
+/// parsed parameter points.
+pub struct DesignPoints {
+    pub ids: Vec<i64>,
+    pub names: Vec<String>,
+    pub columns: Vec<Vec<f64>>,
+    pub points: Vec<HeavyIonParams>,
+}
+
+/// Reads `design.parquet` (from `mdpipe design`: `design_id` plus one column per parameter).
+pub fn read_design_points(design: &std::path::Path) -> anyhow::Result<DesignPoints> {
     use anyhow::Context;
     use polars::prelude::DataType;
-    use rayon::prelude::*;
     let df = crate::artifacts::read_parquet(design)?;
     let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).filter(|n| n != "design_id").collect();
     let numbers = |name: &str| -> anyhow::Result<Vec<f64>> {
@@ -361,6 +379,34 @@ pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Res
     if points.is_empty() {
         anyhow::bail!("{}: the design has no points", design.display());
     }
+    Ok(DesignPoints { ids, names, columns, points })
+}
+
+/// Runs the stand-in event by event at each point, writing iEBE-MUSIC-layout
+/// runs to `out/<design id as %04d>/` (points in parallel). Returns the
+/// number of events written.
+pub fn simulate_runs(points: &[(i64, HeavyIonParams)], delta_f: DeltaF, n_events: usize, oversample: usize, seed: u64, layout: events::Layout, out: &std::path::Path) -> anyhow::Result<usize> {
+    use rayon::prelude::*;
+    if n_events == 0 {
+        anyhow::bail!("--events must be at least 1");
+    }
+    let bar = crate::progress_bar(points.len() as u64, "heavy-ion stand-in, event by event");
+    points.par_iter().try_for_each(|(id, p)| -> anyhow::Result<()> {
+        let tables = events::SmoothTables::new(p, delta_f);
+        let evs = events::sample_events(&tables, n_events, oversample.max(1), seed.wrapping_add((*id as u64).wrapping_mul(1_000_003)));
+        events::write_point(&out.join(format!("{id:04}")), &evs, layout)?;
+        bar.inc(1);
+        Ok(())
+    })?;
+    bar.finish_and_clear();
+    Ok(points.len() * n_events)
+}
+
+/// Runs the smooth (infinite-statistics) stand-in at every point of a design,
+/// in parallel, and returns the long training table.
+pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Result<crate::emulator::TrainingTable> {
+    use rayon::prelude::*;
+    let DesignPoints { ids, names, columns, points } = read_design_points(design)?;
     let pts = analysis_pt();
     let bar = crate::progress_bar(points.len() as u64, "heavy-ion stand-in over the design");
     let results: Vec<Vec<(&'static str, Vec<f64>)>> = points

@@ -1,0 +1,146 @@
+//! `mdpipe ingest` on fixtures written by h5py and numpy
+//! (tests/fixtures/iebe_music/make_fixtures.py): the known spectra and
+//! v_n{2} must come back within their jackknife errors; text and HDF5 forms
+//! of the same events must agree; bad events and thin points are reported.
+
+use mdpipe::ingest::{self, IngestSettings, IngestedRow};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+fn fixture_runs() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/iebe_music/runs")
+}
+
+// Keep in sync with make_fixtures.py: pid, mass, dN/dy, T.
+const SPECIES: [(i32, f64, f64, f64); 3] = [(211, 0.13957, 120.0, 0.22), (321, 0.493677, 20.0, 0.26), (2212, 0.938272, 8.0, 0.30)];
+
+fn v2_of(pt: f64, m: f64) -> f64 {
+    let k = (pt * pt + m * m).sqrt() - m;
+    0.16 * k / (0.35 + k)
+}
+
+fn v3_of(pt: f64, m: f64) -> f64 {
+    let k = (pt * pt + m * m).sqrt() - m;
+    0.06 * k / (0.5 + k)
+}
+
+/// dN/dpT in the file's window: |y| < 0.5 for one identified species, or
+/// |η| < 0.5 for all charged (both signs).
+fn density(pt: f64, s: (i32, f64, f64, f64), charged: bool) -> f64 {
+    let (_, m, dndy, t) = s;
+    let a = dndy / (2.0 * std::f64::consts::PI * t * (m + t) * (-m / t).exp());
+    let mt = (pt * pt + m * m).sqrt();
+    let acceptance = if charged { 2.0 * ((pt / mt) * 0.5f64.sinh()).asinh() / 0.5 } else { 1.0 };
+    2.0 * std::f64::consts::PI * a * pt * (-mt / t).exp() * acceptance
+}
+
+fn simpson(f: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
+    let n = 200;
+    let h = (b - a) / n as f64;
+    (0..=n).map(|i| f(a + i as f64 * h) * if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 }).sum::<f64>() * h / 3.0
+}
+
+fn truth(observable: &str, x: f64) -> f64 {
+    let (tag, kind) = observable.split_once('_').unwrap();
+    let species: Vec<_> = match tag {
+        "ch" => SPECIES.to_vec(),
+        "pi" => vec![SPECIES[0]],
+        "p" => vec![SPECIES[2]],
+        _ => unreachable!(),
+    };
+    let charged = tag == "ch";
+    let (a, b) = (x - 0.1, x + 0.1);
+    let count: f64 = species.iter().map(|&s| simpson(|p| density(p, s, charged), a, b)).sum();
+    match kind {
+        "spectrum" => count / (2.0 * std::f64::consts::PI * x * 0.2),
+        "v2" => species.iter().map(|&s| simpson(|p| density(p, s, charged) * v2_of(p, s.1), a, b)).sum::<f64>() / count,
+        "v3" => species.iter().map(|&s| simpson(|p| density(p, s, charged) * v3_of(p, s.1), a, b)).sum::<f64>() / count,
+        _ => unreachable!(),
+    }
+}
+
+fn by_point(rows: &[IngestedRow], id: i64) -> HashMap<(String, u64), &IngestedRow> {
+    rows.iter().filter(|r| r.design_id == id).map(|r| ((r.observable.clone(), r.x.to_bits()), r)).collect()
+}
+
+#[test]
+fn ingest_recovers_known_spectra_and_flow_from_h5py_fixtures() {
+    let settings = IngestSettings { min_events: 5, ..Default::default() };
+    let (got, design) = ingest::ingest_runs(&fixture_runs(), None, &settings).unwrap();
+    assert!(design.is_none());
+    let report = &got.report;
+    // Point 0: 40 good events; the NaN event and the one missing a file are listed.
+    let p0 = report.points.iter().find(|p| p.design_id == 0).unwrap();
+    assert_eq!(p0.good_events, 40, "{p0:?}");
+    assert_eq!(p0.skipped.len(), 2);
+    let nan = p0.skipped.iter().find(|s| s.event == "spvn_results_40").unwrap();
+    assert!(nan.reason.contains("spvn_results.h5:/spvn_results_40/particle_211_vndata_diff_y_-0.5_0.5.dat: row 4, column 2"), "{}", nan.reason);
+    let missing = p0.skipped.iter().find(|s| s.event == "spvn_results_41").unwrap();
+    assert!(missing.reason.contains("missing file particle_9999_vndata_diff_eta_-0.5_0.5.dat"), "{}", missing.reason);
+    // Point 3 has 2 events: flagged, and absent from the table.
+    let p3 = report.points.iter().find(|p| p.design_id == 3).unwrap();
+    assert!(p3.flagged.as_deref().unwrap().contains("only 2 good events"), "{p3:?}");
+    assert!(got.rows.iter().all(|r| r.design_id != 3));
+
+    // Point 0 against the truth the fixture was drawn from: 70 values.
+    let rows0 = by_point(&got.rows, 0);
+    assert_eq!(rows0.len(), 70);
+    let mut pulls = Vec::new();
+    for r in rows0.values() {
+        assert_eq!(r.n_events, 40);
+        let pull = (r.value - truth(&r.observable, r.x)) / r.error;
+        assert!(pull.abs() < 4.0, "{}[{}]: {} vs truth {} ± {} (pull {pull:.1})", r.observable, r.x, r.value, truth(&r.observable, r.x), r.error);
+        pulls.push(pull);
+    }
+    // Jackknife errors are right on average: the rms pull of 70 unit normals
+    // is 1 ± 0.085; allow ±3.5 of that.
+    let rms = (pulls.iter().map(|p| p * p).sum::<f64>() / pulls.len() as f64).sqrt();
+    eprintln!("point 0: rms pull {rms:.3} over {} values", pulls.len());
+    assert!((0.7..1.3).contains(&rms), "rms pull {rms}");
+
+    // Points 1 (text) and 2 (HDF5, float32) hold the same events.
+    let (t, h) = (by_point(&got.rows, 1), by_point(&got.rows, 2));
+    assert_eq!(t.len(), h.len());
+    assert!(t.len() >= 68);
+    for (k, a) in &t {
+        let b = h[k];
+        assert!((a.value - b.value).abs() <= 1e-4 * a.value.abs().max(1e-3), "{k:?}: text {} vs hdf5 {}", a.value, b.value);
+    }
+}
+
+#[test]
+fn ingest_writes_a_training_table_and_reports_corrupt_text() {
+    // A copy of the text point with one corrupted file and one empty event folder.
+    let dir = std::env::temp_dir().join(format!("mdpipe-ingest-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let src = fixture_runs().join("0001");
+    let dst = dir.join("0005");
+    for ev in std::fs::read_dir(&src).unwrap() {
+        let ev = ev.unwrap().path();
+        let to = dst.join(ev.file_name().unwrap());
+        std::fs::create_dir_all(&to).unwrap();
+        for f in std::fs::read_dir(&ev).unwrap() {
+            let f = f.unwrap().path();
+            std::fs::copy(&f, to.join(f.file_name().unwrap())).unwrap();
+        }
+    }
+    let bad = dst.join("spvn_results_3/particle_2212_vndata_diff_y_-0.5_0.5.dat");
+    let text = std::fs::read_to_string(&bad).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    lines[5] = lines[5].replacen("e", "x", 1);
+    std::fs::write(&bad, lines.join("\n")).unwrap();
+
+    let settings = IngestSettings { min_events: 5, ..Default::default() };
+    let (got, _) = ingest::ingest_runs(&dir, None, &settings).unwrap();
+    let p = &got.report.points[0];
+    assert_eq!((p.design_id, p.good_events), (5, 11), "{p:?}");
+    assert!(p.skipped[0].reason.contains("particle_2212_vndata_diff_y_-0.5_0.5.dat: line 6, column 1"), "{}", p.skipped[0].reason);
+
+    // The table is a valid training table for train-emulator (long format).
+    let out = dir.join("table.parquet");
+    ingest::write(&got, None, &out).unwrap();
+    let table = mdpipe::emulator::read_training_table(&out, &[]).unwrap();
+    assert_eq!(table.design_ids, vec![5]);
+    assert!(dir.join("table.report.json").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
