@@ -178,7 +178,8 @@ enum SimulateSystem {
         /// Run every point of a design.parquet
         #[arg(long)]
         design: Option<PathBuf>,
-        /// Particlization: none (f_eq) or grad (Grad 14-moment shear δf)
+        /// Particlization: none (f_eq), grad (Grad 14-moment shear δf, Bjorken shear) or grad-transverse
+        /// (adds the blast wave's transverse expansion rates)
         #[arg(long, default_value = "grad")]
         delta_f: String,
         /// Events per design point (default 100 when writing runs)
@@ -372,11 +373,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Simulate { system: SimulateSystem::HeavyIon { point, design, delta_f, events, oversample, seed, layout, relative_error, out } } => {
             use mdpipe::models::heavy_ion;
-            let df = match delta_f.as_str() {
-                "none" => heavy_ion::DeltaF::None,
-                "grad" => heavy_ion::DeltaF::Grad,
-                other => bail!("--delta-f: unknown value {other:?} (use none or grad)"),
-            };
+let df: heavy_ion::DeltaF = delta_f.parse()?;
             let smooth = events.is_none() && out.extension().is_some_and(|e| e == "csv" || e == "parquet");
             if !smooth {
                 let n_events = events.unwrap_or(100);
