@@ -375,7 +375,7 @@ pub fn train_and_save(config: &std::path::Path, training: &std::path::Path, desi
     let settings = EmulatorSettings::load(config)?;
     let config_hash = crate::artifacts::sha256_hex(&std::fs::read(config).with_context(|| format!("reading {}", config.display()))?);
     let data_hash = crate::artifacts::sha256_hex(&std::fs::read(training).with_context(|| format!("reading {}", training.display()))?);
-    let table = read_training_table(training, &settings.parameters)?;
+    let table = table::read_training_table_selected(training, &settings.parameters, &settings.observables)?;
     if let Some(design) = design {
         check_against_design(&table, design)?;
     }

@@ -227,6 +227,13 @@ fn parse_wide_column(name: &str) -> Option<OutputKey> {
 /// Reads a long or wide table of simulator runs. Every design point must have
 /// every output exactly once, and every value must be finite.
 pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<TrainingTable> {
+    read_training_table_selected(path, parameter_names, &[])
+}
+
+/// As [`read_training_table`], keeping only the named observables (all if
+/// `observables` is empty); each named one must be in the table.
+pub fn read_training_table_selected(path: &Path, parameter_names: &[String], observables: &[String]) -> Result<TrainingTable> {
+    let keep = |o: &str| observables.is_empty() || observables.iter().any(|k| k == o);
     let raw = RawTable::read(path)?;
     let file = path.display();
     if raw.height() == 0 {
@@ -277,6 +284,9 @@ pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<Tr
             if obs[i].trim().is_empty() {
                 bail!("{file}: {}, field 'observable': empty observable name", raw.location(i));
             }
+            if !keep(&obs[i]) {
+                continue;
+            }
             let point = *point_row.entry(ids[i]).or_insert_with(|| {
                 point_order.push(ids[i]);
                 point_order.len() - 1
@@ -292,6 +302,9 @@ pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<Tr
         }
         for c in &out_cols {
             let key = parse_wide_column(c).ok_or_else(|| anyhow!("{file}: column '{c}': expected 'observable[x]' with a numeric x"))?;
+            if !keep(&key.observable) {
+                continue;
+            }
             let values = raw.numbers(path, c)?;
             check_finite(path, &raw, c, &values)?;
             let out = output_index(key, &mut outputs);
@@ -309,7 +322,8 @@ pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<Tr
     let d = parameter_names.len();
     let mut inputs = vec![f64::NAN; point_order.len() * d];
     for i in 0..raw.height() {
-        let p = point_row[&ids[i]];
+        // A point whose rows were all of unselected observables is not trained on.
+        let Some(&p) = point_row.get(&ids[i]) else { continue };
         for k in 0..d {
             let v = params[k][i];
             let slot = &mut inputs[p * d + k];
@@ -328,6 +342,9 @@ pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<Tr
         }
         acc
     });
+    if let Some(missing) = observables.iter().find(|o| !obs_order.contains(o)) {
+        bail!("{file}: no values for observable '{missing}' (found: {})", obs_order.join(", "));
+    }
     let mut perm: Vec<usize> = (0..outputs.len()).collect();
     perm.sort_by(|&a, &b| {
         let oa = obs_order.iter().position(|o| *o == outputs[a].observable);

@@ -35,6 +35,9 @@ pub struct EmulatorSettings {
     /// Observables emulated in log space (spectra).
     #[serde(default)]
     pub log_observables: Vec<String>,
+    /// Observables to emulate (default: every observable in the training table).
+    #[serde(default)]
+    pub observables: Vec<String>,
 }
 
 fn default_kernel() -> String {

@@ -164,7 +164,13 @@ pub fn run(dir: &std::path::Path, validation: Option<&std::path::Path>, folds: u
     let mut rows = Vec::new();
     let holdout = match validation {
         Some(path) => {
-            let table = super::read_training_table(path, &emu.parts.parameter_names)?;
+            let mut observables: Vec<String> = Vec::new();
+            for o in &emu.parts.outputs {
+                if !observables.contains(&o.observable) {
+                    observables.push(o.observable.clone());
+                }
+            }
+            let table = super::table::read_training_table_selected(path, &emu.parts.parameter_names, &observables)?;
             let r = parity(&emu, &table, "holdout")?;
             let s = summarize(&r);
             rows.extend(r);

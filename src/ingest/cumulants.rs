@@ -243,11 +243,8 @@ pub fn analyse(species: &Species, charged: &FileKind, events: &[BinnedEvent], re
         out
     };
     let (value, error) = jackknife(&per_event, estimate);
-    // A replicate can be undefined where a bin holds a handful of particles;
-    // the error is then NaN and the caller reports the bin.
-    if value[nb..].iter().any(|v| !v.is_finite()) {
-        bail!("the reference flow <|Q|^2 - M> is not positive over {n_ev} events: v_n{{2}} cannot be measured (too few particles or events)");
-    }
+    // Values or errors are NaN where a bin holds a handful of particles, or
+    // where <|Q|² − M> ≤ 0 (v_n{2} undefined); the caller leaves those out.
     let est = |k: usize| Estimate { value: value[k], error: error[k] };
     Ok(SpeciesResult { spectrum: (0..nb).map(est).collect(), vn: [(nb..2 * nb).map(est).collect(), (2 * nb..3 * nb).map(est).collect()] })
 }

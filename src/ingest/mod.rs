@@ -84,8 +84,9 @@ pub struct PointReport {
     pub skipped: Vec<SkippedEvent>,
     /// Why the point is left out of the table, if it is.
     pub flagged: Option<String>,
-    /// Bins left out because their value or jackknife error is undefined
-    /// (too few particles in some event subsets).
+    /// Bins left out because their value or jackknife error is undefined:
+    /// too few particles in some event subsets, or a v_n{2} whose reference
+    /// <|Q|² − M> is not positive (more events or samples are needed).
     pub undefined_bins: Vec<String>,
 }
 
@@ -270,7 +271,7 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
             match rows {
                 Ok(rows) => {
                     let (good, bad): (Vec<IngestedRow>, Vec<IngestedRow>) = rows.into_iter().partition(|r| r.value.is_finite() && r.error.is_finite());
-                    report.undefined_bins = bad.iter().map(|r| format!("{}[{}]", r.observable, r.x)).collect();
+                    report.undefined_bins = bad.iter().map(|r| format!("{}[{:.2}]", r.observable, r.x)).collect();
                     (report, good)
                 }
                 Err(e) => {
@@ -346,7 +347,7 @@ pub fn print_report(report: &IngestReport) {
             eprintln!("    skipped event {}: {}", s.event, s.reason);
         }
         if !p.undefined_bins.is_empty() {
-            eprintln!("    left out (too few particles for a value or jackknife error): {}", p.undefined_bins.join(", "));
+            eprintln!("    left out (value or jackknife error undefined; more events or --oversample would measure them): {}", p.undefined_bins.join(", "));
         }
     }
     if !report.missing_points.is_empty() {

@@ -63,6 +63,7 @@ fn settings(components: Option<usize>) -> EmulatorSettings {
         restarts: 4,
         max_iters: 200,
         log_observables: vec!["spectrum0".into(), "spectrum1".into()],
+        observables: Vec::new(),
     }
 }
 

@@ -141,6 +141,12 @@ fn ingest_writes_a_training_table_and_reports_corrupt_text() {
     ingest::write(&got, None, &out).unwrap();
     let table = mdpipe::emulator::read_training_table(&out, &[]).unwrap();
     assert_eq!(table.design_ids, vec![5]);
+    assert_eq!(table.n_outputs(), 70);
+    // `[emulator] observables` keeps a subset; naming an absent one is an error.
+    let only = mdpipe::emulator::table::read_training_table_selected(&out, &[], &["ch_v2".to_string()]).unwrap();
+    assert!(only.n_outputs() == 10 && only.outputs.iter().all(|o| o.observable == "ch_v2"));
+    let e = mdpipe::emulator::table::read_training_table_selected(&out, &[], &["ch_v4".to_string()]).unwrap_err().to_string();
+    assert!(e.contains("no values for observable 'ch_v4'"), "{e}");
     assert!(dir.join("table.report.json").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
