@@ -97,6 +97,9 @@ enum Command {
         dirs: Vec<PathBuf>,
         #[arg(long, default_value = "report.html")]
         out: PathBuf,
+        /// Also write every figure as a PNG into this folder
+        #[arg(long)]
+        png: Option<PathBuf>,
     },
     /// Maximin Latin-hypercube design with iEBE-MUSIC parameter files and a SLURM array script
     Design {
@@ -308,9 +311,14 @@ fn run(cli: Cli) -> Result<()> {
             }
             println!("wrote {0}/validation.json and {0}/validation_parity.parquet", emulator.display());
         }
-        Command::Report { dirs, out } => {
-            mdpipe::report::write(&dirs, &out, "mdpipe report")?;
+        Command::Report { dirs, out, png } => {
+            let html = mdpipe::report::build(&dirs, "mdpipe report")?;
+            artifacts::write_text_atomic(&out, &html)?;
             println!("wrote {}", out.display());
+            if let Some(dir) = png {
+                let files = mdpipe::report::png::write_figures(&html, &dir)?;
+                println!("wrote {} PNG figures to {}", files.len(), dir.display());
+            }
         }
         Command::Demo { seed, out } => mdpipe::demo::run(seed, &out)?,
         Command::Bench { heavy_ion_events: Some(events), out, .. } => {

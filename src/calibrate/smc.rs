@@ -31,7 +31,8 @@ pub struct SmcSettings {
     pub replicates: usize,
     /// Target ESS of the incremental weights, as a fraction of `particles`.
     pub ess_fraction: f64,
-    /// Base number of Metropolis steps per tempering step, per dimension.
+    /// Base number of Metropolis steps per tempering step, per dimension (2, as
+    /// the paper's pocoMC runs; the bundled configs use the same).
     pub steps_per_dim: f64,
     /// Cap on the adaptive number of steps, per dimension.
     pub max_steps_per_dim: f64,
@@ -46,7 +47,7 @@ impl Default for SmcSettings {
             particles: 2000,
             replicates: 4,
             ess_fraction: 0.5,
-            steps_per_dim: 3.0,
+            steps_per_dim: 2.0,
             max_steps_per_dim: 12.0,
             final_steps_per_dim: 15.0,
             target_acceptance: 0.234,

@@ -57,7 +57,7 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
 /// Renders the report in headless Chromium and checks that every figure laid
 /// out with a non-zero size. CI installs Chromium (.ci/run); elsewhere the
 /// check is skipped with a message when no browser is installed.
-fn check_in_browser(report: &Path, figures: usize) {
+pub fn check_in_browser(report: &Path, figures: usize) {
     let browser = ["chromium", "chromium-browser"].into_iter().find(|b| std::process::Command::new(b).arg("--version").output().is_ok());
     let Some(browser) = browser else {
         assert!(std::env::var("CI").is_err(), "CI must have Chromium to check the report");

@@ -7,4 +7,5 @@ mod diagnose;
 mod emulator;
 mod heavy_ion;
 mod ingest;
+mod report;
 mod sbc;

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 const W: u32 = 560;
 const H: u32 = 380;
 
-fn kernel_colour(kernel: &str) -> RGBColor {
+pub(crate) fn kernel_colour(kernel: &str) -> RGBColor {
     match kernel {
         "none" => RGBColor(205, 40, 40),
         "I" => RGBColor(40, 90, 205),
@@ -51,11 +51,11 @@ impl RunArtifacts {
         Ok(RunArtifacts { dir: dir.to_path_buf(), summary, names, draws, predictions, data })
     }
 
-    fn param(&self, name: &str) -> Option<&[f64]> {
+    pub(crate) fn param(&self, name: &str) -> Option<&[f64]> {
         self.names.iter().position(|n| n == name).map(|i| self.draws[i].as_slice())
     }
 
-    fn pred_col(&self, observable: &str, kind: &str, col: &str) -> Vec<f64> {
+    pub(crate) fn pred_col(&self, observable: &str, kind: &str, col: &str) -> Vec<f64> {
         let obs = self.predictions.column("observable").unwrap().str().unwrap();
         let kinds = self.predictions.column("kind").unwrap().str().unwrap();
         let vals = self.predictions.column(col).unwrap().f64().unwrap();
@@ -66,7 +66,7 @@ impl RunArtifacts {
     }
 }
 
-fn svg(draw: impl FnOnce(&DrawingArea<SVGBackend, plotters::coord::Shift>) -> Result<()>, w: u32, h: u32) -> Result<String> {
+pub(crate) fn svg(draw: impl FnOnce(&DrawingArea<SVGBackend, plotters::coord::Shift>) -> Result<()>, w: u32, h: u32) -> Result<String> {
     let mut s = String::new();
     {
         let root = SVGBackend::with_string(&mut s, (w, h)).into_drawing_area();
@@ -83,7 +83,11 @@ macro_rules! p {
     };
 }
 
-fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
+mod emulator;
+mod heavy_ion;
+pub mod png;
+
+pub(crate) fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (lo, hi) = values.filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |a, v| (a.0.min(v), a.1.max(v)));
     if !lo.is_finite() {
         return (0.0, 1.0);
@@ -478,14 +482,22 @@ pub fn build(dirs: &[PathBuf], title: &str) -> Result<String> {
         let units = |p: &str| match p {
             "g" => "m/s²".to_string(),
             "v0" => "m/s".to_string(),
-            _ => String::new(),
+            other => heavy_ion::parameter_units(other),
         };
+        let heavy = heavy_ion::is_heavy_ion(group[0]);
         let kernels: Vec<&str> = group.iter().map(|r| r.summary.kernel.as_str()).collect();
         figure(
             &mut html,
             &format!("Observables {}: posteriors for kernels {} (no MD red, Kernel I blue, Kernel II green; truth dashed grey; coloured bands: median ± 68%; grey: the uniform prior's density).", set.join(", "), kernels.join(", ")),
             &corner_plot(&group, &theta, &truth, &units)?,
         );
+        if heavy {
+            figure(
+                &mut html,
+                &format!("Observables {}: η/s(T) posterior medians and 95% bands (truth dashed grey); inset: the ε_sw posteriors.", set.join(", ")),
+                &heavy_ion::eta_s_plot(&group, &truth, "η/s(T) and ε_sw")?,
+            );
+        }
         html.push_str("<table><tr><th>kernel</th>");
         for t in &theta {
             html.push_str(&format!("<th>{t} median [95%]</th>"));
@@ -504,11 +516,16 @@ pub fn build(dirs: &[PathBuf], title: &str) -> Result<String> {
         if set.len() == sets.iter().map(|s| s.len()).max().unwrap_or(0) {
             for r in &group {
                 for obs in set {
-                    figure(&mut html, &format!("Kernel {}: {obs}, data with 1σ errors and 95% posterior-predictive bands.", r.summary.kernel), &prediction_plot(r, obs, x_units, units_for(obs), &format!("kernel {}: {obs}", r.summary.kernel))?);
+                    if heavy {
+                        figure(&mut html, &format!("Kernel {}: {obs} per pT bin: posterior-predictive boxes (model + δ 68%/95%, model alone 95% outline) against the data.", r.summary.kernel), &heavy_ion::prediction_boxes(r, obs, &format!("kernel {}: {obs}", r.summary.kernel))?);
+                    } else {
+                        figure(&mut html, &format!("Kernel {}: {obs}, data with 1σ errors and 95% posterior-predictive bands.", r.summary.kernel), &prediction_plot(r, obs, x_units, units_for(obs), &format!("kernel {}: {obs}", r.summary.kernel))?);
+                    }
                 }
             }
         }
     }
+    emulator_section(&mut html, dirs)?;
     if let Some(r) = runs.first() {
         let p = &r.summary.provenance;
         html.push_str(&format!("<p style=\"font-size:12px;color:#666\">mdpipe {} · config {} · seed {}</p>", p.mdpipe_version, &p.config_hash.get(..12).unwrap_or(""), p.seed));
@@ -518,6 +535,48 @@ pub fn build(dirs: &[PathBuf], title: &str) -> Result<String> {
     html.push_str("<script>window.addEventListener('load',function(){var s=[];document.querySelectorAll('figure svg').forEach(function(e){var r=e.getBoundingClientRect();s.push(Math.round(r.width)+'x'+Math.round(r.height));});document.body.setAttribute('data-figure-sizes',s.join(','));});</script>\n");
     html.push_str("</body></html>\n");
     Ok(html)
+}
+
+/// Parity plots and z-score histograms for every emulator folder (with
+/// `validation_parity.parquet`) in `dirs` or one level below.
+fn emulator_section(html: &mut String, dirs: &[PathBuf]) -> Result<()> {
+    let mut found = Vec::new();
+    for d in dirs {
+        let mut candidates = vec![d.clone()];
+        if let Ok(rd) = std::fs::read_dir(d) {
+            let mut subs: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
+            subs.sort();
+            candidates.extend(subs);
+        }
+        found.extend(candidates.into_iter().filter(|c| c.join("validation_parity.parquet").exists()));
+    }
+    for dir in found {
+        let rows = emulator::load_parity(&dir.join("validation_parity.parquet"))?;
+        html.push_str(&format!("<h2>Emulator validation: {}</h2>\n", html_escape(&dir.display().to_string())));
+        let mut sets: Vec<String> = Vec::new();
+        for r in &rows {
+            if !sets.contains(&r.set) {
+                sets.push(r.set.clone());
+            }
+        }
+        for set in &sets {
+            let subset: Vec<&emulator::ParityRow> = rows.iter().filter(|r| &r.set == set).collect();
+            figure(html, &format!("{set}: z-scores of every output; a calibrated emulator follows N(0, 1)."), &emulator::z_histogram(&subset, set)?);
+        }
+        // Parity per observable, on the held-out design if there is one.
+        let set = if sets.iter().any(|s| s == "holdout") { "holdout".to_string() } else { sets.first().cloned().unwrap_or_default() };
+        let mut observables: Vec<String> = Vec::new();
+        for r in rows.iter().filter(|r| r.set == set) {
+            if !observables.contains(&r.observable) {
+                observables.push(r.observable.clone());
+            }
+        }
+        for obs in &observables {
+            let subset: Vec<&emulator::ParityRow> = rows.iter().filter(|r| r.set == set && &r.observable == obs).collect();
+            figure(html, &format!("{set}: emulated against simulated {obs}, every pT bin and design point."), &emulator::parity_plot(&subset, obs)?);
+        }
+    }
+    Ok(())
 }
 
 pub fn write(dirs: &[PathBuf], out: &Path, title: &str) -> Result<()> {
