@@ -23,6 +23,8 @@ pub struct Config {
     pub predictions: PredictionConfig,
     /// Emulator training settings, when this config also drives `train-emulator`.
     pub emulator: Option<crate::emulator::EmulatorSettings>,
+    /// The process that made mock data, drawn as the true curve in predictions.
+    pub truth: Option<TruthConfig>,
     /// Where the file was read from; relative paths resolve against its folder.
     #[serde(skip)]
     pub path: PathBuf,
@@ -42,6 +44,27 @@ pub enum ModelConfig {
     },
     /// A trained emulator (folder written by `mdpipe train-emulator`), relative to the config.
     Emulator { artifact: PathBuf },
+}
+
+/// The data-generating process of mock data, evaluated at the parameters'
+/// `truth` values (ball drop: g, v0; heavy ion: the stand-in's parameters).
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum TruthConfig {
+    /// The ball drop with extra forces (h0 from `[model]`).
+    BallDrop {
+        /// k in `-k v|v|`, 1/m.
+        #[serde(default)]
+        quadratic_drag: f64,
+        /// b in `-b v`, 1/s.
+        #[serde(default)]
+        linear_drag: f64,
+    },
+    /// The heavy-ion stand-in's smooth observables.
+    HeavyIon {
+        /// none, grad or grad-transverse.
+        delta_f: String,
+    },
 }
 
 fn default_h0() -> f64 {

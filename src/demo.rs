@@ -33,7 +33,11 @@ pub fn run(seed: u64, out: &Path) -> Result<()> {
     println!("   {} measurements of height, velocity, acceleration -> {}", data.len(), data_path.display());
 
     println!("2. Calibrating the drag-free model: 3 observable sets x {{no MD, Kernel I, Kernel II}} ...");
-    let overrides = Overrides { data: Some(data_path), ..Default::default() };
+    // The demo's data follow the config's `[truth]` recipe, so they replace its
+    // measurements file (a --data override would drop the true curve).
+    let mut config = config;
+    config.data.measurements = std::fs::canonicalize(&data_path)?;
+    let overrides = Overrides::default();
     let grid_dir = out.join("compare");
     let cases = compare::run_grid(&config, &overrides, seed, &grid_dir, true)?;
     println!();

@@ -174,7 +174,11 @@ impl Problem {
         }
         let prior = UniformPrior::new(likelihood.parameter_names(), lower, upper)?;
         Ok(Problem {
-            config: config.clone(),
+            config: Config {
+                // `[truth]` describes the config's own data file, not a --data replacement.
+                truth: if overrides.data.is_some() { None } else { config.truth.clone() },
+                ..config.clone()
+            },
             data_path,
             measurements,
             simulator,

@@ -229,6 +229,8 @@ pub struct PredictionRow {
     /// δ alone (original units) and its posterior mean.
     pub delta: [f64; 5],
     pub delta_mean: f64,
+    /// The true curve (config `[truth]`), NaN where unknown.
+    pub truth: f64,
 }
 
 const BAND_LEVELS: [f64; 5] = [0.025, 0.16, 0.5, 0.84, 0.975];
@@ -262,6 +264,7 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
         xs.extend(block.x.iter().map(|&x| (x, "data")));
         let xq: Vec<f64> = xs.iter().map(|p| p.0).collect();
         let m = xq.len();
+        let truth = crate::models::truth_curve(&problem.config, &block.name, &xq).unwrap_or_else(|| vec![f64::NAN; m]);
         // Per draw: η(xq) and δ(xq) samples, in original units.
         let per_draw: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> = draws
             .par_iter()
@@ -291,6 +294,7 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
                 model_md: bands(&mut md),
                 delta: bands(&mut delta),
                 delta_mean,
+                truth: truth[q],
             });
         }
     }
@@ -362,5 +366,6 @@ pub fn predictions_frame(rows: &[PredictionRow]) -> Result<DataFrame> {
         }
     }
     cols.push(Column::new("delta_mean".into(), rows.iter().map(|r| r.delta_mean).collect::<Vec<_>>()));
+    cols.push(Column::new("truth".into(), rows.iter().map(|r| r.truth).collect::<Vec<_>>()));
     Ok(DataFrame::new(rows.len(), cols)?)
 }

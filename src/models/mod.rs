@@ -89,3 +89,28 @@ impl Simulator for AugmentedBallDrop {
         }
     }
 }
+
+/// The true curve of `observable` at `xs` when the config names the process
+/// that made the data (`[truth]`) and every parameter has a `truth` value.
+pub fn truth_curve(config: &crate::config::Config, observable: &str, xs: &[f64]) -> Option<Vec<f64>> {
+    use crate::config::{ModelConfig, TruthConfig};
+    let truths: Vec<(String, f64)> = config.parameters.iter().map(|(n, p)| p.truth.map(|t| (n.clone(), t))).collect::<Option<_>>()?;
+    let get = |n: &str| truths.iter().find(|(k, _)| k == n).map(|(_, v)| *v);
+    match config.truth.as_ref()? {
+        TruthConfig::BallDrop { quadratic_drag, linear_drag } => {
+            let h0 = match config.model {
+                ModelConfig::BallDrop { h0 } => h0,
+                _ => 60.0,
+            };
+            let k = ball_drop::OBSERVABLES.iter().position(|o| *o == observable)?;
+            let setup = ball_drop::BallDropSetup { h0, g: get("g")?, v0: get("v0")? };
+            let forces = ball_drop::ExtraForces { quadratic_drag: *quadratic_drag, linear_drag: *linear_drag, ..ball_drop::ExtraForces::NONE };
+            Some(xs.iter().map(|&t| if t >= 0.0 { ball_drop::truth_state(&setup, &forces, t)[k] } else { f64::NAN }).collect())
+        }
+        TruthConfig::HeavyIon { delta_f } => {
+            let params = heavy_ion::HeavyIonParams::from_named(&truths).ok()?;
+            let df: heavy_ion::DeltaF = delta_f.parse().ok()?;
+            heavy_ion::observables(&params, df, xs).into_iter().find(|(n, _)| *n == observable).map(|(_, v)| v)
+        }
+    }
+}

@@ -30,7 +30,9 @@ pub fn parity_plot(rows: &[&ParityRow], observable: &str) -> Result<String> {
     svg(
         |root| {
             let mut chart = p!(ChartBuilder::on(root).caption(format!("emulator parity: {observable}"), ("sans-serif", 16)).margin(8).x_label_area_size(40).y_label_area_size(64).build_cartesian_2d(r.0..r.1, r.0..r.1));
-            let (xd, yd) = (format!("simulated {observable}"), format!("emulated {observable}"));
+            // Heavy-ion spectra are invariant yields; flows and ball-drop outputs carry their own units.
+            let units = if observable.ends_with("spectrum") { " [GeV⁻²]" } else { "" };
+            let (xd, yd) = (format!("simulated {observable}{units}"), format!("emulated {observable}{units}"));
             p!(chart.configure_mesh().x_desc(xd.as_str()).y_desc(yd.as_str()).draw());
             p!(chart
                 .draw_series(DashedLineSeries::new(vec![(r.0, r.0), (r.1, r.1)], 6, 4, BLACK.stroke_width(1)))

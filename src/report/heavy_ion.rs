@@ -138,6 +138,7 @@ pub fn prediction_boxes(run: &RunArtifacts, observable: &str, title: &str) -> Re
     let (m025, m975) = (q("model", "q025"), q("model", "q975"));
     let (d025, d16, d50, d84, d975) = (q("model_md", "q025"), q("model_md", "q16"), q("model_md", "median"), q("model_md", "q84"), q("model_md", "q975"));
     let s: Vec<f64> = (0..x.len()).map(scale).collect();
+    let truth = run.pred_col(observable, "data", "truth");
     let yr = range_of(
         (0..x.len())
             .flat_map(|i| [m025[i] / s[i], m975[i] / s[i], d025[i] / s[i], d975[i] / s[i]])
@@ -167,6 +168,11 @@ pub fn prediction_boxes(run: &RunArtifacts, observable: &str, title: &str) -> Re
                     .draw_series((0..x.len()).map(|i| Rectangle::new([(x[i] - half, d16[i] / s[i]), (x[i] + half, d84[i] / s[i])], colour.mix(0.45).filled())))
                     .map(|s| s.label("model + δ, 68%").legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], colour.mix(0.6).filled()))));
                 p!(chart.draw_series((0..x.len()).map(|i| PathElement::new(vec![(x[i] - half, d50[i] / s[i]), (x[i] + half, d50[i] / s[i])], colour.stroke_width(2)))));
+            }
+            if truth.iter().any(|t| t.is_finite()) {
+                p!(chart
+                    .draw_series((0..x.len()).filter(|&i| truth[i].is_finite()).map(|i| PathElement::new(vec![(x[i] - half, truth[i] / s[i]), (x[i] + half, truth[i] / s[i])], TRUTH.stroke_width(2))))
+                    .map(|s| s.label("truth").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH.stroke_width(2)))));
             }
             p!(chart
                 .draw_series(data.iter().map(|m| {

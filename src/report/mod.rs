@@ -58,11 +58,12 @@ impl RunArtifacts {
     pub(crate) fn pred_col(&self, observable: &str, kind: &str, col: &str) -> Vec<f64> {
         let obs = self.predictions.column("observable").unwrap().str().unwrap();
         let kinds = self.predictions.column("kind").unwrap().str().unwrap();
-        let vals = self.predictions.column(col).unwrap().f64().unwrap();
-        (0..self.predictions.height())
-            .filter(|&i| obs.get(i) == Some(observable) && kinds.get(i) == Some(kind))
-            .map(|i| vals.get(i).unwrap_or(f64::NAN))
-            .collect()
+        let rows = (0..self.predictions.height()).filter(|&i| obs.get(i) == Some(observable) && kinds.get(i) == Some(kind));
+        // Older runs have no `truth` column: treat a missing column as unknown.
+        match self.predictions.column(col).ok().and_then(|c| c.f64().ok()) {
+            Some(vals) => rows.map(|i| vals.get(i).unwrap_or(f64::NAN)).collect(),
+            None => rows.map(|_| f64::NAN).collect(),
+        }
     }
 }
 
@@ -210,8 +211,9 @@ pub fn prediction_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_un
     let x = run.pred_col(observable, "grid", "x");
     let cols = |p: &str| ["q025", "q16", "median", "q84", "q975"].map(|q| run.pred_col(observable, "grid", &format!("{p}_{q}")));
     let (model, md) = (cols("model"), cols("model_md"));
+    let truth = run.pred_col(observable, "grid", "truth");
     let data: Vec<&Measurement> = run.data.iter().filter(|m| m.observable == observable).collect();
-    let yr = range_of(model[0].iter().chain(&model[4]).chain(&md[0]).chain(&md[4]).cloned().chain(data.iter().flat_map(|m| [m.value - m.error, m.value + m.error])));
+    let yr = range_of(model[0].iter().chain(&model[4]).chain(&md[0]).chain(&md[4]).chain(&truth).cloned().chain(data.iter().flat_map(|m| [m.value - m.error, m.value + m.error])));
     let xr = range_of(x.iter().cloned());
     let colour = kernel_colour(&run.summary.kernel);
     svg(
@@ -233,6 +235,12 @@ pub fn prediction_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_un
             p!(chart
                 .draw_series(LineSeries::new(x.iter().cloned().zip(model[2].iter().cloned()), BLACK.stroke_width(1)))
                 .map(|s| s.label("model median").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
+            let true_curve: Vec<(f64, f64)> = x.iter().cloned().zip(truth.iter().cloned()).filter(|p| p.1.is_finite()).collect();
+            if !true_curve.is_empty() {
+                p!(chart
+                    .draw_series(DashedLineSeries::new(true_curve, 6, 4, TRUTH.stroke_width(2)))
+                    .map(|s| s.label("truth").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH.stroke_width(2)))));
+            }
             p!(chart
                 .draw_series(data.iter().map(|m| ErrorBar::new_vertical(m.x, m.value - m.error, m.value, m.value + m.error, BLACK.filled(), 6)))
                 .map(|s| s.label("data ± 1σ").legend(|(x, y)| Circle::new((x + 7, y), 3, BLACK.filled()))));

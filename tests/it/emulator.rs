@@ -256,7 +256,7 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
         "{}\n[emulator]\nparameters = [\"g\", \"v0\"]\nkernel = \"se\"\nrestarts = 4\n",
         std::fs::read_to_string(root.join("pipeline/ball_drop.toml"))
             .unwrap()
-            .replace("kind = \"ball_drop\"", "kind = \"emulator\"\nartifact = \"emu\"")
+            .replacen("kind = \"ball_drop\"", "kind = \"emulator\"\nartifact = \"emu\"", 1)
             .replace("h0 = 60.0", "")
             .replace("measurements = \"ball_drop_data.csv\"", "measurements = \"data.csv\"")
     );

@@ -64,6 +64,9 @@ truth = 0.2
 [discrepancy]
 kernel = "II"
 bounds = { cbar = [0.0, 5.0], ell = [0.0, 10.0], r = [0.0, 3.0], s = [0.0, 5.0] }
+[truth]
+kind = "heavy_ion"
+delta_f = "grad"
 [sampler.smc]
 particles = 400
 replicates = 2
@@ -82,26 +85,32 @@ log_observables = ["ch_spectrum"]
         calibrate::write_outputs(&dir.join(name), &problem, &cal).unwrap();
     }
 
+    // The true curve (config `[truth]`) is stored with the predictions.
+    let pred = mdpipe::artifacts::read_parquet(&dir.join("II/predictions.parquet")).unwrap();
+    let truth = pred.column("truth").unwrap().f64().unwrap().clone();
+    assert!(truth.iter().all(|t| t.is_some_and(f64::is_finite)), "truth column: {truth:?}");
     let html = mdpipe::report::build(&[dir.clone()], "heavy-ion test").unwrap();
     let figures = html.matches("<svg").count();
     // 2 corner plots... one per observable set: corner, η/s(T) + inset, 2 runs × 2 observables of boxes;
     // emulator: one z-score histogram (cv4) and a parity plot per observable.
     assert!(figures >= 2 + 4 + 1 + 2, "{figures} figures");
-    for label in ["T [GeV]", "η/s", "ε_sw [GeV/fm³]", "pT [GeV]", "ch_spectrum / data", "emulator parity: ch_v2", "emulator z-scores", "N(0, 1)", "model + δ, 68%"] {
+    for label in ["T [GeV]", "η/s", "ε_sw [GeV/fm³]", "pT [GeV]", "ch_spectrum / data", "emulator parity: ch_v2", "emulator z-scores", "N(0, 1)", "model + δ, 68%", "truth"] {
         assert!(html.contains(label), "report lacks {label}");
     }
     let report = dir.join("report.html");
     std::fs::write(&report, &html).unwrap();
     crate::diagnose::check_in_browser(&report, figures);
 
-    // PNG copies: one per figure, each a real PNG of twice the SVG size.
+    // PNG copies: one per figure, each a real PNG of twice its SVG's size.
     let pngs = mdpipe::report::png::write_figures(&html, &dir.join("png")).unwrap();
     assert_eq!(pngs.len(), figures);
-    for p in &pngs {
+    let attr = |tag: &str, name: &str| -> u32 { tag.split(&format!("{name}=\"")).nth(1).unwrap().split('"').next().unwrap().parse().unwrap() };
+    let svg_tags: Vec<&str> = html.split("<svg").skip(1).map(|t| t.split('>').next().unwrap()).collect();
+    for (p, tag) in pngs.iter().zip(&svg_tags) {
         let bytes = std::fs::read(p).unwrap();
         assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{}", p.display());
         let (w, h) = (u32::from_be_bytes(bytes[16..20].try_into().unwrap()), u32::from_be_bytes(bytes[20..24].try_into().unwrap()));
-        assert!(w >= 1000 && h >= 700, "{}: {w}x{h}", p.display());
+        assert_eq!((w, h), (2 * attr(tag, "width"), 2 * attr(tag, "height")), "{}", p.display());
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
