@@ -17,7 +17,8 @@ pub fn is_heavy_ion(run: &RunArtifacts) -> bool {
 pub fn parameter_units(name: &str) -> String {
     match name {
         "e_sw" => "GeV/fm³".into(),
-        "T_kink" | "a_low" | "a_high" => if name == "T_kink" { "GeV".into() } else { "1/GeV".into() },
+        "T_kink" => "GeV".into(),
+        "a_low" | "a_high" => "1/GeV".into(),
         _ => String::new(),
     }
 }

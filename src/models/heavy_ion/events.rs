@@ -231,36 +231,39 @@ pub fn sample_event(tables: &SmoothTables, seed: u64, index: usize, oversample: 
         let kind = FileKind::diff(table.species.pid, Window::Y, -WINDOW, WINDOW);
         let mut identified = Accumulator::new(ORDER_MAX_IDENTIFIED);
         let mut identified_pt2 = 0.0;
-        for (sign, _) in [1, -1].iter().flat_map(|&s| (0..oversample).map(move |k| (s, k))) {
-            for (b, nodes) in table.nodes.iter().enumerate() {
-                let mean = lambda * 2.0 * WINDOW * nodes.iter().map(|n| n.1 * n.2).sum::<f64>();
-                if !(mean > 0.0) {
-                    continue;
-                }
-                let count = Poisson::new(mean).expect("positive mean").sample(&mut rng) as usize;
-                let lo = b as f64 * FINE_PT_WIDTH;
-                for _ in 0..count {
-                    let pt = sample_pt_in_bin(&mut rng, lo, nodes);
-                    let v2 = scale[0] * interpolate(nodes, pt, |n| n.3);
-                    let v3 = scale[1] * interpolate(nodes, pt, |n| n.4);
-                    let bound = 1.0 + 2.0 * (v2.abs() + v3.abs());
-                    let phi = loop {
-                        let phi = rng.random::<f64>() * std::f64::consts::TAU;
-                        let density = 1.0 + 2.0 * v2 * (2.0 * (phi - psi[0])).cos() + 2.0 * v3 * (3.0 * (phi - psi[1])).cos();
-                        if rng.random::<f64>() * bound < density {
-                            break phi;
-                        }
-                    };
-                    let y = (rng.random::<f64>() * 2.0 - 1.0) * WINDOW;
-                    let mt = (pt * pt + m * m).sqrt();
-                    let eta = (mt * y.sinh() / pt).asinh();
-                    if sign == 1 {
-                        identified.add(b, pt, phi);
-                        identified_pt2 += pt * pt;
+        // Particles, then antiparticles; each `oversample` times over the same event geometry.
+        for sign in [1, -1] {
+            for _sample in 0..oversample {
+                for (b, nodes) in table.nodes.iter().enumerate() {
+                    let mean = lambda * 2.0 * WINDOW * nodes.iter().map(|n| n.1 * n.2).sum::<f64>();
+                    if !(mean > 0.0) {
+                        continue;
                     }
-                    if eta.abs() < WINDOW {
-                        charged.add(b, pt, phi);
-                        charged_pt2 += pt * pt;
+                    let count = Poisson::new(mean).expect("positive mean").sample(&mut rng) as usize;
+                    let lo = b as f64 * FINE_PT_WIDTH;
+                    for _ in 0..count {
+                        let pt = sample_pt_in_bin(&mut rng, lo, nodes);
+                        let v2 = scale[0] * interpolate(nodes, pt, |n| n.3);
+                        let v3 = scale[1] * interpolate(nodes, pt, |n| n.4);
+                        let bound = 1.0 + 2.0 * (v2.abs() + v3.abs());
+                        let phi = loop {
+                            let phi = rng.random::<f64>() * std::f64::consts::TAU;
+                            let density = 1.0 + 2.0 * v2 * (2.0 * (phi - psi[0])).cos() + 2.0 * v3 * (3.0 * (phi - psi[1])).cos();
+                            if rng.random::<f64>() * bound < density {
+                                break phi;
+                            }
+                        };
+                        let y = (rng.random::<f64>() * 2.0 - 1.0) * WINDOW;
+                        let mt = (pt * pt + m * m).sqrt();
+                        let eta = (mt * y.sinh() / pt).asinh();
+                        if sign == 1 {
+                            identified.add(b, pt, phi);
+                            identified_pt2 += pt * pt;
+                        }
+                        if eta.abs() < WINDOW {
+                            charged.add(b, pt, phi);
+                            charged_pt2 += pt * pt;
+                        }
                     }
                 }
             }
