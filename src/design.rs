@@ -48,7 +48,8 @@ pub struct DesignParameter {
 #[derive(Clone, Debug, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SlurmSpec {
-    /// Command run for one design point; `{param_file}` and `{point}` are substituted.
+    /// Command run for one design point; `{param_file}` (its iEBE-MUSIC parameter
+    /// file), `{point}` (the id as %04d, the run folder's name) and `{id}` are substituted.
     pub command: String,
     pub time: String,
     pub cpus_per_task: u32,
@@ -58,7 +59,7 @@ pub struct SlurmSpec {
 impl Default for SlurmSpec {
     fn default() -> Self {
         SlurmSpec {
-            command: "./run_point.sh {param_file} runs/{point}".into(),
+            command: "mdpipe simulate heavy-ion --design design.parquet --only {id} --delta-f none --out runs".into(),
             time: "04:00:00".into(),
             cpus_per_task: 1,
             mem: "4G".into(),
@@ -271,9 +272,10 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
         }
         artifacts::write_text_atomic(&out.join("parameters").join(format!("parameter_{i:0width$}")), &text)?;
     }
-    let cmd = spec.slurm.command.replace("{param_file}", &format!("parameters/parameter_$(printf '%0{width}d' $SLURM_ARRAY_TASK_ID)")).replace("{point}", "$(printf '%04d' $SLURM_ARRAY_TASK_ID)");
+    let param_file = format!("parameters/parameter_$(printf '%0{width}d' $SLURM_ARRAY_TASK_ID)");
+    let cmd = spec.slurm.command.replace("{param_file}", &param_file).replace("{point}", "$(printf '%04d' $SLURM_ARRAY_TASK_ID)").replace("{id}", "$SLURM_ARRAY_TASK_ID");
     let script = format!(
-        "#!/bin/bash\n# One design point per array task; made by mdpipe design ({} points, seed {seed}).\n#SBATCH --job-name={}\n#SBATCH --array=0-{}\n#SBATCH --time={}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={}\n#SBATCH --output=logs/%x_%A_%a.out\nset -euo pipefail\ncd \"$SLURM_SUBMIT_DIR\"\nmkdir -p logs runs\n{cmd}\n",
+        "#!/bin/bash\n# One design point per array task; made by mdpipe design ({} points, seed {seed}).\n#SBATCH --job-name={}\n#SBATCH --array=0-{}\n#SBATCH --time={}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={}\n#SBATCH --output=logs/%x_%A_%a.out\nset -euo pipefail\ncd \"$SLURM_SUBMIT_DIR\"\nmkdir -p logs runs\n# This task's iEBE-MUSIC parameter file: {param_file}\n{cmd}\n",
         n,
         spec.name,
         n.saturating_sub(1),

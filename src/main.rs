@@ -181,6 +181,9 @@ enum SimulateSystem {
         /// Run every point of a design.parquet
         #[arg(long)]
         design: Option<PathBuf>,
+        /// With --design: run only this design id (one SLURM array task)
+        #[arg(long, requires = "design")]
+        only: Option<i64>,
         /// Particlization: none (f_eq), grad (Grad 14-moment shear δf, Bjorken shear) or grad-transverse
         /// (adds the blast wave's transverse expansion rates)
         #[arg(long, default_value = "grad")]
@@ -379,7 +382,7 @@ fn run(cli: Cli) -> Result<()> {
             let good = ingested.report.points.iter().filter(|p| p.flagged.is_none()).count();
             println!("wrote {} rows from {good} of {} design points to {} (report: {})", ingested.rows.len(), ingested.report.points.len(), out.display(), report.display());
         }
-        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, delta_f, events, oversample, seed, layout, relative_error, out } } => {
+        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, only, delta_f, events, oversample, seed, layout, relative_error, out } } => {
             use mdpipe::models::heavy_ion;
 let df: heavy_ion::DeltaF = delta_f.parse()?;
             let smooth = events.is_none() && out.extension().is_some_and(|e| e == "csv" || e == "parquet");
@@ -389,8 +392,17 @@ let df: heavy_ion::DeltaF = delta_f.parse()?;
                 let points: Vec<(i64, heavy_ion::HeavyIonParams)> = if let Some(design) = &design {
                     let d = heavy_ion::read_design_points(design)?;
                     std::fs::create_dir_all(&out)?;
-                    std::fs::copy(design, out.join("design.parquet")).with_context(|| format!("copying {} into {}", design.display(), out.display()))?;
-                    d.ids.into_iter().zip(d.points).collect()
+                    // Array tasks may write this copy at once: each renames a complete file into place.
+                    let bytes = std::fs::read(design).with_context(|| format!("reading {}", design.display()))?;
+                    artifacts::write_atomic(&out.join("design.parquet"), |f| {
+                        use std::io::Write;
+                        Ok(f.write_all(&bytes)?)
+                    })?;
+                    let all: Vec<(i64, heavy_ion::HeavyIonParams)> = d.ids.into_iter().zip(d.points).collect();
+                    match only {
+                        Some(id) => vec![*all.iter().find(|(i, _)| *i == id).ok_or_else(|| anyhow::anyhow!("--only {id}: no design point {id} in {}", design.display()))?],
+                        None => all,
+                    }
                 } else {
                     let point = point.clone().unwrap_or_default();
                     let params = heavy_ion::HeavyIonParams::parse(&point)?;
