@@ -235,6 +235,10 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
             continue;
         }
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        // Hidden folders are staging areas of writes in progress (or interrupted).
+        if name.starts_with('.') {
+            continue;
+        }
         if let Some(id) = design_id_of(&name) {
             folders.push((id, path));
         }
@@ -291,7 +295,9 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
         }
     }
     let (points, rows): (Vec<PointReport>, Vec<Vec<IngestedRow>>) = results.into_iter().unzip();
-    let prov = Provenance::new(String::new(), String::new(), 0, &format!("ingest {}", runs_dir.display()));
+    // No config here: the analysis settings stand in for its hash.
+    let settings_hash = artifacts::sha256_hex(format!("{settings:?}").as_bytes());
+    let prov = Provenance::new(settings_hash, String::new(), 0, &format!("ingest {}", runs_dir.display()));
     Ok((Ingested { rows: rows.into_iter().flatten().collect(), report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov } }, design_df))
 }
 

@@ -163,6 +163,9 @@ fn stand_in_runs_round_trip_through_ingest() {
     let p = HeavyIonParams::parse("eta_s=0.1,e_sw=0.2").unwrap();
     let n = simulate_runs(&[(3, p.clone())], DeltaF::Grad, 100, events::DEFAULT_OVERSAMPLE, 11, events::Layout::Both, &dir).unwrap();
     assert_eq!(n, 100);
+    // A rerun into the same folder is refused rather than mixing its events with these.
+    let again = simulate_runs(&[(3, p.clone())], DeltaF::Grad, 10, events::DEFAULT_OVERSAMPLE, 12, events::Layout::Both, &dir).unwrap_err().to_string();
+    assert!(again.contains("already exists"), "{again}");
     let settings = IngestSettings::default();
     let (h5, _) = ingest::ingest_runs(&dir, None, &IngestSettings { format: ingest::RunFormat::Hdf5, ..settings.clone() }).unwrap();
     let (txt, _) = ingest::ingest_runs(&dir, None, &IngestSettings { format: ingest::RunFormat::Text, ..settings.clone() }).unwrap();

@@ -303,16 +303,26 @@ impl std::str::FromStr for Layout {
 }
 
 /// Writes one design point's events into `dir`: per-event text folders
-/// and/or the combined `spvn_results.h5`.
+/// and/or the combined `spvn_results.h5`. They are written into a hidden
+/// staging sibling that is renamed into place when complete, and an existing
+/// `dir` is refused: a rerun must never mix its events with an earlier run's.
 pub fn write_point(dir: &std::path::Path, events: &[Event], layout: Layout) -> anyhow::Result<()> {
-    std::fs::create_dir_all(dir)?;
+    use anyhow::Context;
+    if dir.exists() {
+        anyhow::bail!("{} already exists: remove it to rerun this point (its old events would mix with the new ones)", dir.display());
+    }
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let staging = dir.with_file_name(format!(".{name}.partial-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&staging);
+    std::fs::create_dir_all(&staging).with_context(|| format!("creating {}", staging.display()))?;
     if layout != Layout::Hdf5 {
         for ev in events {
-            crate::ingest::layout::write_text_event(dir, ev)?;
+            crate::ingest::layout::write_text_event(&staging, ev)?;
         }
     }
     if layout != Layout::Text {
-        crate::ingest::hdf5::write_events(&dir.join("spvn_results.h5"), events)?;
+        crate::ingest::hdf5::write_events(&staging.join("spvn_results.h5"), events)?;
     }
+    std::fs::rename(&staging, dir).with_context(|| format!("moving {} to {}", staging.display(), dir.display()))?;
     Ok(())
 }
