@@ -144,7 +144,8 @@ impl MdLikelihood {
         }
     }
 
-    pub fn log_likelihood(&self, params: &[f64]) -> f64 {
+    /// Runs `f` with this thread's workspace for this likelihood.
+    fn with_workspace<R>(&self, f: impl FnOnce(&mut Workspace) -> R) -> R {
         WORKSPACES.with(|cell| {
             let mut list = cell.borrow_mut();
             let pos = match list.iter().position(|(id, _)| *id == self.id) {
@@ -157,31 +158,58 @@ impl MdLikelihood {
                     list.len() - 1
                 }
             };
-            self.log_likelihood_with(params, &mut list[pos].1)
+            f(&mut list[pos].1)
         })
     }
 
-    fn log_likelihood_with(&self, params: &[f64], ws: &mut Workspace) -> f64 {
+    pub fn log_likelihood(&self, params: &[f64]) -> f64 {
+        self.with_workspace(|ws| {
+            let mut total = self.log_jacobian;
+            for b in 0..self.blocks.len() {
+                total += self.block_log_likelihood(params, b, ws);
+            }
+            total
+        })
+    }
+
+    /// The log-likelihood, with each observable block's term written to `terms`
+    /// (the total is their sum plus the standardization's Jacobian).
+    pub fn log_likelihood_terms(&self, params: &[f64], terms: &mut [f64]) -> f64 {
+        self.with_workspace(|ws| {
+            let mut total = self.log_jacobian;
+            for (b, t) in terms.iter_mut().enumerate() {
+                *t = self.block_log_likelihood(params, b, ws);
+                total += *t;
+            }
+            total
+        })
+    }
+
+    /// One observable block's term of the log-likelihood.
+    pub fn log_likelihood_term(&self, params: &[f64], b: usize) -> f64 {
+        self.with_workspace(|ws| self.block_log_likelihood(params, b, ws))
+    }
+
+    fn block_log_likelihood(&self, params: &[f64], b: usize, ws: &mut Workspace) -> f64 {
         let theta = &params[..self.n_theta];
-        let mut total = self.log_jacobian;
-        for (b, block) in self.blocks.iter().enumerate() {
-            let n = block.len();
-            let eta = &mut ws.eta[..n];
-            self.simulator.predict(block.model_index, &block.x, theta, eta);
-            let resid = &mut ws.resid[..n];
-            let inv_scale = 1.0 / block.scale;
+        let block = &self.blocks[b];
+        let n = block.len();
+        let eta = &mut ws.eta[..n];
+        self.simulator.predict(block.model_index, &block.x, theta, eta);
+        let resid = &mut ws.resid[..n];
+        let inv_scale = 1.0 / block.scale;
+        for i in 0..n {
+            resid[i] = (block.y[i] - eta[i]) * inv_scale;
+        }
+        let mut total = 0.0;
+        if self.kernel.is_none() && !self.model_covariance {
+            // Diagonal covariance: no factorization needed.
             for i in 0..n {
-                resid[i] = (block.y[i] - eta[i]) * inv_scale;
+                let s = block.error[i] * inv_scale;
+                let z = resid[i] / s;
+                total += -0.5 * (z * z + 2.0 * s.ln() + LN_2PI);
             }
-            if self.kernel.is_none() && !self.model_covariance {
-                // Diagonal covariance: no factorization needed.
-                for i in 0..n {
-                    let s = block.error[i] * inv_scale;
-                    let z = resid[i] / s;
-                    total += -0.5 * (z * z + 2.0 * s.ln() + LN_2PI);
-                }
-                continue;
-            }
+        } else {
             let chol = &mut ws.chol[b];
             match self.kernel {
                 Some(kernel) => block.gram.fill_lower(kernel, self.hyper_of(params, b), &mut chol.factor, &mut ws.xr[..n], &mut ws.corr),
@@ -197,7 +225,7 @@ impl MdLikelihood {
             if chol.factorize().is_err() {
                 return f64::NEG_INFINITY;
             }
-            total += gaussian_logpdf_factored(chol, resid);
+            total = gaussian_logpdf_factored(chol, resid);
         }
         if total.is_nan() {
             f64::NEG_INFINITY

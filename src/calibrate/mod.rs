@@ -25,11 +25,50 @@ use std::sync::Arc;
 /// Anything a sampler can target, given a uniform prior.
 pub trait LogLikelihood: Sync {
     fn log_likelihood(&self, x: &[f64]) -> f64;
+
+    /// How the log-likelihood splits into independent terms, when it does; a
+    /// sampler may then move one term's own parameters at the cost of that term.
+    fn term_structure(&self) -> Option<TermStructure> {
+        None
+    }
+
+    /// The log-likelihood, with each term written to `terms` (only called when
+    /// `term_structure` is given).
+    fn log_likelihood_terms(&self, x: &[f64], _terms: &mut [f64]) -> f64 {
+        self.log_likelihood(x)
+    }
+
+    /// One term (only called when `term_structure` is given).
+    fn log_likelihood_term(&self, _x: &[f64], _term: usize) -> f64 {
+        unreachable!("log_likelihood_term needs a term structure")
+    }
+}
+
+/// `log L(x) = const + Σ_t L_t(x_shared, x_own(t))`: every term depends on the
+/// shared parameters (θ) and on its own (one observable's φ), and on no other.
+#[derive(Clone, Debug)]
+pub struct TermStructure {
+    pub shared: Vec<usize>,
+    pub own: Vec<Vec<usize>>,
 }
 
 impl LogLikelihood for MdLikelihood {
     fn log_likelihood(&self, x: &[f64]) -> f64 {
         MdLikelihood::log_likelihood(self, x)
+    }
+    fn term_structure(&self) -> Option<TermStructure> {
+        let nh = self.n_hyper();
+        if nh == 0 {
+            return None;
+        }
+        let own = (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
+        Some(TermStructure { shared: (0..self.n_theta).collect(), own })
+    }
+    fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64 {
+        MdLikelihood::log_likelihood_terms(self, x, terms)
+    }
+    fn log_likelihood_term(&self, x: &[f64], term: usize) -> f64 {
+        MdLikelihood::log_likelihood_term(self, x, term)
     }
 }
 

@@ -9,12 +9,17 @@
 //! from the genealogy-based variance estimator of Lee & Whiteley (2018), which
 //! needs multinomial resampling at every step, as done here.
 //!
+//! When the likelihood is a sum of independent terms (one per observable, each
+//! with its own discrepancy hyperparameters), each sweep also moves the shared
+//! parameters alone and each term's own parameters alone, the latter at the
+//! cost of one term (Metropolis within Gibbs).
+//!
 //! Several independent replicates run in parallel; they act as the "chains" of
 //! the R̂/ESS diagnostics, with each replicate's draws ordered by ancestor so
 //! that copies of one particle that the moves failed to separate lower the ESS.
 
 use super::prior::UniformPrior;
-use super::{Chains, LogLikelihood};
+use super::{Chains, LogLikelihood, TermStructure};
 use crate::gp::CholeskyWorkspace;
 use indicatif::ProgressBar;
 use rand::{Rng, SeedableRng};
@@ -68,8 +73,13 @@ impl SmcSettings {
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct SmcStep {
     pub beta: f64,
+    /// Sweeps: each moves every group of coordinates once.
     pub mcmc_steps: usize,
+    /// Acceptance of the joint move of all coordinates.
     pub acceptance: f64,
+    /// Acceptance per move group: joint, then (with independent likelihood
+    /// terms) the shared parameters and each term's own parameters.
+    pub group_acceptance: Vec<f64>,
 }
 
 #[derive(Clone, Debug)]
@@ -81,6 +91,8 @@ pub struct ReplicateOutput {
     pub relative_variance: f64,
     pub steps: Vec<SmcStep>,
     pub likelihood_evaluations: u64,
+    /// Evaluations of a single likelihood term (one observable's block).
+    pub term_evaluations: u64,
     /// Fraction of distinct particles after the final resampling.
     pub unique_fraction: f64,
 }
@@ -244,64 +256,169 @@ fn proposal_factor(x: &[f64], dim: usize) -> Vec<f64> {
     ws.factor
 }
 
-/// Random-walk Metropolis moves of every particle at inverse temperature β,
-/// in the unbounded coordinates u (target `L(x(u))^β π_u(u)`).
-/// Returns the acceptance rate and the number of likelihood evaluations.
-#[allow(clippy::too_many_arguments)]
-fn rwm_moves(
-    x: &mut [f64],
-    loglik: &mut [f64],
-    logprior: &mut [f64],
-    rngs: &mut [Xoshiro256PlusPlus],
-    dim: usize,
-    factor: &[f64],
+/// Coordinates moved together by one random-walk Metropolis proposal.
+struct MoveGroup {
+    coords: Vec<usize>,
+    /// Lower Cholesky factor of the cloud's covariance of `coords`.
+    factor: Vec<f64>,
     scale: f64,
-    beta: f64,
-    steps: usize,
-    prior: &UniformPrior,
-    likelihood: &dyn LogLikelihood,
-) -> (f64, u64) {
-    let (accepted, evals) = x
+    /// The likelihood term whose own parameters these are; `None` means the
+    /// move can change every term (a full evaluation).
+    term: Option<usize>,
+}
+
+/// The move groups: one joint move of everything, and when the likelihood is a
+/// sum of independent terms, a move of the shared parameters and one move per
+/// term of its own parameters (Metropolis within Gibbs). A term's move costs one
+/// term, not the whole likelihood, which is what makes many observables with
+/// their own discrepancy hyperparameters affordable.
+fn move_groups(dim: usize, structure: Option<&TermStructure>) -> Vec<MoveGroup> {
+    let group = |coords: Vec<usize>, term| MoveGroup { scale: 2.38 / (coords.len() as f64).sqrt(), factor: Vec::new(), coords, term };
+    let mut groups = vec![group((0..dim).collect(), None)];
+    if let Some(st) = structure {
+        if !st.shared.is_empty() {
+            groups.push(group(st.shared.clone(), None));
+        }
+        for (t, own) in st.own.iter().enumerate() {
+            if !own.is_empty() {
+                groups.push(group(own.clone(), Some(t)));
+            }
+        }
+    }
+    groups
+}
+
+fn update_factors(groups: &mut [MoveGroup], x: &[f64], dim: usize) {
+    for g in groups.iter_mut() {
+        if g.coords.len() == dim {
+            g.factor = proposal_factor(x, dim);
+        } else {
+            let sub: Vec<f64> = x.chunks(dim).flat_map(|row| g.coords.iter().map(move |&c| row[c])).collect();
+            g.factor = proposal_factor(&sub, g.coords.len());
+        }
+    }
+}
+
+/// The particle cloud between tempering steps, in the unbounded coordinates u.
+struct Cloud {
+    dim: usize,
+    x: Vec<f64>,
+    loglik: Vec<f64>,
+    logprior: Vec<f64>,
+    /// Per particle, each likelihood term (empty without a term structure).
+    terms: Vec<f64>,
+    n_terms: usize,
+}
+
+impl Cloud {
+    fn resample(&mut self, ancestors: &[usize]) {
+        self.x = reindex(&self.x, self.dim, ancestors);
+        self.loglik = ancestors.iter().map(|&a| self.loglik[a]).collect();
+        self.logprior = ancestors.iter().map(|&a| self.logprior[a]).collect();
+        if self.n_terms > 0 {
+            self.terms = reindex(&self.terms, self.n_terms, ancestors);
+        }
+    }
+}
+
+#[derive(Default)]
+struct MoveCounts {
+    accepted: Vec<u64>,
+    proposed: Vec<u64>,
+    full_evaluations: u64,
+    term_evaluations: u64,
+}
+
+impl MoveCounts {
+    fn merge(mut self, other: MoveCounts) -> MoveCounts {
+        if self.accepted.is_empty() {
+            return other;
+        }
+        for (a, b) in self.accepted.iter_mut().zip(&other.accepted) {
+            *a += b;
+        }
+        for (a, b) in self.proposed.iter_mut().zip(&other.proposed) {
+            *a += b;
+        }
+        self.full_evaluations += other.full_evaluations;
+        self.term_evaluations += other.term_evaluations;
+        self
+    }
+
+    fn acceptance(&self, g: usize) -> f64 {
+        self.accepted[g] as f64 / self.proposed[g].max(1) as f64
+    }
+}
+
+/// `sweeps` rounds of random-walk Metropolis moves, one per group in turn, of
+/// every particle at inverse temperature β (target `L(x(u))^β π_u(u)`).
+#[allow(clippy::too_many_arguments)]
+fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGroup], beta: f64, sweeps: usize, prior: &UniformPrior, likelihood: &dyn LogLikelihood) -> MoveCounts {
+    let (dim, nt) = (cloud.dim, cloud.n_terms);
+    let mut term_chunks: Vec<&mut [f64]> = if nt > 0 { cloud.terms.chunks_mut(nt).collect() } else { (0..cloud.loglik.len()).map(|_| &mut [][..]).collect() };
+    cloud
+        .x
         .par_chunks_mut(dim)
-        .zip(loglik.par_iter_mut())
-        .zip(logprior.par_iter_mut())
+        .zip(cloud.loglik.par_iter_mut())
+        .zip(cloud.logprior.par_iter_mut())
+        .zip(term_chunks.par_iter_mut())
         .zip(rngs.par_iter_mut())
-        .map(|(((xi, li), pi), rng)| {
-            let mut z = vec![0.0; dim];
-            let mut prop = vec![0.0; dim];
-            let mut prop_x = vec![0.0; dim];
-            let (mut acc, mut evals) = (0u64, 0u64);
-            for _ in 0..steps {
-                for zk in z.iter_mut() {
-                    *zk = rng.sample(StandardNormal);
-                }
-                for i in 0..dim {
-                    let mut s = 0.0;
-                    for j in 0..=i {
-                        s += factor[i + j * dim] * z[j];
+        .map(|((((xi, li), pi), ti), rng)| {
+            let (mut z, mut prop, mut prop_x, mut prop_terms) = (vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; nt]);
+            let mut counts = MoveCounts { accepted: vec![0; groups.len()], proposed: vec![0; groups.len()], ..Default::default() };
+            for _ in 0..sweeps {
+                for (gi, g) in groups.iter().enumerate() {
+                    if g.term.is_some() && !li.is_finite() {
+                        continue; // a term move cannot repair an impossible point
                     }
-                    prop[i] = xi[i] + scale * s;
-                }
-                let lpi = prior.from_unbounded_with_log_density(&prop, &mut prop_x);
-                // Far out in u the logistic rounds onto a bound: outside the open box.
-                if !prior.contains(&prop_x) {
-                    continue;
-                }
-                let lp = likelihood.log_likelihood(&prop_x);
-                evals += 1;
-                let log_ratio = if li.is_finite() { beta * (lp - *li) + lpi - *pi } else if lp.is_finite() { f64::INFINITY } else { f64::NEG_INFINITY };
-                let u: f64 = rng.random();
-                if u.ln() < log_ratio {
-                    xi.copy_from_slice(&prop);
-                    *li = lp;
-                    *pi = lpi;
-                    acc += 1;
+                    let k = g.coords.len();
+                    for zk in z[..k].iter_mut() {
+                        *zk = rng.sample(StandardNormal);
+                    }
+                    prop.copy_from_slice(xi);
+                    for a in 0..k {
+                        let mut s = 0.0;
+                        for b in 0..=a {
+                            s += g.factor[a + b * k] * z[b];
+                        }
+                        prop[g.coords[a]] += g.scale * s;
+                    }
+                    counts.proposed[gi] += 1;
+                    let lpi = prior.from_unbounded_with_log_density(&prop, &mut prop_x);
+                    // Far out in u the logistic rounds onto a bound: outside the open box.
+                    if !prior.contains(&prop_x) {
+                        continue;
+                    }
+                    let (lp, new_term) = match g.term {
+                        Some(t) => {
+                            counts.term_evaluations += 1;
+                            let lt = likelihood.log_likelihood_term(&prop_x, t);
+                            (*li - ti[t] + lt, lt)
+                        }
+                        None => {
+                            counts.full_evaluations += 1;
+                            let lp = if nt > 0 { likelihood.log_likelihood_terms(&prop_x, &mut prop_terms) } else { likelihood.log_likelihood(&prop_x) };
+                            (lp, f64::NAN)
+                        }
+                    };
+                    let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
+                    let log_ratio = if li.is_finite() { beta * (lp - *li) + lpi - *pi } else if lp.is_finite() { f64::INFINITY } else { f64::NEG_INFINITY };
+                    let u: f64 = rng.random();
+                    if u.ln() < log_ratio {
+                        xi.copy_from_slice(&prop);
+                        *li = lp;
+                        *pi = lpi;
+                        match g.term {
+                            Some(t) => ti[t] = new_term,
+                            None => ti.copy_from_slice(&prop_terms),
+                        }
+                        counts.accepted[gi] += 1;
+                    }
                 }
             }
-            (acc, evals)
+            counts
         })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    (accepted as f64 / (x.len() / dim * steps).max(1) as f64, evals)
+        .reduce(MoveCounts::default, MoveCounts::merge)
 }
 
 fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, progress: Option<&ProgressBar>) -> ReplicateOutput {
@@ -317,37 +434,52 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
         .collect();
     master.long_jump();
 
+    let structure = likelihood.term_structure();
+    let n_terms = structure.as_ref().map(|s| s.own.len()).unwrap_or(0);
     // Particles live in the unbounded coordinates u; see UniformPrior::to_unbounded.
     let mut x = vec![0.0; n * dim];
-    let mut loglik: Vec<f64> = x
+    let mut terms = vec![0.0; n * n_terms];
+    let mut term_chunks: Vec<&mut [f64]> = if n_terms > 0 { terms.chunks_mut(n_terms).collect() } else { (0..n).map(|_| &mut [][..]).collect() };
+    let loglik: Vec<f64> = x
         .par_chunks_mut(dim)
         .zip(rngs.par_iter_mut())
-        .map(|(row, rng)| {
+        .zip(term_chunks.par_iter_mut())
+        .map(|((row, rng), t)| {
             let mut draw = vec![0.0; dim];
             prior.sample(rng, &mut draw);
             prior.to_unbounded(&draw, row);
-            likelihood.log_likelihood(&draw)
+            if n_terms > 0 {
+                likelihood.log_likelihood_terms(&draw, t)
+            } else {
+                likelihood.log_likelihood(&draw)
+            }
         })
         .collect();
-    let mut logprior: Vec<f64> = x.chunks(dim).map(|u| prior.log_density_unbounded(u)).collect();
+    drop(term_chunks);
+    let logprior: Vec<f64> = x.chunks(dim).map(|u| prior.log_density_unbounded(u)).collect();
+    let mut cloud = Cloud { dim, x, loglik, logprior, terms, n_terms };
     let mut evaluations = n as u64;
+    let mut term_evaluations = 0u64;
     let mut eve: Vec<usize> = (0..n).collect();
 
+    let mut groups = move_groups(dim, structure.as_ref());
+    // A sweep moves every group once, so its length is set by the largest group
+    // that is not the joint move (or by the joint move when it is alone).
+    let sweep_dim = groups.iter().skip(1).map(|g| g.coords.len()).max().unwrap_or(dim);
     let mut beta = 0.0;
     let mut log_z = 0.0;
     let mut stages = 0usize;
-    let mut scale = 2.38 / (dim as f64).sqrt();
     let mut last_acceptance = settings.target_acceptance;
     let mut steps_log = Vec::new();
-    let base_steps = (settings.steps_per_dim * dim as f64).ceil().max(1.0);
-    let max_steps = (settings.max_steps_per_dim * dim as f64).ceil().max(base_steps) as usize;
+    let base_steps = (settings.steps_per_dim * sweep_dim as f64).ceil().max(1.0);
+    let max_steps = (settings.max_steps_per_dim * sweep_dim as f64).ceil().max(base_steps) as usize;
     let target_ess = settings.ess_fraction * n as f64;
     let mut progress_done = 0u64;
 
     let weights = loop {
-        let delta = next_increment(&loglik, beta, target_ess);
+        let delta = next_increment(&cloud.loglik, beta, target_ess);
         let next = if 1.0 - (beta + delta) < 1e-12 { 1.0 } else { beta + delta };
-        let logw: Vec<f64> = loglik.iter().map(|&l| if l.is_finite() { (next - beta) * l } else { f64::NEG_INFINITY }).collect();
+        let logw: Vec<f64> = cloud.loglik.iter().map(|&l| if l.is_finite() { (next - beta) * l } else { f64::NEG_INFINITY }).collect();
         let lse = log_sum_exp(&logw);
         log_z += lse - (n as f64).ln();
         stages += 1;
@@ -361,18 +493,19 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
             break w;
         }
         let ancestors = multinomial_ancestors(&w, &mut master);
-        x = reindex(&x, dim, &ancestors);
-        loglik = ancestors.iter().map(|&a| loglik[a]).collect();
-        logprior = ancestors.iter().map(|&a| logprior[a]).collect();
+        cloud.resample(&ancestors);
         eve = ancestors.iter().map(|&a| eve[a]).collect();
 
-        let factor = proposal_factor(&x, dim);
+        update_factors(&mut groups, &cloud.x, dim);
         let steps = ((base_steps * (settings.target_acceptance / last_acceptance.max(1e-3)).max(1.0)).ceil() as usize).min(max_steps);
-        let (acc, evals) = rwm_moves(&mut x, &mut loglik, &mut logprior, &mut rngs, dim, &factor, scale, next, steps, prior, likelihood);
-        evaluations += evals;
-        last_acceptance = acc;
-        scale *= (2.0 * (acc - settings.target_acceptance)).exp();
-        steps_log.push(SmcStep { beta: next, mcmc_steps: steps, acceptance: acc });
+        let counts = mutate(&mut cloud, &mut rngs, &groups, next, steps, prior, likelihood);
+        evaluations += counts.full_evaluations;
+        term_evaluations += counts.term_evaluations;
+        for (gi, g) in groups.iter_mut().enumerate() {
+            g.scale *= (2.0 * (counts.acceptance(gi) - settings.target_acceptance)).exp();
+        }
+        last_acceptance = (0..groups.len()).map(|gi| counts.acceptance(gi)).fold(f64::INFINITY, f64::min);
+        steps_log.push(SmcStep { beta: next, mcmc_steps: steps, acceptance: counts.acceptance(0), group_acceptance: (0..groups.len()).map(|gi| counts.acceptance(gi)).collect() });
         beta = next;
     };
 
@@ -390,21 +523,19 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
     let mut unique = ancestors.clone();
     unique.dedup();
     let unique_fraction = unique.len() as f64 / nf;
-    x = reindex(&x, dim, &ancestors);
-    loglik = ancestors.iter().map(|&a| loglik[a]).collect();
-    logprior = ancestors.iter().map(|&a| logprior[a]).collect();
-    let factor = proposal_factor(&x, dim);
-    let final_steps = (settings.final_steps_per_dim * dim as f64).ceil() as usize;
-    let (acc, evals) = rwm_moves(&mut x, &mut loglik, &mut logprior, &mut rngs, dim, &factor, scale, 1.0, final_steps, prior, likelihood);
-    evaluations += evals;
-    steps_log.push(SmcStep { beta: 1.0, mcmc_steps: final_steps, acceptance: acc });
-    let mut particles = vec![0.0; x.len()];
-    for (u, out) in x.chunks(dim).zip(particles.chunks_mut(dim)) {
+    cloud.resample(&ancestors);
+    update_factors(&mut groups, &cloud.x, dim);
+    let final_steps = (settings.final_steps_per_dim * sweep_dim as f64).ceil() as usize;
+    let counts = mutate(&mut cloud, &mut rngs, &groups, 1.0, final_steps, prior, likelihood);
+    evaluations += counts.full_evaluations;
+    term_evaluations += counts.term_evaluations;
+    steps_log.push(SmcStep { beta: 1.0, mcmc_steps: final_steps, acceptance: counts.acceptance(0), group_acceptance: (0..groups.len()).map(|gi| counts.acceptance(gi)).collect() });
+    let mut particles = vec![0.0; cloud.x.len()];
+    for (u, out) in cloud.x.chunks(dim).zip(particles.chunks_mut(dim)) {
         prior.from_unbounded(u, out);
     }
-    let x = particles;
 
-    ReplicateOutput { particles: x, log_evidence: log_z, relative_variance, steps: steps_log, likelihood_evaluations: evaluations, unique_fraction }
+    ReplicateOutput { particles, log_evidence: log_z, relative_variance, steps: steps_log, likelihood_evaluations: evaluations, term_evaluations, unique_fraction }
 }
 
 #[cfg(test)]

@@ -56,6 +56,10 @@ pub enum SamplerDetails {
         /// Schedule of the first replicate.
         schedule: Vec<SmcStepRecord>,
         unique_fraction: Vec<f64>,
+        /// Evaluations of one observable's term alone (its own φ moves), all replicates;
+        /// `likelihood_evaluations` counts whole-likelihood evaluations only.
+        #[serde(default)]
+        term_evaluations: u64,
     },
     Ensemble {
         walkers: usize,
@@ -68,11 +72,14 @@ pub struct SmcStepRecord {
     pub beta: f64,
     pub mcmc_steps: usize,
     pub acceptance: f64,
+    /// Joint move, then shared parameters, then each observable's own φ.
+    #[serde(default)]
+    pub group_acceptance: Vec<f64>,
 }
 
 impl From<&SmcStep> for SmcStepRecord {
     fn from(s: &SmcStep) -> Self {
-        SmcStepRecord { beta: s.beta, mcmc_steps: s.mcmc_steps, acceptance: s.acceptance }
+        SmcStepRecord { beta: s.beta, mcmc_steps: s.mcmc_steps, acceptance: s.acceptance, group_acceptance: s.group_acceptance.clone() }
     }
 }
 
@@ -85,6 +92,7 @@ impl SamplerDetails {
             tempering_steps: out.replicates.iter().map(|r| r.steps.len()).collect(),
             schedule: out.replicates.first().map(|r| r.steps.iter().map(SmcStepRecord::from).collect()).unwrap_or_default(),
             unique_fraction: out.replicates.iter().map(|r| r.unique_fraction).collect(),
+            term_evaluations: out.replicates.iter().map(|r| r.term_evaluations).sum(),
         }
     }
 }

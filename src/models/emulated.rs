@@ -12,20 +12,27 @@ pub struct EmulatedModel {
     id: u64,
     pub emulator: Emulator,
     observables: Vec<String>,
+    /// Per observable, its outputs as (x, output index): the likelihood asks for
+    /// them at every evaluation, so no string search happens there.
+    outputs_by_observable: Vec<Vec<(f64, usize)>>,
 }
 
-/// Component predictions at the last θ seen by this thread: the likelihood
-/// asks for every observable block at one θ in turn.
+/// Component predictions at the last three θ seen by this thread for one model:
+/// the likelihood asks for every observable block at one θ in turn, and a
+/// sampler that has just rejected proposals goes back to its current θ.
 struct Cached {
     id: u64,
+    last_used: u64,
     theta: Vec<f64>,
     means: Vec<f64>,
     vars: Vec<f64>,
     scratch: PredictScratch,
 }
 
+const CACHED_THETAS_PER_MODEL: usize = 3;
+
 thread_local! {
-    static CACHE: RefCell<Vec<Cached>> = const { RefCell::new(Vec::new()) };
+    static CACHE: RefCell<(u64, Vec<Cached>)> = const { RefCell::new((0, Vec::new())) };
 }
 
 static NEXT_ID: AtomicU64 = AtomicU64::new(1);
@@ -33,7 +40,11 @@ static NEXT_ID: AtomicU64 = AtomicU64::new(1);
 impl EmulatedModel {
     pub fn new(emulator: Emulator) -> Self {
         let observables = emulator.observable_names();
-        EmulatedModel { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), emulator, observables }
+        let outputs_by_observable = observables
+            .iter()
+            .map(|name| emulator.outputs().iter().enumerate().filter(|(_, o)| &o.observable == name).map(|(j, o)| (o.x, j)).collect())
+            .collect();
+        EmulatedModel { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), emulator, observables, outputs_by_observable }
     }
 
     pub fn load(dir: &std::path::Path) -> Result<Self> {
@@ -42,31 +53,41 @@ impl EmulatedModel {
 
     fn with_components<R>(&self, theta: &[f64], f: impl FnOnce(&[f64], &[f64]) -> R) -> R {
         CACHE.with(|cell| {
-            let mut list = cell.borrow_mut();
-            let pos = match list.iter().position(|c| c.id == self.id) {
+            let (clock, list) = &mut *cell.borrow_mut();
+            *clock += 1;
+            let pos = match list.iter().position(|c| c.id == self.id && c.theta.as_slice() == theta) {
                 Some(p) => p,
                 None => {
-                    if list.len() >= 8 {
-                        list.remove(0);
-                    }
-                    let k = self.emulator.n_components();
-                    list.push(Cached { id: self.id, theta: Vec::new(), means: vec![0.0; k], vars: vec![0.0; k], scratch: self.emulator.scratch() });
-                    list.len() - 1
+                    let mine = list.iter().filter(|c| c.id == self.id).count();
+                    let slot = if mine < CACHED_THETAS_PER_MODEL {
+                        if list.len() >= 8 * CACHED_THETAS_PER_MODEL {
+                            // Forget the least recently used entry of any model.
+                            let lru = (0..list.len()).min_by_key(|&i| list[i].last_used).unwrap_or(0);
+                            list.remove(lru);
+                        }
+                        let k = self.emulator.n_components();
+                        list.push(Cached { id: self.id, last_used: 0, theta: Vec::new(), means: vec![0.0; k], vars: vec![0.0; k], scratch: self.emulator.scratch() });
+                        list.len() - 1
+                    } else {
+                        (0..list.len()).filter(|&i| list[i].id == self.id).min_by_key(|&i| list[i].last_used).unwrap_or(0)
+                    };
+                    let c = &mut list[slot];
+                    self.emulator.predict_components(theta, &mut c.means, &mut c.vars, &mut c.scratch);
+                    c.theta.clear();
+                    c.theta.extend_from_slice(theta);
+                    slot
                 }
             };
             let c = &mut list[pos];
-            if c.theta.as_slice() != theta {
-                self.emulator.predict_components(theta, &mut c.means, &mut c.vars, &mut c.scratch);
-                c.theta.clear();
-                c.theta.extend_from_slice(theta);
-            }
+            c.last_used = *clock;
             f(&c.means, &c.vars)
         })
     }
 
     fn output(&self, observable: usize, x: f64) -> usize {
         // check_inputs has verified every x the likelihood will ask for.
-        self.emulator.output_index(&self.observables[observable], x).unwrap_or_else(|| panic!("{} has no emulator output at x = {x}", self.observables[observable]))
+        let matches = |xo: f64| (xo - x).abs() <= 1e-9 * x.abs().max(1.0);
+        self.outputs_by_observable[observable].iter().find(|(xo, _)| matches(*xo)).map(|&(_, j)| j).unwrap_or_else(|| panic!("{} has no emulator output at x = {x}", self.observables[observable]))
     }
 }
 
