@@ -25,6 +25,8 @@ pub struct Config {
     pub emulator: Option<crate::emulator::EmulatorSettings>,
     /// The process that made mock data, drawn as the true curve in predictions.
     pub truth: Option<TruthConfig>,
+    /// The whole study for `mdpipe run`: design, runs, emulator, mock data, calibrations.
+    pub run: Option<crate::pipeline::RunConfig>,
     /// Where the file was read from; relative paths resolve against its folder.
     #[serde(skip)]
     pub path: PathBuf,

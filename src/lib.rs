@@ -15,7 +15,9 @@ pub mod emulator;
 pub mod gp;
 pub mod ingest;
 pub mod models;
+pub mod pipeline;
 pub mod report;
+pub mod study;
 
 use indicatif::{ProgressBar, ProgressStyle};
 

@@ -161,6 +161,23 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// The whole heavy-ion study from a config's [run] table: design, simulate, ingest, emulator,
+    /// mock data, the calibration grid and the report; stages whose inputs are unchanged are skipped
+    Run {
+        /// Analysis config with a [run] table, e.g. pipeline/heavy_ion_2param.toml
+        config: PathBuf,
+        /// Run only this stage: design, simulate, ingest, emulator, mock, calibrate or report
+        #[arg(long)]
+        stage: Option<String>,
+        /// Run the selected stages even if their inputs are unchanged
+        #[arg(long)]
+        force: bool,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder (default: outputs/<config name>)
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Generate mock measurements from a built-in truth
     Simulate {
         #[command(subcommand)]
@@ -321,6 +338,18 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(dir) = png {
                 let files = mdpipe::report::png::write_figures(&html, &dir)?;
                 println!("wrote {} PNG figures to {}", files.len(), dir.display());
+            }
+        }
+        Command::Run { config, stage, force, seed, out } => {
+            let config = Config::load(&config)?;
+            let out = out.unwrap_or_else(|| PathBuf::from("outputs").join(&config.name));
+            let start = std::time::Instant::now();
+            let opts = mdpipe::pipeline::RunOptions { out: out.clone(), seed, stage, force, show_progress: true };
+            let outcomes = mdpipe::pipeline::run(&config, &opts)?;
+            let ran: Vec<&str> = outcomes.iter().filter(|o| o.ran).map(|o| o.stage.as_str()).collect();
+            println!("ran {} stage(s) [{}] in {:.1} s; outputs in {}", ran.len(), ran.join(", "), start.elapsed().as_secs_f64(), out.display());
+            if out.join("report.html").exists() {
+                println!("study table: {}; report: {}", out.join("study.md").display(), out.join("report.html").display());
             }
         }
         Command::Demo { seed, out } => mdpipe::demo::run(seed, &out)?,

@@ -10,6 +10,7 @@ use std::path::Path;
 pub struct ParityRow {
     pub set: String,
     pub observable: String,
+    pub x: f64,
     pub simulated: f64,
     pub emulated: f64,
     pub sd: f64,
@@ -19,8 +20,8 @@ pub fn load_parity(path: &Path) -> Result<Vec<ParityRow>> {
     let df = crate::artifacts::read_parquet(path)?;
     let s = |c: &str| -> Result<Vec<String>> { Ok(df.column(c).with_context(|| format!("{}: missing column '{c}'", path.display()))?.str()?.iter().map(|v| v.unwrap_or("").to_string()).collect()) };
     let f = |c: &str| -> Result<Vec<f64>> { Ok(df.column(c).with_context(|| format!("{}: missing column '{c}'", path.display()))?.f64()?.iter().map(|v| v.unwrap_or(f64::NAN)).collect()) };
-    let (set, obs, sim, emu, sd) = (s("set")?, s("observable")?, f("simulated")?, f("emulated")?, f("sd")?);
-    Ok((0..df.height()).map(|i| ParityRow { set: set[i].clone(), observable: obs[i].clone(), simulated: sim[i], emulated: emu[i], sd: sd[i] }).collect())
+    let (set, obs, x, sim, emu, sd) = (s("set")?, s("observable")?, f("x")?, f("simulated")?, f("emulated")?, f("sd")?);
+    Ok((0..df.height()).map(|i| ParityRow { set: set[i].clone(), observable: obs[i].clone(), x: x[i], simulated: sim[i], emulated: emu[i], sd: sd[i] }).collect())
 }
 
 /// Emulated against simulated values of one observable (±1σ emulator bars),

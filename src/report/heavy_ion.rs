@@ -23,7 +23,8 @@ pub fn parameter_units(name: &str) -> String {
     }
 }
 
-fn eta_s_from(get: &dyn Fn(&str) -> Option<f64>) -> Option<EtaOverS> {
+/// η/s(T) from named parameters: `eta_s`, or the four kink parameters.
+pub fn eta_s_from(get: &dyn Fn(&str) -> Option<f64>) -> Option<EtaOverS> {
     if let Some(v) = get("eta_s") {
         return Some(EtaOverS::Constant(v));
     }

@@ -84,8 +84,8 @@ macro_rules! p {
     };
 }
 
-mod emulator;
-mod heavy_ion;
+pub mod emulator;
+pub mod heavy_ion;
 pub mod png;
 
 pub(crate) fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -388,7 +388,7 @@ pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
     )
 }
 
-fn html_escape(s: &str) -> String {
+pub fn html_escape(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
 }
 

@@ -1,0 +1,438 @@
+//! `mdpipe run`: the heavy-ion study end to end, as a sequence of stages that
+//! each write their artifacts under one output folder and are skipped when
+//! their inputs have not changed.
+//!
+//! | stage       | writes (under OUT/)                                             |
+//! |-------------|-----------------------------------------------------------------|
+//! | design      | design/, validation_design/ (design.parquet, parameter files, submit.slurm) |
+//! | simulate    | design/runs/, validation_design/runs/ (one folder per point)    |
+//! | ingest      | training.parquet, validation.parquet (+ .report.json)           |
+//! | emulator    | emulator/ (trained, then validated: validation.json)            |
+//! | mock        | mock/runs/, mock/measurements.parquet                           |
+//! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json |
+//! | report      | report.html                                                     |
+//!
+//! A stage's key hashes its settings and its upstream stages' keys (the
+//! simulate stage's, and so ingest's, also the run folders' contents); a stage
+//! whose stamp (`OUT/stages/<stage>.json`) holds the same key, and whose
+//! outputs exist, is skipped.
+
+use crate::artifacts::{self, Measurement, Provenance};
+use crate::calibrate::{self, compare, Overrides, Problem};
+use crate::config::{Config, ModelConfig};
+use crate::gp::DiscrepancyKernel;
+use crate::models::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
+use anyhow::{anyhow, bail, Context, Result};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The `[run]` table of an analysis config.
+#[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Parameter-space spec (`design/*.toml`), relative to the config.
+    pub design: PathBuf,
+    /// Training design points and held-out validation points.
+    pub points: usize,
+    pub validation_points: usize,
+    /// Events per design point of the model runs, and Cooper–Frye samples per event.
+    pub events: usize,
+    #[serde(default = "default_oversample")]
+    pub oversample: usize,
+    /// Particlization of the model runs: none (f_eq), as in the paper.
+    #[serde(default = "default_model_delta_f")]
+    pub model_delta_f: String,
+    /// Mock data: the stand-in at the parameters' `truth` values with this δf.
+    pub mock_delta_f: String,
+    /// Stand-in parameters of the mock data when they are not the calibration
+    /// parameters' truth values (a constant η/s = 0.1 behind a kink model:
+    /// `{ eta_s = 0.1, e_sw = 0.2 }`).
+    #[serde(default)]
+    pub mock_truth: Option<BTreeMap<String, f64>>,
+    pub mock_events: usize,
+    /// Observable sets to calibrate on, in order (each should extend the last).
+    pub observable_sets: Vec<Vec<String>>,
+    /// Discrepancy kernels: "none", "I", "II".
+    #[serde(default = "default_kernels")]
+    pub kernels: Vec<String>,
+}
+
+fn default_oversample() -> usize {
+    heavy_ion::events::DEFAULT_OVERSAMPLE
+}
+fn default_model_delta_f() -> String {
+    "none".into()
+}
+fn default_kernels() -> Vec<String> {
+    vec!["none".into(), "I".into(), "II".into()]
+}
+
+pub const STAGES: [&str; 7] = ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report"];
+
+/// Where and how to run.
+pub struct RunOptions {
+    pub out: PathBuf,
+    pub seed: u64,
+    /// Run only this stage (its inputs must exist).
+    pub stage: Option<String>,
+    /// Run stages even when their stamps match.
+    pub force: bool,
+    pub show_progress: bool,
+}
+
+/// Paths of a run's artifacts.
+pub struct RunPaths {
+    pub out: PathBuf,
+}
+
+impl RunPaths {
+    pub fn design(&self) -> PathBuf {
+        self.out.join("design")
+    }
+    pub fn validation_design(&self) -> PathBuf {
+        self.out.join("validation_design")
+    }
+    pub fn training(&self) -> PathBuf {
+        self.out.join("training.parquet")
+    }
+    pub fn validation(&self) -> PathBuf {
+        self.out.join("validation.parquet")
+    }
+    pub fn emulator(&self) -> PathBuf {
+        self.out.join("emulator")
+    }
+    pub fn mock(&self) -> PathBuf {
+        self.out.join("mock")
+    }
+    pub fn measurements(&self) -> PathBuf {
+        self.out.join("mock").join("measurements.parquet")
+    }
+    pub fn calibrate(&self) -> PathBuf {
+        self.out.join("calibrate")
+    }
+    fn stamp(&self, stage: &str) -> PathBuf {
+        self.out.join("stages").join(format!("{stage}.json"))
+    }
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Stamp {
+    stage: String,
+    key: String,
+    seconds: f64,
+    provenance: Provenance,
+}
+
+/// What happened to each stage.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StageOutcome {
+    pub stage: String,
+    pub ran: bool,
+    pub seconds: f64,
+}
+
+struct Runner<'a> {
+    config: &'a Config,
+    run: &'a RunConfig,
+    paths: RunPaths,
+    opts: &'a RunOptions,
+    keys: BTreeMap<String, String>,
+    outcomes: Vec<StageOutcome>,
+}
+
+/// Runs the study (or one stage of it). Returns what ran and what was skipped.
+pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
+    let run = config.run.as_ref().ok_or_else(|| anyhow!("{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)", config.path.display()))?;
+    if let Some(s) = &opts.stage {
+        if !STAGES.contains(&s.as_str()) {
+            bail!("--stage {s}: unknown stage (use one of {})", STAGES.join(", "));
+        }
+    }
+    std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
+    let mut r = Runner { config, run, paths: RunPaths { out: opts.out.clone() }, opts, keys: BTreeMap::new(), outcomes: Vec::new() };
+    r.stage("design", &[], &[r.paths.design().join("design.parquet"), r.paths.validation_design().join("design.parquet")], |r| r.design())?;
+    r.stage("simulate", &["design"], &[], |r| r.simulate())?;
+    r.stage("ingest", &["simulate"], &[r.paths.training(), r.paths.validation()], |r| r.ingest())?;
+    r.stage("emulator", &["ingest"], &[r.paths.emulator().join("emulator.json"), r.paths.emulator().join("validation.json")], |r| r.emulator())?;
+    r.stage("mock", &[], &[r.paths.measurements()], |r| r.mock())?;
+    r.stage("calibrate", &["emulator", "mock"], &[r.paths.out.join("study.json")], |r| r.calibrate())?;
+    r.stage("report", &["calibrate"], &[r.paths.out.join("report.html")], |r| r.report())?;
+    Ok(r.outcomes)
+}
+
+impl Runner<'_> {
+    /// The settings that define a stage's output, beyond its upstream keys.
+    fn settings_of(&self, stage: &str) -> Result<serde_json::Value> {
+        let run = self.run;
+        let spec_bytes = std::fs::read(self.config.resolve(&run.design)).with_context(|| format!("reading design spec {}", self.config.resolve(&run.design).display()))?;
+        Ok(match stage {
+            "design" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed}),
+            "simulate" => serde_json::json!({"events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed}),
+            "ingest" => serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()}),
+            "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.config.emulator)?, "seed": self.opts.seed}),
+            "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed}),
+            "calibrate" => serde_json::json!({"config": self.config.hash, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
+            _ => serde_json::json!({"config": self.config.hash}),
+        })
+    }
+
+    fn stage(&mut self, name: &str, upstream: &[&str], outputs: &[PathBuf], body: impl FnOnce(&mut Self) -> Result<()>) -> Result<()> {
+        if self.opts.stage.as_deref().is_some_and(|s| s != name) {
+            // Not this stage: later stages key on what it left on disk.
+            if let Some(s) = read_stamp(&self.paths.stamp(name)) {
+                self.keys.insert(name.into(), s.key);
+            }
+            return Ok(());
+        }
+        let mut material = serde_json::json!({"stage": name, "version": env!("CARGO_PKG_VERSION"), "settings": self.settings_of(name)?});
+        for u in upstream {
+            let key = self.keys.get(*u).cloned().ok_or_else(|| anyhow!("stage {name} needs the outputs of stage {u}, which has not run in {}; run `mdpipe run CONFIG --stage {u}` (or without --stage) first", self.paths.out.display()))?;
+            material[format!("upstream_{u}")] = serde_json::Value::String(key);
+        }
+        let key = artifacts::sha256_hex(material.to_string().as_bytes());
+        let up_to_date = read_stamp(&self.paths.stamp(name)).is_some_and(|s| s.key == key) && outputs.iter().all(|p| p.exists());
+        if up_to_date && !self.opts.force {
+            println!("[{name}] up to date, skipped");
+            self.outcomes.push(StageOutcome { stage: name.into(), ran: false, seconds: 0.0 });
+            self.keys.insert(name.into(), key);
+            return Ok(());
+        }
+        println!("[{name}] running");
+        let start = std::time::Instant::now();
+        body(self).with_context(|| format!("stage {name}"))?;
+        let seconds = start.elapsed().as_secs_f64();
+        let stamp = Stamp { stage: name.into(), key: key.clone(), seconds, provenance: Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage {name}", self.config.path.display())) };
+        artifacts::write_json_atomic(&self.paths.stamp(name), &stamp)?;
+        println!("[{name}] done in {seconds:.1} s");
+        self.keys.insert(name.into(), key);
+        self.outcomes.push(StageOutcome { stage: name.into(), ran: true, seconds });
+        Ok(())
+    }
+
+    fn all_observables(&self) -> Vec<String> {
+        let mut all: Vec<String> = Vec::new();
+        for set in &self.run.observable_sets {
+            for o in set {
+                if !all.contains(o) {
+                    all.push(o.clone());
+                }
+            }
+        }
+        all
+    }
+
+    /// Seed of the stand-in's events, distinct for the training and validation designs.
+    fn runs_seed(&self, validation: bool) -> u64 {
+        self.opts.seed.wrapping_mul(31).wrapping_add(if validation { 104_729 } else { 11 })
+    }
+
+    /// The mock truth: `mock_truth`, or every θ's `truth` value from the config.
+    fn truth_named(&self) -> Result<Vec<(String, f64)>> {
+        if let Some(t) = &self.run.mock_truth {
+            return Ok(t.iter().map(|(k, v)| (k.clone(), *v)).collect());
+        }
+        self.config
+            .parameters
+            .iter()
+            .map(|(name, p)| p.truth.map(|t| (name.clone(), t)).ok_or_else(|| anyhow!("{}: [parameters.{name}] needs a `truth` value: the mock data are made there", self.config.path.display())))
+            .collect()
+    }
+
+    fn design(&mut self) -> Result<()> {
+        let spec_path = self.config.resolve(&self.run.design);
+        let bytes = std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?;
+        let mut spec = crate::design::DesignSpec::load(&spec_path)?;
+        let hash = artifacts::sha256_hex(&bytes);
+        for (dir, n, seed) in [(self.paths.design(), self.run.points, self.opts.seed), (self.paths.validation_design(), self.run.validation_points, self.opts.seed.wrapping_add(7919))] {
+            // The array script runs the stand-in exactly as the simulate stage would.
+            spec.slurm.command = format!(
+                "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {} --oversample {} --layout hdf5 --seed {} --out runs",
+                self.run.model_delta_f,
+                self.run.events,
+                self.run.oversample,
+                self.runs_seed(dir == self.paths.validation_design())
+            );
+            let q = crate::design::write_design(&spec, &hash, n, seed, &dir)?;
+            println!("  {}: {} points, minimum distance {:.4}", dir.display(), q.points, q.min_distance);
+        }
+        Ok(())
+    }
+
+    fn simulate(&mut self) -> Result<()> {
+        let delta_f: DeltaF = self.run.model_delta_f.parse()?;
+        let stale = read_stamp(&self.paths.stamp("simulate")).is_some();
+        for dir in [self.paths.design(), self.paths.validation_design()] {
+            let runs = dir.join("runs");
+            if stale && runs.exists() {
+                // Settings changed since the last run: its events are not these.
+                std::fs::remove_dir_all(&runs).with_context(|| format!("removing outdated runs {}", runs.display()))?;
+            }
+            std::fs::create_dir_all(&runs)?;
+            std::fs::copy(dir.join("design.parquet"), runs.join("design.parquet"))?;
+            let d = heavy_ion::read_design_points(&dir.join("design.parquet"))?;
+            // Points already run (e.g. by the SLURM array) are kept, not redone.
+            let todo: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).filter(|(id, _)| !runs.join(format!("{id:04}")).exists()).collect();
+            if todo.is_empty() {
+                println!("  {}: every design point has its run", runs.display());
+                continue;
+            }
+            let seed = self.runs_seed(dir == self.paths.validation_design());
+            let n = heavy_ion::simulate_runs(&todo, delta_f, self.run.events, self.run.oversample, seed, Layout::Hdf5, &runs)?;
+            println!("  {}: {} points, {n} events", runs.display(), todo.len());
+        }
+        Ok(())
+    }
+
+    fn ingest(&mut self) -> Result<()> {
+        let keep = self.all_observables();
+        for (dir, out) in [(self.paths.design(), self.paths.training()), (self.paths.validation_design(), self.paths.validation())] {
+            let settings = crate::ingest::IngestSettings::default();
+            let (mut ingested, design_df) = crate::ingest::ingest_runs(&dir.join("runs"), Some(&dir.join("design.parquet")), &settings)?;
+            ingested.rows.retain(|r| keep.contains(&r.observable));
+            let dropped = drop_incomplete_points(&mut ingested.rows);
+            for (id, what) in &dropped {
+                println!("  design point {id} left out: {what} undefined (a failed v_n{{2}} measurement, listed in the ingest report)");
+            }
+            let flagged: Vec<i64> = ingested.report.points.iter().filter(|p| p.flagged.is_some()).map(|p| p.design_id).collect();
+            if !flagged.is_empty() {
+                println!("  design points flagged by ingest and left out: {flagged:?}");
+            }
+            let report = crate::ingest::write(&ingested, design_df.as_ref(), &out)?;
+            let points: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
+            println!("  {}: {} points ({} left out); report {}", out.display(), points.len(), dropped.len() + flagged.len(), report.display());
+        }
+        Ok(())
+    }
+
+    fn emulator(&mut self) -> Result<()> {
+        if self.config.emulator.is_none() {
+            bail!("{}: the emulator stage needs an [emulator] table", self.config.path.display());
+        }
+        let (_, r) = crate::emulator::train_and_save(&self.config.path, &self.paths.training(), None, &self.paths.emulator(), self.opts.seed)?;
+        println!("  {} points x {} outputs -> {} components in {:.1} s", r.n_points, r.n_outputs, r.n_components, r.training_seconds);
+        let v = crate::emulator::validate::run(&self.paths.emulator(), Some(&self.paths.validation()), 5, self.opts.seed)?;
+        if let Some(h) = &v.holdout {
+            crate::emulator::validate::print("held-out design", h);
+        }
+        Ok(())
+    }
+
+    fn mock(&mut self) -> Result<()> {
+        let params = HeavyIonParams::from_named(&self.truth_named()?)?;
+        let delta_f: DeltaF = self.run.mock_delta_f.parse()?;
+        let runs = self.paths.mock().join("runs");
+        if runs.exists() {
+            std::fs::remove_dir_all(&runs)?;
+        }
+        std::fs::create_dir_all(&runs)?;
+        heavy_ion::simulate_runs(&[(0, params)], delta_f, self.run.mock_events, self.run.oversample, mock_seed(self.opts.seed), Layout::Hdf5, &runs)?;
+        let (ingested, _) = crate::ingest::ingest_runs(&runs, None, &crate::ingest::IngestSettings::default())?;
+        let undefined: Vec<String> = ingested.report.points.iter().flat_map(|p| p.undefined_bins.clone()).collect();
+        if !undefined.is_empty() {
+            println!("  mock bins left out (undefined): {}", undefined.join(", "));
+        }
+        let data: Vec<Measurement> = ingested.rows.iter().map(|r| Measurement::new(&r.observable, r.x, r.value, r.error)).collect();
+        let prov = Provenance::new(self.config.hash.clone(), artifacts::measurements_hash(&data), self.opts.seed, &format!("run --stage mock: {} events, delta-f {}", self.run.mock_events, self.run.mock_delta_f));
+        artifacts::write_measurements(&self.paths.measurements(), &data, Some(&prov))?;
+        println!("  {} values from {} events (delta-f {}) -> {}", data.len(), self.run.mock_events, self.run.mock_delta_f, self.paths.measurements().display());
+        Ok(())
+    }
+
+    /// The analysis config pointed at this run's emulator and mock data.
+    fn study_config(&self) -> Config {
+        let mut c = self.config.clone();
+        c.model = ModelConfig::Emulator { artifact: absolute(&self.paths.emulator()) };
+        c.data.measurements = absolute(&self.paths.measurements());
+        c
+    }
+
+    fn calibrate(&mut self) -> Result<()> {
+        let config = self.study_config();
+        let mut dirs = Vec::new();
+        for (i, set) in self.run.observable_sets.iter().enumerate() {
+            for (j, k) in self.run.kernels.iter().enumerate() {
+                let kernel = DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
+                let dir = self.paths.calibrate().join(compare::case_dir_name(set, kernel));
+                let ov = Overrides { kernel: Some(kernel), observables: Some(set.clone()), ..Default::default() };
+                let problem = Problem::new(&config, &ov)?;
+                let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
+                let cal = calibrate::run(&problem, seed, self.opts.show_progress)?;
+                calibrate::write_outputs(&dir, &problem, &cal)?;
+                println!("  {:<60} {:>6.1} s", dir.file_name().unwrap_or_default().to_string_lossy(), cal.summary.diagnostics.wall_seconds);
+                dirs.push(dir);
+            }
+        }
+        let truth_curve: BTreeMap<String, f64> = self.truth_named()?.into_iter().collect();
+        let study = crate::study::assess(&config, &dirs, &truth_curve, &self.paths.emulator(), &self.paths.validation(), &self.paths.measurements())?;
+        artifacts::write_json_atomic(&self.paths.out.join("study.json"), &study)?;
+        artifacts::write_text_atomic(&self.paths.out.join("study.md"), &study.markdown())?;
+        println!("{}", study.markdown());
+        Ok(())
+    }
+
+    fn report(&mut self) -> Result<()> {
+        let study: crate::study::Study = serde_json::from_str(&std::fs::read_to_string(self.paths.out.join("study.json"))?)?;
+        let mut dirs = vec![self.paths.calibrate(), self.paths.emulator()];
+        dirs.dedup();
+        let html = crate::report::build(&dirs, &format!("mdpipe run: {}", self.config.name))?;
+        let html = html.replacen("</h1>\n", &format!("</h1>\n{}", study.html()), 1);
+        artifacts::write_text_atomic(&self.paths.out.join("report.html"), &html)?;
+        println!("  {}", self.paths.out.join("report.html").display());
+        Ok(())
+    }
+}
+
+fn read_stamp(path: &Path) -> Option<Stamp> {
+    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
+}
+
+fn absolute(p: &Path) -> PathBuf {
+    std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf())
+}
+
+fn mock_seed(seed: u64) -> u64 {
+    seed.wrapping_mul(31).wrapping_add(977)
+}
+
+/// A cheap content fingerprint of a runs folder: every file's path and size.
+fn runs_fingerprint(dir: &Path) -> Result<String> {
+    let mut entries = Vec::new();
+    if dir.exists() {
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).with_context(|| format!("listing {}", d.display()))? {
+                let e = e?;
+                let path = e.path();
+                let meta = e.metadata()?;
+                if meta.is_dir() {
+                    stack.push(path);
+                } else {
+                    let modified = meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_nanos()).unwrap_or(0);
+                    entries.push(format!("{}:{}:{}", path.strip_prefix(dir).unwrap_or(&path).display(), meta.len(), modified));
+                }
+            }
+        }
+    }
+    entries.sort();
+    Ok(artifacts::sha256_hex(entries.join("\n").as_bytes()))
+}
+
+/// Removes design points that lack any output another point has (an undefined
+/// v_n{2} bin), since the emulator needs every output at every point. Returns
+/// the points removed with what they lacked.
+fn drop_incomplete_points(rows: &mut Vec<crate::ingest::IngestedRow>) -> Vec<(i64, String)> {
+    use std::collections::{BTreeMap, BTreeSet};
+    let key = |r: &crate::ingest::IngestedRow| format!("{}[{}]", r.observable, r.x);
+    let all: BTreeSet<String> = rows.iter().map(key).collect();
+    let mut have: BTreeMap<i64, BTreeSet<String>> = BTreeMap::new();
+    for r in rows.iter() {
+        have.entry(r.design_id).or_default().insert(key(r));
+    }
+    let dropped: Vec<(i64, String)> = have
+        .iter()
+        .filter(|(_, h)| h.len() < all.len())
+        .map(|(id, h)| (*id, all.difference(h).cloned().collect::<Vec<_>>().join(", ")))
+        .collect();
+    rows.retain(|r| !dropped.iter().any(|(id, _)| *id == r.design_id));
+    dropped
+}
