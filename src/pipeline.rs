@@ -15,7 +15,9 @@
 //! A stage's key hashes its settings and its upstream stages' keys (the
 //! simulate stage's, and so ingest's, also the run folders' contents); a stage
 //! whose stamp (`OUT/stages/<stage>.json`) holds the same key, and whose
-//! outputs exist, is skipped.
+//! outputs exist, is skipped. Within the calibrate stage each case is stamped
+//! too (`OUT/stages/calibrate/<case>.json`), so an interrupted stage resumes
+//! with the cases it had not finished.
 
 use crate::artifacts::{self, Measurement, Provenance};
 use crate::calibrate::{self, compare, Overrides, Problem};
@@ -170,7 +172,7 @@ impl Runner<'_> {
             "simulate" => serde_json::json!({"events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed}),
             "ingest" => serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()}),
             "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.config.emulator)?, "seed": self.opts.seed}),
-            "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed}),
+            "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()}),
             "calibrate" => serde_json::json!({"config": self.config.hash, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
             _ => serde_json::json!({"config": self.config.hash}),
         })
@@ -331,7 +333,8 @@ impl Runner<'_> {
         if !undefined.is_empty() {
             println!("  mock bins left out (undefined): {}", undefined.join(", "));
         }
-        let data: Vec<Measurement> = ingested.rows.iter().map(|r| Measurement::new(&r.observable, r.x, r.value, r.error)).collect();
+        let keep = self.all_observables();
+        let data: Vec<Measurement> = ingested.rows.iter().filter(|r| keep.contains(&r.observable)).map(|r| Measurement::new(&r.observable, r.x, r.value, r.error)).collect();
         let prov = Provenance::new(self.config.hash.clone(), artifacts::measurements_hash(&data), self.opts.seed, &format!("run --stage mock: {} events, delta-f {}", self.run.mock_events, self.run.mock_delta_f));
         artifacts::write_measurements(&self.paths.measurements(), &data, Some(&prov))?;
         println!("  {} values from {} events (delta-f {}) -> {}", data.len(), self.run.mock_events, self.run.mock_delta_f, self.paths.measurements().display());
@@ -352,13 +355,26 @@ impl Runner<'_> {
         for (i, set) in self.run.observable_sets.iter().enumerate() {
             for (j, k) in self.run.kernels.iter().enumerate() {
                 let kernel = DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
-                let dir = self.paths.calibrate().join(compare::case_dir_name(set, kernel));
+                let name = compare::case_dir_name(set, kernel);
+                let dir = self.paths.calibrate().join(&name);
+                let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
+                // Each finished case is stamped, so an interrupted stage resumes where it stopped.
+                let material = serde_json::json!({"config": self.config.hash, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock")});
+                let key = artifacts::sha256_hex(material.to_string().as_bytes());
+                let stamp = self.paths.stamp(&format!("calibrate/{name}"));
+                if !self.opts.force && read_stamp(&stamp).is_some_and(|s| s.key == key) && dir.join("summary.json").exists() {
+                    println!("  {name:<60} done earlier, kept");
+                    dirs.push(dir);
+                    continue;
+                }
                 let ov = Overrides { kernel: Some(kernel), observables: Some(set.clone()), ..Default::default() };
                 let problem = Problem::new(&config, &ov)?;
-                let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
                 let cal = calibrate::run(&problem, seed, self.opts.show_progress)?;
                 calibrate::write_outputs(&dir, &problem, &cal)?;
-                println!("  {:<60} {:>6.1} s", dir.file_name().unwrap_or_default().to_string_lossy(), cal.summary.diagnostics.wall_seconds);
+                let seconds = cal.summary.diagnostics.wall_seconds;
+                let prov = Provenance::new(self.config.hash.clone(), String::new(), seed, &format!("run {} --stage calibrate ({name})", self.config.path.display()));
+                artifacts::write_json_atomic(&stamp, &Stamp { stage: format!("calibrate/{name}"), key, seconds, provenance: prov })?;
+                println!("  {name:<60} {seconds:>6.1} s");
                 dirs.push(dir);
             }
         }

@@ -7,5 +7,6 @@ mod diagnose;
 mod emulator;
 mod heavy_ion;
 mod ingest;
+mod pipeline;
 mod report;
 mod sbc;

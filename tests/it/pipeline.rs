@@ -1,0 +1,178 @@
+//! `mdpipe run`: every stage runs and writes its artifacts, an unchanged rerun
+//! skips everything, a changed setting reruns exactly the stages downstream of
+//! it, an interrupted calibrate stage resumes case by case, `--stage` needs
+//! its inputs, and runs made by the design's SLURM array
+//! script are the runs the simulate stage would have made.
+
+use mdpipe::config::Config;
+use mdpipe::pipeline::{run, RunOptions, StageOutcome, STAGES};
+use std::path::{Path, PathBuf};
+
+fn tmpdir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mdpipe-run-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A small 2-parameter study: few points, few events, few particles.
+fn write_config(dir: &Path, mock_events: usize) -> PathBuf {
+    let spec = Path::new(env!("CARGO_MANIFEST_DIR")).join("design/heavy_ion_2param.toml");
+    let text = format!(
+        r#"
+name = "run_test"
+[model]
+kind = "emulator"
+artifact = "unused"
+[data]
+measurements = "unused.csv"
+[parameters.eta_s]
+min = 0.0
+max = 0.4
+truth = 0.1
+[parameters.e_sw]
+min = 0.1
+max = 0.5
+truth = 0.2
+[discrepancy]
+kernel = "II"
+bounds = {{ cbar = [0.0, 5.0], ell = [0.0, 10.0], r = [0.0, 3.0], s = [0.0, 5.0] }}
+[sampler.smc]
+particles = 200
+replicates = 2
+final_steps_per_dim = 5.0
+[emulator]
+parameters = ["eta_s", "e_sw"]
+kernel = "matern52"
+components = 4
+restarts = 2
+log_observables = ["ch_spectrum"]
+[run]
+design = "{}"
+points = 16
+validation_points = 6
+events = 60
+oversample = 20
+mock_delta_f = "grad"
+mock_events = {mock_events}
+observable_sets = [["ch_spectrum"], ["ch_spectrum", "ch_v2"]]
+kernels = ["none", "II"]
+"#,
+        spec.display()
+    );
+    let path = dir.join("study.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
+    RunOptions { out: out.to_path_buf(), seed: 3, stage: stage.map(String::from), force, show_progress: false }
+}
+
+fn ran(outcomes: &[StageOutcome]) -> Vec<String> {
+    outcomes.iter().filter(|o| o.ran).map(|o| o.stage.clone()).collect()
+}
+
+#[test]
+fn run_executes_every_stage_then_skips_what_is_unchanged() {
+    let dir = tmpdir("all");
+    let out = dir.join("out");
+    let config = Config::load(&write_config(&dir, 300)).unwrap();
+
+    let first = run(&config, &opts(&out, None, false)).unwrap();
+    assert_eq!(ran(&first), STAGES.to_vec());
+    for p in ["design/design.parquet", "validation_design/design.parquet", "design/submit.slurm", "training.parquet", "validation.parquet", "emulator/emulator.json", "emulator/validation.json", "mock/measurements.parquet", "study.json", "study.md", "report.html"] {
+        assert!(out.join(p).exists(), "{p} missing");
+    }
+    let study: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    let cases = study["cases"].as_array().unwrap();
+    assert_eq!(cases.len(), 4, "2 observable sets x 2 kernels");
+    for c in cases {
+        let bias = c["parameters"]["eta_s"]["bias_in_sd"].as_f64().unwrap();
+        let p = &c["parameters"]["eta_s"];
+        // bias/sd is (median - truth)/sd, as the table says.
+        let expect = (p["median"].as_f64().unwrap() - 0.1) / p["sd"].as_f64().unwrap();
+        assert!((bias - expect).abs() < 1e-9);
+    }
+    // One "observables added" check per kernel and parameter; no Kernel I, so no II-vs-I check.
+    let checks = study["consistency"].as_array().unwrap();
+    assert_eq!(checks.len(), 4);
+    assert!(checks.iter().all(|c| c["check"] == "observables added"));
+    assert_eq!(study["emulator_vs_data"].as_array().unwrap().len(), 2);
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(report.contains("Consistency checks") && report.contains("bias"));
+
+    // Unchanged: nothing runs.
+    let second = run(&config, &opts(&out, None, false)).unwrap();
+    assert!(ran(&second).is_empty(), "reran {:?}", ran(&second));
+    assert_eq!(second.len(), STAGES.len());
+
+    // --stage with --force reruns that stage only.
+    let forced = run(&config, &opts(&out, Some("calibrate"), true)).unwrap();
+    assert_eq!(ran(&forced), vec!["calibrate"]);
+
+    // An interrupted calibrate stage (its stamp and one case's missing) redoes only the unfinished case.
+    std::fs::remove_file(out.join("stages/calibrate.json")).unwrap();
+    std::fs::remove_file(out.join("stages/calibrate/ch_spectrum+ch_v2__kernel2.json")).unwrap();
+    let kept = out.join("calibrate/ch_spectrum__nomd/summary.json");
+    let redone = out.join("calibrate/ch_spectrum+ch_v2__kernel2/summary.json");
+    let (kept_time, redone_time) = (std::fs::metadata(&kept).unwrap().modified().unwrap(), std::fs::metadata(&redone).unwrap().modified().unwrap());
+    let resumed = run(&config, &opts(&out, None, false)).unwrap();
+    // Same key as before (the redone case is seeded as before), so the report stands.
+    assert_eq!(ran(&resumed), vec!["calibrate"]);
+    assert_eq!(std::fs::metadata(&kept).unwrap().modified().unwrap(), kept_time, "a finished case was recomputed");
+    assert_ne!(std::fs::metadata(&redone).unwrap().modified().unwrap(), redone_time, "the unfinished case was not recomputed");
+
+    // More mock events: the mock data and everything after them rerun; the runs and emulator do not.
+    let config2 = Config::load(&write_config(&dir, 400)).unwrap();
+    let third = run(&config2, &opts(&out, None, false)).unwrap();
+    assert_eq!(ran(&third), vec!["mock", "calibrate", "report"]);
+
+    // A stage whose inputs were never made says which stage to run.
+    let err = run(&config, &opts(&dir.join("fresh"), Some("ingest"), false)).unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(msg.contains("needs the outputs of stage simulate"), "{msg}");
+    let err = run(&config, &opts(&dir.join("fresh"), Some("fit"), false)).unwrap_err();
+    assert!(format!("{err:#}").contains("unknown stage"));
+}
+
+/// Runs a design folder's SLURM array by hand: each task's command, from the
+/// folder, with its task id.
+fn run_slurm_array(design_dir: &Path, n: usize) {
+    let script = std::fs::read_to_string(design_dir.join("submit.slurm")).unwrap();
+    let command = script.lines().rev().find(|l| l.starts_with("mdpipe ")).expect("a task command in submit.slurm");
+    for id in 0..n {
+        let line = command.replace("$SLURM_ARRAY_TASK_ID", &id.to_string());
+        let args: Vec<&str> = line.split_whitespace().skip(1).collect();
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe")).args(&args).current_dir(design_dir).output().unwrap();
+        assert!(status.status.success(), "task {id}: {}", String::from_utf8_lossy(&status.stderr));
+    }
+}
+
+#[test]
+fn slurm_array_runs_are_the_simulate_stage_runs() {
+    let dir = tmpdir("slurm");
+    let config = Config::load(&write_config(&dir, 300)).unwrap();
+    // Reference: the pipeline simulates and ingests.
+    let local = dir.join("local");
+    run(&config, &opts(&local, Some("design"), false)).unwrap();
+    run(&config, &opts(&local, Some("simulate"), false)).unwrap();
+    run(&config, &opts(&local, Some("ingest"), false)).unwrap();
+    // Batch: the design stage, then its array scripts, then ingest.
+    let batch = dir.join("batch");
+    run(&config, &opts(&batch, Some("design"), false)).unwrap();
+    run_slurm_array(&batch.join("design"), 16);
+    run_slurm_array(&batch.join("validation_design"), 6);
+    let sim = run(&config, &opts(&batch, Some("simulate"), false)).unwrap();
+    assert_eq!(ran(&sim), vec!["simulate"]); // it finds every point already run and keeps them
+    run(&config, &opts(&batch, Some("ingest"), false)).unwrap();
+    for table in ["training.parquet", "validation.parquet"] {
+        let a = mdpipe::artifacts::read_parquet(&local.join(table)).unwrap();
+        let b = mdpipe::artifacts::read_parquet(&batch.join(table)).unwrap();
+        assert_eq!(a.height(), b.height(), "{table}");
+        for col in ["value", "error"] {
+            let (va, vb) = (a.column(col).unwrap().f64().unwrap(), b.column(col).unwrap().f64().unwrap());
+            assert!(va.iter().zip(vb.iter()).all(|(x, y)| x == y), "{table}: column {col} differs between the SLURM and local runs");
+        }
+    }
+}
