@@ -54,6 +54,10 @@ enum Command {
         args: CalibrationArgs,
         #[arg(long)]
         sampler: Option<String>,
+        /// Run the grid on this many independent mock data sets drawn from the config's
+        /// [truth] (ball drop) and tabulate how often each case covers the truth
+        #[arg(long)]
+        replicates: Option<usize>,
     },
     /// The bundled ball-drop example end to end: mock data with concealed drag, then the 3x3 grid
     Demo {
@@ -280,7 +284,17 @@ fn run(cli: Cli) -> Result<()> {
             print_summary(&cal.summary);
             println!("wrote {}/{{posterior.parquet, summary.json, predictions.parquet}}", args.out.display());
         }
-        Command::Compare { args, sampler } => {
+        Command::Compare { args, sampler, replicates: Some(n) } => {
+            let config = Config::load(&args.config)?;
+            if args.data.is_some() {
+                bail!("--replicates draws its own data from the config's [truth]; drop --data");
+            }
+            let overrides = parse_overrides(None, None, None, sampler)?;
+            compare::run_replicates(&config, &overrides, n, args.seed, &args.out)?;
+            println!("{}", std::fs::read_to_string(args.out.join("replicates.md"))?);
+            println!("wrote {0}/replicates.md, {0}/replicates.parquet and {0}/replicate_*/", args.out.display());
+        }
+        Command::Compare { args, sampler, replicates: None } => {
             let config = Config::load(&args.config)?;
             let overrides = parse_overrides(args.data, None, None, sampler)?;
             compare::run_grid(&config, &overrides, args.seed, &args.out, true)?;
