@@ -69,6 +69,32 @@ fn default_kernels() -> Vec<String> {
     vec!["none".into(), "I".into(), "II".into()]
 }
 
+impl RunConfig {
+    /// Checks everything a later stage would trip on, before any stage runs.
+    fn validate(&self) -> Result<()> {
+        for (field, n) in [("points", self.points), ("validation_points", self.validation_points), ("events", self.events), ("mock_events", self.mock_events), ("oversample", self.oversample)] {
+            if n == 0 {
+                bail!("{field} must be at least 1");
+            }
+        }
+        self.model_delta_f.parse::<DeltaF>().context("model_delta_f")?;
+        self.mock_delta_f.parse::<DeltaF>().context("mock_delta_f")?;
+        for k in &self.kernels {
+            DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("kernels: unknown kernel {k:?} (use none, I or II)"))?;
+        }
+        if self.observable_sets.is_empty() || self.observable_sets.iter().any(|s| s.is_empty()) {
+            bail!("observable_sets: give one or more non-empty sets");
+        }
+        let known: Vec<String> = artifacts::PAPER_TABLE_OBSERVABLES.iter().map(|(_, name)| name.to_string()).collect();
+        for o in self.observable_sets.iter().flatten() {
+            if !known.contains(o) {
+                bail!("observable_sets: unknown observable '{o}' (the stand-in gives {})", known.join(", "));
+            }
+        }
+        Ok(())
+    }
+}
+
 pub const STAGES: [&str; 7] = ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report"];
 
 /// Where and how to run.
@@ -150,6 +176,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
             bail!("--stage {s}: unknown stage (use one of {})", STAGES.join(", "));
         }
     }
+    run.validate().with_context(|| format!("{}: [run]", config.path.display()))?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let mut r = Runner { config, run, paths: RunPaths { out: opts.out.clone() }, opts, keys: BTreeMap::new(), outcomes: Vec::new() };
     r.stage("design", &[], &[r.paths.design().join("design.parquet"), r.paths.validation_design().join("design.parquet")], |r| r.design())?;
@@ -168,7 +195,9 @@ impl Runner<'_> {
         let run = self.run;
         let spec_bytes = std::fs::read(self.config.resolve(&run.design)).with_context(|| format!("reading design spec {}", self.config.resolve(&run.design).display()))?;
         Ok(match stage {
-            "design" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed}),
+            // The design stage also writes the array script, which carries the simulate settings.
+            "design" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed,
+                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f}),
             "simulate" => serde_json::json!({"events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed}),
             "ingest" => serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()}),
             "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.config.emulator)?, "seed": self.opts.seed}),
@@ -201,7 +230,7 @@ impl Runner<'_> {
         }
         println!("[{name}] running");
         let start = std::time::Instant::now();
-        body(self).with_context(|| format!("stage {name}"))?;
+        body(self).with_context(|| format!("{}: stage {name}", self.config.path.display()))?;
         let seconds = start.elapsed().as_secs_f64();
         let stamp = Stamp { stage: name.into(), key: key.clone(), seconds, provenance: Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage {name}", self.config.path.display())) };
         artifacts::write_json_atomic(&self.paths.stamp(name), &stamp)?;

@@ -134,6 +134,13 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     assert!(msg.contains("needs the outputs of stage simulate"), "{msg}");
     let err = run(&config, &opts(&dir.join("fresh"), Some("fit"), false)).unwrap_err();
     assert!(format!("{err:#}").contains("unknown stage"));
+    // A bad [run] table is refused before any stage runs, naming the file and field.
+    let text = std::fs::read_to_string(dir.join("study.toml")).unwrap().replace(r#"kernels = ["none", "II"]"#, r#"kernels = ["none", "III"]"#);
+    std::fs::write(dir.join("bad.toml"), text).unwrap();
+    let err = run(&Config::load(&dir.join("bad.toml")).unwrap(), &opts(&dir.join("bad"), None, false)).unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(msg.contains("bad.toml: [run]") && msg.contains("unknown kernel \"III\""), "{msg}");
+    assert!(!dir.join("bad").exists(), "nothing may be written for a refused config");
 }
 
 /// Runs a design folder's SLURM array by hand: each task's command, from the
