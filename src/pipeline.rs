@@ -180,7 +180,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let mut r = Runner { config, run, paths: RunPaths { out: opts.out.clone() }, opts, keys: BTreeMap::new(), outcomes: Vec::new() };
     r.stage("design", &[], &[r.paths.design().join("design.parquet"), r.paths.validation_design().join("design.parquet")], |r| r.design())?;
-    r.stage("simulate", &["design"], &[], |r| r.simulate())?;
+    r.stage("simulate", &["design"], &[r.paths.design().join("runs"), r.paths.validation_design().join("runs")], |r| r.simulate())?;
     r.stage("ingest", &["simulate"], &[r.paths.training(), r.paths.validation()], |r| r.ingest())?;
     r.stage("emulator", &["ingest"], &[r.paths.emulator().join("emulator.json"), r.paths.emulator().join("validation.json")], |r| r.emulator())?;
     r.stage("mock", &[], &[r.paths.measurements()], |r| r.mock())?;

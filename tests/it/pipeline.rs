@@ -128,6 +128,13 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let third = run(&config2, &opts(&out, None, false)).unwrap();
     assert_eq!(ran(&third), vec!["mock", "calibrate", "report"]);
 
+    // Deleted runs are made again, and what was built on them is redone.
+    std::fs::remove_dir_all(out.join("design/runs")).unwrap();
+    let fourth = run(&config2, &opts(&out, None, false)).unwrap();
+    assert_eq!(ran(&fourth).first().map(String::as_str), Some("simulate"));
+    assert!(ran(&fourth).contains(&"ingest".to_string()));
+    assert!(out.join("design/runs/0015").exists());
+
     // A stage whose inputs were never made says which stage to run.
     let err = run(&config, &opts(&dir.join("fresh"), Some("ingest"), false)).unwrap_err();
     let msg = format!("{err:#}");
