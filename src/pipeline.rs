@@ -283,6 +283,13 @@ impl Runner<'_> {
                 self.run.oversample,
                 self.runs_seed(dir == self.paths.validation_design())
             );
+            // Runs of an earlier design belong to other points: the simulate stage
+            // keeps unstamped point folders (SLURM's), so they must not survive here.
+            let runs = dir.join("runs");
+            if runs.exists() {
+                std::fs::remove_dir_all(&runs).with_context(|| format!("removing runs of the previous design {}", runs.display()))?;
+                println!("  removed {} (runs of the previous design)", runs.display());
+            }
             let q = crate::design::write_design(&spec, &hash, n, seed, &dir)?;
             println!("  {}: {} points, minimum distance {:.4}", dir.display(), q.points, q.min_distance);
         }

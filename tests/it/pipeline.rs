@@ -174,7 +174,11 @@ fn slurm_array_runs_are_the_simulate_stage_runs() {
     run(&config, &opts(&local, Some("ingest"), false)).unwrap();
     // Batch: the design stage, then its array scripts, then ingest.
     let batch = dir.join("batch");
+    // Runs left from an earlier design (an interrupted simulate leaves no stamp)
+    // must not be taken for this design's: the design stage removes them.
+    std::fs::create_dir_all(batch.join("design/runs/0003")).unwrap();
     run(&config, &opts(&batch, Some("design"), false)).unwrap();
+    assert!(!batch.join("design/runs").exists(), "runs of a previous design survived a new design");
     run_slurm_array(&batch.join("design"), 16);
     run_slurm_array(&batch.join("validation_design"), 6);
     let sim = run(&config, &opts(&batch, Some("simulate"), false)).unwrap();
