@@ -27,6 +27,9 @@ pub struct Config {
     pub truth: Option<TruthConfig>,
     /// The whole study for `mdpipe run`: design, runs, emulator, mock data, calibrations.
     pub run: Option<crate::pipeline::RunConfig>,
+    /// Model variants `mdpipe diagnose` weighs against an emulated model.
+    #[serde(default)]
+    pub candidates: Vec<CandidateConfig>,
     /// Where the file was read from; relative paths resolve against its folder.
     #[serde(skip)]
     pub path: PathBuf,
@@ -46,6 +49,21 @@ pub enum ModelConfig {
     },
     /// A trained emulator (folder written by `mdpipe train-emulator`), relative to the config.
     Emulator { artifact: PathBuf },
+}
+
+/// A model variant declared as a diagnose candidate: an emulator (folder
+/// from `mdpipe train-emulator`, relative to the config) trained on runs with
+/// extra physics switched on, e.g. the Grad shear δf.
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CandidateConfig {
+    pub name: String,
+    /// What physics the variant adds, in a phrase.
+    pub description: String,
+    pub emulator: PathBuf,
+    /// Uniform priors of the variant's own parameters (beyond the model's θ).
+    #[serde(default)]
+    pub parameters: BTreeMap<String, ParamSpec>,
 }
 
 /// The data-generating process of mock data, evaluated at the parameters'

@@ -18,10 +18,10 @@
 use crate::artifacts::{self, Provenance};
 use crate::calibrate::summary::{ParamSummary, PredictionRow, Summary};
 use crate::calibrate::{self, Calibration, Overrides, Problem};
-use crate::config::{Config, ModelConfig, ParamSpec};
+use crate::config::{CandidateConfig, Config, ModelConfig, ParamSpec};
 use crate::gp::DiscrepancyKernel;
-use crate::models::{ball_drop, AugmentedBallDrop, Simulator};
-use anyhow::Result;
+use crate::models::{ball_drop, AugmentedBallDrop, EmulatedModel, Simulator};
+use anyhow::{anyhow, bail, Context, Result};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -65,9 +65,16 @@ pub struct ObservableMismatch {
     pub grows_with_x: bool,
     /// Posterior of the growth exponent r of the discrepancy kernel.
     pub r: ParamSummary,
-    /// Posterior-predictive check of the no-MD fit: standardized residuals
-    /// (y - η)/σ at the posterior median, and χ².
+    /// Posterior-predictive check of the no-MD fit: residuals (y − η̂)
+    /// standardized by the whole predictive sd (measurement error, posterior
+    /// spread of η and, for an emulator, its own uncertainty), and χ².
     pub no_md_residuals: Vec<(f64, f64)>,
+    /// Runs of consecutive data points whose no-MD residual exceeds 2 in
+    /// size with one sign (kept if two or more points, or one beyond 3): where
+    /// the model alone misses. Where an emulator's uncertainty leaves the δ
+    /// band wide (`regions` empty), this still locates the mismatch.
+    #[serde(default)]
+    pub residual_regions: Vec<Region>,
     pub no_md_chi2: f64,
     pub no_md_dof: usize,
     /// Posterior-mean δ/σ at each data point: one row of the mismatch map.
@@ -138,22 +145,67 @@ pub struct DiagnoseRun {
     pub repaired_md: Option<Calibration>,
 }
 
-/// The candidate corrections a model offers.
-fn candidate_models(config: &Config) -> Vec<(ball_drop::Candidate, Arc<dyn Simulator>)> {
-    match &config.model {
-        ModelConfig::BallDrop { h0 } => ball_drop::CANDIDATES
-            .iter()
-            .map(|c| (*c, Arc::new(AugmentedBallDrop { h0: *h0, candidate: *c }) as Arc<dyn Simulator>))
-            .collect(),
-        // No built-in library for emulated models: locate and MD repair only.
-        ModelConfig::Emulator { .. } => Vec::new(),
+/// One candidate correction as diagnose sees it: a model that adds named
+/// physics (and possibly parameters) to the base model.
+pub struct CandidateModel {
+    pub name: String,
+    pub description: String,
+    /// Parameters the candidate adds to θ, with their uniform priors.
+    pub extra_parameters: Vec<(String, ParamSpec)>,
+    pub simulator: Arc<dyn Simulator>,
+}
+
+impl CandidateModel {
+    /// The config with the candidate's parameters added to θ.
+    fn config(&self, base: &Config) -> Config {
+        let mut cfg = base.clone();
+        for (name, spec) in &self.extra_parameters {
+            cfg.parameters.insert(name.clone(), spec.clone());
+        }
+        cfg
     }
 }
 
-fn with_candidate_bounds(config: &Config, c: &ball_drop::Candidate) -> Config {
-    let mut cfg = config.clone();
-    cfg.parameters.insert(c.parameter.to_string(), ParamSpec { min: c.bounds.0, max: c.bounds.1, truth: None, units: c.units.to_string() });
-    cfg
+/// The candidate corrections a model offers: the ball drop's built-in
+/// library, or for an emulated model the variants declared in `[[candidates]]`.
+pub fn candidate_models(config: &Config) -> Result<Vec<CandidateModel>> {
+    match &config.model {
+        ModelConfig::BallDrop { h0 } => Ok(ball_drop::CANDIDATES
+            .iter()
+            .map(|c| CandidateModel {
+                name: c.name.to_string(),
+                description: c.description.to_string(),
+                extra_parameters: vec![(c.parameter.to_string(), ParamSpec { min: c.bounds.0, max: c.bounds.1, truth: None, units: c.units.to_string() })],
+                simulator: Arc::new(AugmentedBallDrop { h0: *h0, candidate: *c }),
+            })
+            .collect()),
+        ModelConfig::Emulator { .. } => config.candidates.iter().map(|c| declared_candidate(config, c)).collect(),
+    }
+}
+
+/// A user-declared model variant: an emulator trained on runs with the extra
+/// physics switched on. Its parameters must be the base θ plus the variant's
+/// own, whose priors the declaration gives.
+fn declared_candidate(config: &Config, c: &CandidateConfig) -> Result<CandidateModel> {
+    let file = config.path.display();
+    let dir = config.resolve(&c.emulator);
+    let model = EmulatedModel::load(&dir).with_context(|| format!("{file}: [[candidates]] {}: loading the variant emulator {}", c.name, dir.display()))?;
+    let names = model.parameter_names();
+    if let Some(missing) = config.parameters.keys().find(|p| !names.contains(p)) {
+        bail!("{file}: [[candidates]] {}: the variant emulator {} lacks the model parameter '{missing}' (it has {})", c.name, dir.display(), names.join(", "));
+    }
+    let mut extra = Vec::new();
+    for n in names.iter().filter(|n| !config.parameters.contains_key(*n)) {
+        let spec = c.parameters.get(n).ok_or_else(|| anyhow!("{file}: [[candidates]] {}: give prior bounds for the variant's own parameter '{n}' in [candidates.parameters.{n}]", c.name))?;
+        if !(spec.min.is_finite() && spec.max.is_finite() && spec.min < spec.max) {
+            bail!("{file}: [[candidates]] {}: [candidates.parameters.{n}]: bounds must satisfy min < max, got min = {}, max = {}", c.name, spec.min, spec.max);
+        }
+        extra.push((n.clone(), spec.clone()));
+    }
+    if let Some(unused) = c.parameters.keys().find(|k| !names.contains(k)) {
+        bail!("{file}: [[candidates]] {}: parameter '{unused}' is not one of the variant emulator's ({})", c.name, names.join(", "));
+    }
+    Ok(CandidateModel { name: c.name.clone(), description: c.description.clone(), extra_parameters: extra, simulator: Arc::new(model) })
 }
 
 fn p_value(chi2: f64, dof: usize) -> f64 {
@@ -230,10 +282,22 @@ fn locate(md_problem: &Problem, md: &Calibration, base_problem: &Problem, base: 
         let half = map.len() / 2;
         let mean_abs = |s: &[(f64, f64)]| s.iter().map(|p| p.1.abs()).sum::<f64>() / s.len().max(1) as f64;
         let grows_with_x = mean_abs(&map[half..]) > mean_abs(&map[..half]);
-        let mut eta = vec![0.0; b.len()];
+        let n = b.len();
+        let mut eta = vec![0.0; n];
         base_problem.simulator.predict(b.model_index, &b.x, &theta_median, &mut eta);
-        let residuals: Vec<(f64, f64)> = (0..b.len()).map(|i| (b.x[i], (b.y[i] - eta[i]) / b.error[i])).collect();
+        let mut model_cov = vec![0.0; n * n];
+        base_problem.simulator.add_model_covariance(b.model_index, &b.x, &theta_median, 1.0, &mut model_cov);
+        let residuals: Vec<(f64, f64)> = (0..n)
+            .map(|i| {
+                let band = base.predictions.iter().find(|r| r.observable == b.name && r.kind == "data" && r.x == b.x[i]);
+                // 95% band width / 3.92 = the posterior sd of η for a normal posterior.
+                let (centre, sd_theta) = band.map(|r| (r.model[2], (r.model[4] - r.model[0]) / 3.92)).unwrap_or((eta[i], 0.0));
+                let var = b.error[i] * b.error[i] + sd_theta * sd_theta + model_cov[i * n + i];
+                (b.x[i], (b.y[i] - centre) / var.sqrt())
+            })
+            .collect();
         let chi2: f64 = residuals.iter().map(|r| r.1 * r.1).sum();
+        let residual_regions = residual_regions(&residuals);
         out.push(ObservableMismatch {
             observable: b.name.clone(),
             regions,
@@ -243,10 +307,70 @@ fn locate(md_problem: &Problem, md: &Calibration, base_problem: &Problem, base: 
             grows_with_x,
             r: md.summary.parameters[&format!("{}.r", b.name)].clone(),
             no_md_residuals: residuals,
+            residual_regions,
             no_md_chi2: chi2,
             no_md_dof: b.len(),
             map,
         });
+    }
+    out
+}
+
+/// Where the data leave the model, in words: the MD trend of the worst
+/// observable when its δ band is clear of zero with one sign, otherwise the
+/// no-MD residual regions of up to three observables.
+fn mismatch_phrase(mismatch: &[ObservableMismatch]) -> String {
+    let Some(worst) = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma)) else {
+        return String::new();
+    };
+    if worst.sign == "below" || worst.sign == "above" {
+        let below = worst.sign == "below";
+        return format!(
+            "{} {}{} {} the model{}; ",
+            worst.observable,
+            if below { "falls" } else { "rises" },
+            if worst.grows_with_x { " increasingly" } else { "" },
+            if below { "below" } else { "above" },
+            if worst.grows_with_x { " as x grows" } else { "" }
+        );
+    }
+    let peak = |m: &ObservableMismatch| m.no_md_residuals.iter().map(|r| r.1.abs()).fold(0.0, f64::max);
+    let mut located: Vec<&ObservableMismatch> = mismatch.iter().filter(|m| !m.residual_regions.is_empty()).collect();
+    located.sort_by(|a, b| peak(b).total_cmp(&peak(a)));
+    if located.is_empty() {
+        return format!("{} deviates from the model by up to {:.1}σ of its error; ", worst.observable, worst.max_sigma);
+    }
+    let parts: Vec<String> = located
+        .iter()
+        .take(3)
+        .map(|m| {
+            let ranges: Vec<String> = m.residual_regions.iter().map(|r| format!("{} the model for x in [{:.2}, {:.2}]", r.sign, r.x_from, r.x_to)).collect();
+            format!("{} lies {} (up to {:.1}σ)", m.observable, ranges.join(" and "), peak(m))
+        })
+        .collect();
+    format!("fitted alone, the model misses: {}; ", parts.join("; "))
+}
+
+/// Maximal runs of same-sign standardized residuals beyond 2, kept when they
+/// hold two or more points or one beyond 3 (a lone 2σ point among dozens is
+/// expected by chance).
+fn residual_regions(z: &[(f64, f64)]) -> Vec<Region> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < z.len() {
+        let sign = if z[i].1 > 2.0 { 1.0 } else if z[i].1 < -2.0 { -1.0 } else { 0.0 };
+        if sign == 0.0 {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        while i < z.len() && z[i].1 * sign > 2.0 {
+            i += 1;
+        }
+        let run = &z[start..i];
+        if run.len() >= 2 || run.iter().any(|p| p.1.abs() > 3.0) {
+            out.push(Region { x_from: run[0].0, x_to: run[run.len() - 1].0, sign: if sign > 0.0 { "above" } else { "below" }.into() });
+        }
     }
     out
 }
@@ -271,15 +395,14 @@ pub fn run(config: &Config, overrides: &Overrides, seed: u64, settings: &Diagnos
 
     let mut candidates = Vec::new();
     let mut candidate_runs = Vec::new();
-    for (k, (cand, sim)) in candidate_models(config).into_iter().enumerate() {
-        let cfg = with_candidate_bounds(config, &cand);
-        let problem = Problem::with_simulator(&cfg, &Overrides { kernel: Some(None), ..overrides.clone() }, sim)?;
+    for (k, cand) in candidate_models(config)?.into_iter().enumerate() {
+        let problem = Problem::with_simulator(&cand.config(config), &Overrides { kernel: Some(None), ..overrides.clone() }, cand.simulator.clone())?;
         let cal = calibrate::run(&problem, seed.wrapping_add(10 + k as u64), settings.show_progress)?;
         write(&format!("candidate_{}", cand.name), &problem, &cal)?;
         let (z, e) = evidence(&cal.summary);
         candidates.push(CandidateResult {
-            name: cand.name.to_string(),
-            description: cand.description.to_string(),
+            name: cand.name.clone(),
+            description: cand.description.clone(),
             log_evidence: z,
             log_evidence_err: e,
             log_bayes_factor: z - z_base,
@@ -313,34 +436,23 @@ pub fn run(config: &Config, overrides: &Overrides, seed: u64, settings: &Diagnos
     let verdict = match named {
         Some(c) => {
             let (cand, _, _) = &candidate_runs[0];
-            let p = &c.parameters[cand.parameter];
-            let trend = match worst {
-                Some(w) if w.sign == "below" || w.sign == "above" => {
-                    let below = w.sign == "below";
-                    format!(
-                        "{} {}{} {} the model{}; ",
-                        w.observable,
-                        if below { "falls" } else { "rises" },
-                        if w.grows_with_x { " increasingly" } else { "" },
-                        if below { "below" } else { "above" },
-                        if w.grows_with_x { " as x grows" } else { "" }
-                    )
-                }
-                Some(w) => format!("{} deviates from the model by up to {:.1}σ; ", w.observable, w.max_sigma),
-                None => String::new(),
-            };
+            let fitted: Vec<String> = cand
+                .extra_parameters
+                .iter()
+                .map(|(n, spec)| {
+                    let p = &c.parameters[n];
+                    format!("{n} = {:.3} [{:.3}, {:.3}]{}", p.median, p.q025, p.q975, if spec.units.is_empty() { String::new() } else { format!(" {}", spec.units) })
+                })
+                .collect();
+            let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
+            let trend = mismatch_phrase(&mismatch);
             let runner = candidates.get(1).map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence)).unwrap_or_default();
             Verdict {
                 best: c.name.clone(),
                 statement: format!(
-                    "{trend}the data favour {} ({}), {} = {:.3} [{:.3}, {:.3}] {}{runner}; against the model as it is, log BF = {:.1}.",
+                    "{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.",
                     c.name.replace('_', " "),
                     c.description,
-                    cand.parameter,
-                    p.median,
-                    p.q025,
-                    p.q975,
-                    cand.units,
                     c.log_bayes_factor
                 ),
                 confidence: prob(c.log_evidence),
@@ -372,9 +484,7 @@ pub fn run(config: &Config, overrides: &Overrides, seed: u64, settings: &Diagnos
     let mut repaired_md = None;
     if named.is_some() && settings.repair {
         let (cand, rep_problem, rep) = &candidate_runs[0];
-        let cfg = with_candidate_bounds(config, cand);
-        let sim = candidate_models(config).into_iter().find(|(c, _)| c.name == cand.name).unwrap().1;
-        let rep_md_problem = Problem::with_simulator(&cfg, &Overrides { kernel: Some(Some(settings.kernel)), ..overrides.clone() }, sim)?;
+        let rep_md_problem = Problem::with_simulator(&cand.config(config), &Overrides { kernel: Some(Some(settings.kernel)), ..overrides.clone() }, cand.simulator.clone())?;
         let rep_md = calibrate::run(&rep_md_problem, seed.wrapping_add(99), settings.show_progress)?;
         write("repaired_md", &rep_md_problem, &rep_md)?;
         let before = vec![figures("model, no MD", &base_problem, &base), figures("model + MD", &md_problem, &md)];
@@ -398,7 +508,7 @@ pub fn run(config: &Config, overrides: &Overrides, seed: u64, settings: &Diagnos
         md_log_evidence: z_md,
         provenance: base_problem.provenance(seed, "diagnose"),
     };
-    let candidates = candidate_runs.into_iter().map(|(c, _, cal)| (c.name.to_string(), cal)).collect();
+    let candidates = candidate_runs.into_iter().map(|(c, _, cal)| (c.name, cal)).collect();
     if let Some(dir) = out {
         artifacts::write_json_atomic(&dir.join("diagnosis.json"), &diagnosis)?;
     }
@@ -409,17 +519,24 @@ pub fn run(config: &Config, overrides: &Overrides, seed: u64, settings: &Diagnos
 pub fn print(d: &Diagnosis) {
     println!("Locate (model + MD; δ in units of the measurement error):");
     for m in &d.mismatch {
-        let regions: Vec<String> = m.regions.iter().map(|r| format!("[{:.2}, {:.2}] {}", r.x_from, r.x_to, r.sign)).collect();
+        let show = |rs: &[Region]| -> String {
+            if rs.is_empty() {
+                "no region".into()
+            } else {
+                rs.iter().map(|r| format!("[{:.2}, {:.2}] {}", r.x_from, r.x_to, r.sign)).collect::<Vec<_>>().join(", ")
+            }
+        };
         println!(
-            "  {:<14} max |δ| = {:>5.1}σ at x = {:.2}; δ ≠ 0 in {}; r = {:.2} [{:.2}, {:.2}]; no-MD χ²/n = {:.1}",
+            "  {:<14} max |δ| = {:>5.1}σ at x = {:.2}; δ ≠ 0 in {}; r = {:.2} [{:.2}, {:.2}]; no-MD χ²/n = {:.1}, misses in {}",
             m.observable,
             m.max_sigma,
             m.x_at_max,
-            if regions.is_empty() { "no region".to_string() } else { regions.join(", ") },
+            show(&m.regions),
             m.r.median,
             m.r.q025,
             m.r.q975,
-            m.no_md_chi2 / m.no_md_dof as f64
+            m.no_md_chi2 / m.no_md_dof as f64,
+            show(&m.residual_regions)
         );
     }
     println!("Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):", d.md_log_evidence - d.base_log_evidence);

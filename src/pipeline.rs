@@ -11,7 +11,13 @@
 //! | mock        | mock/runs/, mock/measurements.parquet                           |
 //! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json |
 //! | report      | report.html                                                     |
+//! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator) per `[run] candidates` entry |
+//! | diagnose    | diagnose/ (diagnosis.json, report.html and every calibration)  |
 //!
+//! The last two run only when `[run] candidates` names physics from the
+//! stand-in's library (`heavy_ion::CANDIDATES`): each gets a variant
+//! emulator trained on runs with that physics switched on, and `diagnose`
+//! weighs the variants against the model on the mock data.
 //! A stage's key hashes its settings and its upstream stages' keys (the
 //! simulate stage's, and so ingest's, also the run folders' contents); a stage
 //! whose stamp (`OUT/stages/<stage>.json`) holds the same key, and whose
@@ -57,6 +63,12 @@ pub struct RunConfig {
     /// Discrepancy kernels: "none", "I", "II".
     #[serde(default = "default_kernels")]
     pub kernels: Vec<String>,
+    /// Diagnose candidates from the stand-in's library, by name.
+    #[serde(default)]
+    pub candidates: Vec<String>,
+    /// Design points of each candidate's variant runs (default: `points`).
+    #[serde(default)]
+    pub candidate_points: Option<usize>,
 }
 
 fn default_oversample() -> usize {
@@ -91,11 +103,17 @@ impl RunConfig {
                 bail!("observable_sets: unknown observable '{o}' (the stand-in gives {})", known.join(", "));
             }
         }
+        for c in &self.candidates {
+            heavy_ion::candidate(c).context("candidates")?;
+        }
+        if self.candidate_points == Some(0) {
+            bail!("candidate_points must be at least 1");
+        }
         Ok(())
     }
 }
 
-pub const STAGES: [&str; 7] = ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report"];
+pub const STAGES: [&str; 9] = ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report", "candidates", "diagnose"];
 
 /// Where and how to run.
 pub struct RunOptions {
@@ -137,6 +155,12 @@ impl RunPaths {
     }
     pub fn calibrate(&self) -> PathBuf {
         self.out.join("calibrate")
+    }
+    pub fn candidate(&self, name: &str) -> PathBuf {
+        self.out.join("candidates").join(name)
+    }
+    pub fn diagnose(&self) -> PathBuf {
+        self.out.join("diagnose")
     }
     fn stamp(&self, stage: &str) -> PathBuf {
         self.out.join("stages").join(format!("{stage}.json"))
@@ -186,6 +210,13 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     r.stage("mock", &[], &[r.paths.measurements()], |r| r.mock())?;
     r.stage("calibrate", &["emulator", "mock"], &[r.paths.out.join("study.json")], |r| r.calibrate())?;
     r.stage("report", &["calibrate"], &[r.paths.out.join("report.html")], |r| r.report())?;
+    if !run.candidates.is_empty() {
+        let variants: Vec<PathBuf> = run.candidates.iter().map(|c| r.paths.candidate(c).join("emulator").join("emulator.json")).collect();
+        r.stage("candidates", &["design"], &variants, |r| r.candidates())?;
+        r.stage("diagnose", &["emulator", "mock", "candidates"], &[r.paths.diagnose().join("diagnosis.json"), r.paths.diagnose().join("report.html")], |r| r.diagnose())?;
+    } else if opts.stage.as_deref().is_some_and(|s| s == "candidates" || s == "diagnose") {
+        bail!("--stage {}: {} names no `candidates` in [run]", opts.stage.as_deref().unwrap_or_default(), config.path.display());
+    }
     Ok(r.outcomes)
 }
 
@@ -203,6 +234,9 @@ impl Runner<'_> {
             "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.config.emulator)?, "seed": self.opts.seed}),
             "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()}),
             "calibrate" => serde_json::json!({"config": self.config.hash, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
+            "candidates" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "candidates": run.candidates, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
+                "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.config.emulator)?, "seed": self.opts.seed}),
+            "diagnose" => serde_json::json!({"config": self.config.hash, "observables": self.diagnose_observables(), "seed": self.opts.seed}),
             _ => serde_json::json!({"config": self.config.hash}),
         })
     }
@@ -322,23 +356,29 @@ impl Runner<'_> {
     }
 
     fn ingest(&mut self) -> Result<()> {
-        let keep = self.all_observables();
         for (dir, out) in [(self.paths.design(), self.paths.training()), (self.paths.validation_design(), self.paths.validation())] {
-            let settings = crate::ingest::IngestSettings::default();
-            let (mut ingested, design_df) = crate::ingest::ingest_runs(&dir.join("runs"), Some(&dir.join("design.parquet")), &settings)?;
-            ingested.rows.retain(|r| keep.contains(&r.observable));
-            let dropped = drop_incomplete_points(&mut ingested.rows);
-            for (id, what) in &dropped {
-                println!("  design point {id} left out: {what} undefined (a failed v_n{{2}} measurement, listed in the ingest report)");
-            }
-            let flagged: Vec<i64> = ingested.report.points.iter().filter(|p| p.flagged.is_some()).map(|p| p.design_id).collect();
-            if !flagged.is_empty() {
-                println!("  design points flagged by ingest and left out: {flagged:?}");
-            }
-            let report = crate::ingest::write(&ingested, design_df.as_ref(), &out)?;
-            let points: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
-            println!("  {}: {} points ({} left out); report {}", out.display(), points.len(), dropped.len() + flagged.len(), report.display());
+            self.ingest_design(&dir, &out)?;
         }
+        Ok(())
+    }
+
+    /// Ingests one design's runs into a training table of the study's observables.
+    fn ingest_design(&self, dir: &Path, out: &Path) -> Result<()> {
+        let keep = self.all_observables();
+        let settings = crate::ingest::IngestSettings::default();
+        let (mut ingested, design_df) = crate::ingest::ingest_runs(&dir.join("runs"), Some(&dir.join("design.parquet")), &settings)?;
+        ingested.rows.retain(|r| keep.contains(&r.observable));
+        let dropped = drop_incomplete_points(&mut ingested.rows);
+        for (id, what) in &dropped {
+            println!("  design point {id} left out: {what} undefined (a failed v_n{{2}} measurement, listed in the ingest report)");
+        }
+        let flagged: Vec<i64> = ingested.report.points.iter().filter(|p| p.flagged.is_some()).map(|p| p.design_id).collect();
+        if !flagged.is_empty() {
+            println!("  design points flagged by ingest and left out: {flagged:?}");
+        }
+        let report = crate::ingest::write(&ingested, design_df.as_ref(), out)?;
+        let points: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
+        println!("  {}: {} points ({} left out); report {}", out.display(), points.len(), dropped.len() + flagged.len(), report.display());
         Ok(())
     }
 
@@ -430,6 +470,82 @@ impl Runner<'_> {
         let html = html.replacen("</h1>\n", &format!("</h1>\n{}", study.html()), 1);
         artifacts::write_text_atomic(&self.paths.out.join("report.html"), &html)?;
         println!("  {}", self.paths.out.join("report.html").display());
+        Ok(())
+    }
+}
+
+impl Runner<'_> {
+    /// Diagnose works on the last (largest) observable set.
+    fn diagnose_observables(&self) -> Vec<String> {
+        self.run.observable_sets.last().cloned().unwrap_or_default()
+    }
+
+    /// One variant emulator per library candidate: a design over θ and the
+    /// candidate's parameter, stand-in runs with the physics switched on
+    /// (same events and seeds scheme as the model's), ingest, training.
+    fn candidates(&mut self) -> Result<()> {
+        let run = self.run;
+        let spec_path = self.config.resolve(&run.design);
+        let spec_hash = artifacts::sha256_hex(&std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?);
+        let base_settings = self.config.emulator.clone().ok_or_else(|| anyhow!("{}: the candidates stage needs an [emulator] table", self.config.path.display()))?;
+        let model_delta_f: DeltaF = run.model_delta_f.parse()?;
+        for (k, name) in run.candidates.iter().enumerate() {
+            let cand = heavy_ion::candidate(name)?;
+            let dir = self.paths.candidate(name);
+            if dir.exists() {
+                std::fs::remove_dir_all(&dir).with_context(|| format!("removing the previous variant {}", dir.display()))?;
+            }
+            let mut spec = crate::design::DesignSpec::load(&spec_path)?;
+            let mut settings = base_settings.clone();
+            if let Some(p) = cand.parameter {
+                spec.parameters.push(crate::design::DesignParameter { name: p.name.into(), min: p.min, max: p.max, log: false, key: p.key.into(), units: p.units.into() });
+                settings.parameters.push(p.name.into());
+            }
+            let seed = self.opts.seed.wrapping_add(1_000 * (k as u64 + 1));
+            let delta_f = if cand.shear_delta_f { DeltaF::Grad } else { model_delta_f };
+            let design_dir = dir.join("design");
+            spec.slurm.command = format!(
+                "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {} --oversample {} --layout hdf5 --seed {seed} --out runs",
+                if cand.shear_delta_f { "grad" } else { run.model_delta_f.as_str() },
+                run.events,
+                run.oversample
+            );
+            crate::design::write_design(&spec, &spec_hash, run.candidate_points.unwrap_or(run.points), seed, &design_dir)?;
+            let d = heavy_ion::read_design_points(&design_dir.join("design.parquet"))?;
+            let runs = design_dir.join("runs");
+            std::fs::create_dir_all(&runs)?;
+            std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
+            let points: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).collect();
+            heavy_ion::simulate_runs(&points, delta_f, run.events, run.oversample, seed, Layout::Hdf5, &runs)?;
+            let training = dir.join("training.parquet");
+            self.ingest_design(&design_dir, &training)?;
+            let command = format!("run {} --stage candidates ({name})", self.config.path.display());
+            let (_, r) = crate::emulator::train_with_settings(&settings, &self.config.hash, &command, &training, None, &dir.join("emulator"), seed)?;
+            println!("  {name}: {} points x {} outputs -> {} components ({})", r.n_points, r.n_outputs, r.n_components, settings.parameters.join(", "));
+        }
+        Ok(())
+    }
+
+    /// `mdpipe diagnose` on the mock data with the library variants declared.
+    fn diagnose(&mut self) -> Result<()> {
+        let mut config = self.study_config();
+        config.candidates = self
+            .run
+            .candidates
+            .iter()
+            .map(|name| {
+                let cand = heavy_ion::candidate(name)?;
+                let parameters = cand.parameter.iter().map(|p| (p.name.to_string(), crate::config::ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() })).collect();
+                Ok(crate::config::CandidateConfig { name: name.clone(), description: cand.description.into(), emulator: absolute(&self.paths.candidate(name).join("emulator")), parameters })
+            })
+            .collect::<Result<_>>()?;
+        let out = self.paths.diagnose();
+        let overrides = Overrides { observables: Some(self.diagnose_observables()), ..Default::default() };
+        let settings = crate::diagnose::DiagnoseSettings { show_progress: self.opts.show_progress, ..Default::default() };
+        let d = crate::diagnose::run(&config, &overrides, self.opts.seed.wrapping_add(77), &settings, Some(&out))?;
+        crate::diagnose::print(&d.diagnosis);
+        crate::report::write(std::slice::from_ref(&out), &out.join("report.html"), &format!("mdpipe run: {} (diagnose)", self.config.name))?;
+        println!("  {}", out.join("report.html").display());
         Ok(())
     }
 }

@@ -113,7 +113,10 @@ pub struct Diagnostics {
     pub sampler: SamplerDetails,
 }
 
-/// Goodness of fit of the model alone at the posterior median θ.
+/// Goodness of fit of the model alone at the posterior median θ: the
+/// generalized χ² `rᵀ C⁻¹ r` with the covariance of the no-MD likelihood,
+/// `C = diag(σ²)` plus, for an emulator, its predictive covariance (without
+/// it an emulated model would be judged as if it were exact).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct FitQuality {
     pub chi2: f64,
@@ -212,9 +215,27 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
     let mut chi2 = 0.0;
     let mut n = 0;
     for b in &problem.likelihood.blocks {
-        let mut eta = vec![0.0; b.len()];
+        let n_b = b.len();
+        let mut eta = vec![0.0; n_b];
         problem.simulator.predict(b.model_index, &b.x, theta, &mut eta);
-        let c: f64 = (0..b.len()).map(|i| ((b.y[i] - eta[i]) / b.error[i]).powi(2)).sum();
+        let mut r: Vec<f64> = (0..n_b).map(|i| b.y[i] - eta[i]).collect();
+        let c = if problem.simulator.has_model_covariance() {
+            let mut ws = crate::gp::CholeskyWorkspace::new(n_b);
+            ws.factor.fill(0.0);
+            for i in 0..n_b {
+                ws.factor[i * n_b + i] = b.error[i] * b.error[i];
+            }
+            problem.simulator.add_model_covariance(b.model_index, &b.x, theta, 1.0, &mut ws.factor);
+            match ws.factorize() {
+                Ok(_) => {
+                    ws.solve_lower_in_place(&mut r);
+                    r.iter().map(|z| z * z).sum()
+                }
+                Err(_) => f64::INFINITY,
+            }
+        } else {
+            (0..n_b).map(|i| (r[i] / b.error[i]).powi(2)).sum()
+        };
         per_observable.insert(b.name.clone(), c);
         chi2 += c;
         n += b.len();

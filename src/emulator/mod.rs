@@ -374,13 +374,21 @@ pub fn train_and_save(config: &std::path::Path, training: &std::path::Path, desi
     use anyhow::Context;
     let settings = EmulatorSettings::load(config)?;
     let config_hash = crate::artifacts::sha256_hex(&std::fs::read(config).with_context(|| format!("reading {}", config.display()))?);
+    let command = format!("train-emulator {} --training {}", config.display(), training.display());
+    train_with_settings(&settings, &config_hash, &command, training, design, out, seed)
+}
+
+/// Trains on the table at `training` with explicit settings and stores the
+/// emulator, with `config_hash` and `command` as its provenance.
+pub fn train_with_settings(settings: &EmulatorSettings, config_hash: &str, command: &str, training: &std::path::Path, design: Option<&std::path::Path>, out: &std::path::Path, seed: u64) -> Result<(Emulator, TrainingReport)> {
+    use anyhow::Context;
     let data_hash = crate::artifacts::sha256_hex(&std::fs::read(training).with_context(|| format!("reading {}", training.display()))?);
     let table = table::read_training_table_selected(training, &settings.parameters, &settings.observables)?;
     if let Some(design) = design {
         check_against_design(&table, design)?;
     }
-    let (emu, report) = train(&table, &settings, seed)?;
-    let prov = crate::artifacts::Provenance::new(config_hash, data_hash, seed, &format!("train-emulator {} --training {}", config.display(), training.display()));
-    store::save(out, &emu, &settings, &report, &prov)?;
+    let (emu, report) = train(&table, settings, seed)?;
+    let prov = crate::artifacts::Provenance::new(config_hash.to_string(), data_hash, seed, command);
+    store::save(out, &emu, settings, &report, &prov)?;
     Ok((emu, report))
 }

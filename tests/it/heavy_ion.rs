@@ -2,7 +2,7 @@
 //! the Grad shear δf, and the parameter dependence physics requires.
 
 use mdpipe::artifacts::read_paper_table;
-use mdpipe::models::heavy_ion::{analysis_pt, mean_pt, observables, DeltaF, EtaOverS, HeavyIonParams, PROTON};
+use mdpipe::models::heavy_ion::{analysis_pt, mean_pt, observables, DeltaF, HeavyIonParams, PROTON};
 use std::path::Path;
 
 fn reference() -> Vec<mdpipe::artifacts::Measurement> {
@@ -12,7 +12,7 @@ fn reference() -> Vec<mdpipe::artifacts::Measurement> {
 }
 
 fn point(eta_s: f64, e_sw: f64) -> HeavyIonParams {
-    HeavyIonParams { eta_s: EtaOverS::Constant(eta_s), e_sw }
+    HeavyIonParams::constant(eta_s, e_sw)
 }
 
 fn series<'a>(obs: &'a [(&'static str, Vec<f64>)], name: &str) -> &'a [f64] {

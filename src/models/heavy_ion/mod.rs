@@ -74,6 +74,19 @@ pub struct HeavyIonParams {
     pub eta_s: EtaOverS,
     /// Switching energy density, GeV/fm³.
     pub e_sw: f64,
+    /// Bulk viscosity ζ/s at particlization; > 0 adds the bulk δf (0 in the
+    /// model and in the paper's truth; a diagnose candidate).
+    pub zeta_s: f64,
+    /// Fraction of (anti)protons that survive annihilation in the hadronic
+    /// phase (1 = none annihilate; a diagnose candidate).
+    pub p_survival: f64,
+}
+
+impl HeavyIonParams {
+    /// Constant η/s, no bulk δf, no annihilation: the paper's 2-parameter model.
+    pub fn constant(eta_s: f64, e_sw: f64) -> HeavyIonParams {
+        HeavyIonParams { eta_s: EtaOverS::Constant(eta_s), e_sw, zeta_s: 0.0, p_survival: 1.0 }
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -126,6 +139,9 @@ const KINETIC_T_FRACTION: f64 = 1.0;
 /// Entropy per unit rapidity (dimensionless), 20–30% Au+Au at 200 GeV.
 const ENTROPY_PER_RAPIDITY: f64 = 1925.0;
 
+/// c_s² = dP/dε of the equation of state below (P = ε/8).
+const SOUND_SPEED2: f64 = 1.0 / 8.0;
+
 /// The equation of state: T (GeV) at energy density ε (GeV/fm³).
 pub fn temperature(e: f64) -> f64 {
     0.155 * (e / 0.5).powf(1.0 / 9.0)
@@ -163,6 +179,8 @@ pub struct FreezeOut {
     pub rho_n: [f64; 2],
     pub eta_s_eff: f64,
     pub eta_s_sw: f64,
+    pub zeta_s: f64,
+    pub p_survival: f64,
 }
 
 impl FreezeOut {
@@ -177,7 +195,7 @@ impl FreezeOut {
             let n = (k + 2) as f64;
             FLOW_RESPONSE[k] * ECCENTRICITY[k] * (-ACOUSTIC_BETA * n * n * eta_s_eff).exp()
         });
-        FreezeOut { t_sw, tau, radius, rho_max, rho_n, eta_s_eff, eta_s_sw: p.eta_s.at(t_sw) }
+        FreezeOut { t_sw, tau, radius, rho_max, rho_n, eta_s_eff, eta_s_sw: p.eta_s.at(t_sw), zeta_s: p.zeta_s, p_survival: p.p_survival }
     }
 }
 
@@ -246,6 +264,16 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
         DeltaF::None => 0.0,
         DeltaF::Grad | DeltaF::GradTransverse => -fo.eta_s_sw / (t * t * t),
     };
+    // Bulk δf (14-moment, relaxation-time form): Π = −ζ/τ from the Bjorken
+    // expansion, β_Π = 15 (1/3 − c_s²)² (e+P), s T = e + P, so
+    // δf/f0 = −(ζ/s) (p*²/(3E*) − c_s² E*) / (15 (1/3 − c_s²)² τ T²): fewer
+    // fast particles, more slow heavy ones (Π < 0 lowers the pressure).
+    let bulk_coeff = if fo.zeta_s > 0.0 {
+        let gap = 1.0 / 3.0 - SOUND_SPEED2;
+        -fo.zeta_s / (15.0 * gap * gap * tau_gev * t * t)
+    } else {
+        0.0
+    };
     let (na, np) = (q.azimuth, q.momentum_azimuth);
     // Momentum-azimuth tables: the inner loop then needs one exp per point.
     let tau = 2.0 * std::f64::consts::PI;
@@ -288,6 +316,10 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
                         let p_r_star = ch * p_r - sh * mt * che;
                         f *= 1.0 + df_coeff * (sig_r * p_r_star * p_r_star + sig_phi * p_phi * p_phi + sig_z * pz_star2);
                     }
+                    if bulk_coeff != 0.0 {
+                        // Floored at 0 like every regulated δf (only reached where f0 is negligible).
+                        f *= (1.0 + bulk_coeff * ((e_star * e_star - m * m) / (3.0 * e_star) - SOUND_SPEED2 * e_star)).max(0.0);
+                    }
                     let w = w0 * f;
                     n0 += w;
                     c2 += w * c2p;
@@ -298,7 +330,8 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
     }
     // Measure: r dr = R² u du; dφ, dφp = 2π/n each; η_s symmetric (×2); φp average = /np.
     let jac = fo.radius * 2.0 * std::f64::consts::PI / na as f64 * 2.0 / np as f64;
-    let norm = species.feed_down * species.degeneracy / (2.0 * std::f64::consts::PI).powi(3) * tau_gev / (HBARC * HBARC);
+    let survival = if species.pid == PROTON.pid { fo.p_survival } else { 1.0 };
+    let norm = survival * species.feed_down * species.degeneracy / (2.0 * std::f64::consts::PI).powi(3) * tau_gev / (HBARC * HBARC);
     YieldAndFlow { yield_: norm * jac * n0, v2: c2 / n0, v3: c3 / n0 }
 }
 
@@ -336,6 +369,58 @@ pub fn observables(p: &HeavyIonParams, delta_f: DeltaF, pts: &[f64]) -> Vec<(&'s
     vec![("ch_spectrum", ch.0), ("ch_v2", ch.1), ("ch_v3", ch.2), ("pi_spectrum", pi.0), ("pi_v2", pi.1), ("p_spectrum", pr.0), ("p_v2", pr.1)]
 }
 
+/// A parameter a candidate correction adds, with its uniform prior.
+#[derive(Clone, Copy, Debug)]
+pub struct CandidateParameter {
+    pub name: &'static str,
+    pub min: f64,
+    pub max: f64,
+    /// The iEBE-MUSIC parameter-file key.
+    pub key: &'static str,
+    pub units: &'static str,
+}
+
+/// Physics the stand-in can switch on that the f_eq model leaves out: the
+/// heavy-ion library of `mdpipe diagnose`. `mdpipe run` trains one variant
+/// emulator per candidate on runs with it switched on, and declares it.
+#[derive(Clone, Copy, Debug)]
+pub struct StandInCandidate {
+    pub name: &'static str,
+    pub description: &'static str,
+    /// The variant's runs use the Grad shear δf (otherwise the model's δf).
+    pub shear_delta_f: bool,
+    pub parameter: Option<CandidateParameter>,
+}
+
+pub const CANDIDATES: [StandInCandidate; 3] = [
+    StandInCandidate {
+        name: "grad_shear_delta_f",
+        description: "the Grad 14-moment shear viscous δf at particlization, its size fixed by η/s at the switching temperature",
+        shear_delta_f: true,
+        parameter: None,
+    },
+    StandInCandidate {
+        name: "bulk_delta_f",
+        description: "a bulk viscous δf at particlization (14-moment, relaxation-time form) from ζ/s at the switching temperature",
+        shear_delta_f: false,
+        parameter: Some(CandidateParameter { name: "zeta_s", min: 0.0, max: 0.2, key: "Bulk_to_S_ratio", units: "" }),
+    },
+    StandInCandidate {
+        name: "proton_annihilation",
+        description: "baryon–antibaryon annihilation in the hadronic phase, leaving a fraction p_survival of the (anti)protons",
+        shear_delta_f: false,
+        parameter: Some(CandidateParameter { name: "p_survival", min: 0.5, max: 1.0, key: "proton_survival_fraction", units: "" }),
+    },
+];
+
+/// The library candidate called `name`.
+pub fn candidate(name: &str) -> anyhow::Result<&'static StandInCandidate> {
+    CANDIDATES.iter().find(|c| c.name == name).ok_or_else(|| {
+        let names: Vec<&str> = CANDIDATES.iter().map(|c| c.name).collect();
+        anyhow::anyhow!("unknown heavy-ion candidate '{name}' (the library has {})", names.join(", "))
+    })
+}
+
 /// The paper's analysis bins: 10 bins over 0–2 GeV, represented by midpoints.
 pub fn analysis_pt() -> Vec<f64> {
     (0..10).map(|k| 0.1 + 0.2 * k as f64).collect()
@@ -346,9 +431,9 @@ impl HeavyIonParams {
     /// `eta_s, e_sw` or `T_kink, a_low, a_high, eta_s_kink, e_sw`.
     pub fn from_named(values: &[(String, f64)]) -> anyhow::Result<HeavyIonParams> {
         let get = |n: &str| values.iter().find(|(k, _)| k == n).map(|(_, v)| *v);
-        let known = ["eta_s", "e_sw", "T_kink", "a_low", "a_high", "eta_s_kink"];
+        let known = ["eta_s", "e_sw", "T_kink", "a_low", "a_high", "eta_s_kink", "zeta_s", "p_survival"];
         if let Some((k, _)) = values.iter().find(|(k, _)| !known.contains(&k.as_str())) {
-            anyhow::bail!("unknown heavy-ion parameter '{k}' (use eta_s, e_sw, or T_kink, a_low, a_high, eta_s_kink, e_sw)");
+            anyhow::bail!("unknown heavy-ion parameter '{k}' (use eta_s, e_sw, or T_kink, a_low, a_high, eta_s_kink, e_sw; candidates add zeta_s, p_survival)");
         }
         let e_sw = get("e_sw").ok_or_else(|| anyhow::anyhow!("missing parameter e_sw (GeV/fm^3)"))?;
         if !(e_sw > 0.0) {
@@ -359,7 +444,12 @@ impl HeavyIonParams {
             (None, Some(t_kink), Some(a_low), Some(a_high), Some(eta_s_kink)) => EtaOverS::Kink { t_kink, a_low, a_high, eta_s_kink },
             _ => anyhow::bail!("give either eta_s, or all four of T_kink, a_low, a_high, eta_s_kink"),
         };
-        Ok(HeavyIonParams { eta_s, e_sw })
+        let zeta_s = get("zeta_s").unwrap_or(0.0);
+        let p_survival = get("p_survival").unwrap_or(1.0);
+        if !(zeta_s >= 0.0) || !(p_survival > 0.0) {
+            anyhow::bail!("zeta_s = {zeta_s}, p_survival = {p_survival}: need zeta_s >= 0 and p_survival > 0");
+        }
+        Ok(HeavyIonParams { eta_s, e_sw, zeta_s, p_survival })
     }
 
     /// Parses `eta_s=0.1,e_sw=0.2`.
@@ -440,22 +530,26 @@ pub fn simulate_runs(points: &[(i64, HeavyIonParams)], delta_f: DeltaF, n_events
 }
 
 /// Runs the smooth (infinite-statistics) stand-in at every point of a design,
-/// in parallel, and returns the long training table.
+/// in parallel, and returns the long training table. Values follow ingest's
+/// definitions in the analysis bins (bin-averaged spectra, count-weighted
+/// v_n), i.e. the limit of `simulate` + `ingest` for infinitely many events,
+/// so that an emulator trained on them compares with ingested data.
 pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Result<crate::emulator::TrainingTable> {
     use rayon::prelude::*;
     let DesignPoints { ids, names, columns, points } = read_design_points(design)?;
     let pts = analysis_pt();
+    let edges = crate::ingest::IngestSettings::default().pt_edges;
     let bar = crate::progress_bar(points.len() as u64, "heavy-ion stand-in over the design");
-    let results: Vec<Vec<(&'static str, Vec<f64>)>> = points
+    let results: Vec<Vec<(String, Vec<f64>)>> = points
         .par_iter()
         .map(|p| {
-            let o = observables(p, delta_f, &pts);
+            let o = events::SmoothTables::new(p, delta_f).expected(&edges);
             bar.inc(1);
             o
         })
         .collect();
     bar.finish_and_clear();
-    let outputs: Vec<crate::emulator::OutputKey> = results[0].iter().flat_map(|(n, _)| pts.iter().map(move |&x| crate::emulator::OutputKey { observable: n.to_string(), x })).collect();
+    let outputs: Vec<crate::emulator::OutputKey> = results[0].iter().flat_map(|(n, _)| pts.iter().map(move |&x| crate::emulator::OutputKey { observable: n.clone(), x })).collect();
     let values: Vec<f64> = results.iter().flat_map(|r| r.iter().flat_map(|(_, v)| v.iter().copied())).collect();
     Ok(crate::emulator::TrainingTable {
         path: design.to_path_buf(),
