@@ -112,3 +112,27 @@ fn observables_respond_monotonically_to_the_parameters() {
         assert!(p_hi[j] < p_hi[j - 1], "proton spectrum at 1.5 GeV does not fall with e_sw: {p_hi:?}");
     }
 }
+
+/// The two other diagnose candidates act as their physics says: the bulk δf
+/// (Π < 0 lowers the pressure) softens the spectra increasingly with pT and
+/// leaves v2 almost alone; proton annihilation scales the proton yield and
+/// nothing of the pions.
+#[test]
+fn bulk_delta_f_softens_spectra_and_annihilation_removes_protons() {
+    let pts = analysis_pt();
+    let base = observables(&point(0.1, 0.2), DeltaF::None, &pts);
+    let bulk = observables(&HeavyIonParams { zeta_s: 0.1, ..point(0.1, 0.2) }, DeltaF::None, &pts);
+    let ratio: Vec<f64> = series(&bulk, "pi_spectrum").iter().zip(series(&base, "pi_spectrum")).map(|(b, a)| b / a).collect();
+    println!("bulk δf (ζ/s = 0.1) π spectrum ratio: {ratio:.3?}");
+    assert!(ratio.windows(2).all(|w| w[1] < w[0]), "the softening grows with pT");
+    assert!(ratio[9] < 0.98 && ratio[0] > 0.98);
+    let dv2 = series(&bulk, "ch_v2")[9] - series(&base, "ch_v2")[9];
+    let dv2_shear = series(&observables(&point(0.1, 0.2), DeltaF::Grad, &pts), "ch_v2")[9] - series(&base, "ch_v2")[9];
+    assert!(dv2.abs() < 0.2 * dv2_shear.abs(), "bulk Δv2 {dv2} vs shear Δv2 {dv2_shear}");
+
+    let annihilated = observables(&HeavyIonParams { p_survival: 0.7, ..point(0.1, 0.2) }, DeltaF::None, &pts);
+    for k in 0..pts.len() {
+        assert!((series(&annihilated, "p_spectrum")[k] / series(&base, "p_spectrum")[k] - 0.7).abs() < 1e-12);
+        assert_eq!(series(&annihilated, "pi_spectrum")[k], series(&base, "pi_spectrum")[k]);
+    }
+}

@@ -57,6 +57,8 @@ mock_delta_f = "grad"
 mock_events = {mock_events}
 observable_sets = [["ch_spectrum"], ["ch_spectrum", "ch_v2"]]
 kernels = ["none", "II"]
+candidates = ["grad_shear_delta_f", "proton_annihilation"]
+candidate_points = 12
 "#,
         spec.display()
     );
@@ -81,7 +83,8 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
 
     let first = run(&config, &opts(&out, None, false)).unwrap();
     assert_eq!(ran(&first), STAGES.to_vec());
-    for p in ["design/design.parquet", "validation_design/design.parquet", "design/submit.slurm", "training.parquet", "validation.parquet", "emulator/emulator.json", "emulator/validation.json", "mock/measurements.parquet", "study.json", "study.md", "report.html"] {
+    for p in ["design/design.parquet", "validation_design/design.parquet", "design/submit.slurm", "training.parquet", "validation.parquet", "emulator/emulator.json", "emulator/validation.json", "mock/measurements.parquet", "study.json", "study.md", "report.html",
+        "candidates/grad_shear_delta_f/emulator/emulator.json", "candidates/proton_annihilation/design/design.parquet", "diagnose/diagnosis.json", "diagnose/report.html"] {
         assert!(out.join(p).exists(), "{p} missing");
     }
     let study: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
@@ -101,6 +104,13 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     assert_eq!(study["emulator_vs_data"].as_array().unwrap().len(), 2);
     let report = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(report.contains("Consistency checks") && report.contains("bias"));
+    // The proton-annihilation variant is emulated over θ and its own parameter.
+    let variant = mdpipe::models::EmulatedModel::load(&out.join("candidates/proton_annihilation/emulator")).unwrap();
+    assert_eq!(mdpipe::models::Simulator::parameter_names(&variant), vec!["eta_s", "e_sw", "p_survival"]);
+    let diagnosis: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
+    let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert_eq!(names.len(), 2);
+    assert!(names.contains(&"grad_shear_delta_f") && names.contains(&"proton_annihilation"));
 
     // Unchanged: nothing runs.
     let second = run(&config, &opts(&out, None, false)).unwrap();
@@ -126,7 +136,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     // More mock events: the mock data and everything after them rerun; the runs and emulator do not.
     let config2 = Config::load(&write_config(&dir, 400)).unwrap();
     let third = run(&config2, &opts(&out, None, false)).unwrap();
-    assert_eq!(ran(&third), vec!["mock", "calibrate", "report"]);
+    assert_eq!(ran(&third), vec!["mock", "calibrate", "report", "diagnose"]);
 
     // Deleted runs are made again, and what was built on them is redone.
     std::fs::remove_dir_all(out.join("design/runs")).unwrap();
