@@ -262,3 +262,146 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     assert!(imp.after[0].chi2_per_dof < imp.before[0].chi2_per_dof);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// One heavy-ion blind data set: the concealed effect and the verdict it deserves.
+struct HeavyIonBlind {
+    params: mdpipe::models::heavy_ion::HeavyIonParams,
+    delta_f: mdpipe::models::heavy_ion::DeltaF,
+    /// Out-of-library: a hard-scattering tail `× (1 + a pT³)` on every spectrum, diluting v_n.
+    hard_tail: f64,
+    expected: &'static str,
+}
+
+fn heavy_ion_blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> HeavyIonBlind {
+    use mdpipe::models::heavy_ion::{DeltaF, HeavyIonParams};
+    let base = HeavyIonParams::constant(0.05 + 0.25 * rng.random::<f64>(), 0.15 + 0.25 * rng.random::<f64>());
+    let u: f64 = rng.random(); // magnitude, weak to strong
+    let (params, delta_f, hard_tail, expected) = match k % 5 {
+        0 => (base, DeltaF::None, 0.0, "none"),
+        1 => (base, DeltaF::Grad, 0.0, "grad_shear_delta_f"),
+        2 => (HeavyIonParams { zeta_s: 0.01 + 0.19 * u, ..base }, DeltaF::None, 0.0, "bulk_delta_f"),
+        3 => (HeavyIonParams { p_survival: 0.97 - 0.4 * u, ..base }, DeltaF::None, 0.0, "proton_annihilation"),
+        _ => (base, DeltaF::None, 0.002 + 0.02 * u, "unexplained"),
+    };
+    HeavyIonBlind { params, delta_f, hard_tail, expected }
+}
+
+/// The heavy-ion blind test: 25 seeded data sets (5 each: no effect, the three
+/// library candidates at weak to strong size, an out-of-library hard tail),
+/// smooth stand-in values with the real iEBE-MUSIC table's errors and
+/// Gaussian noise, diagnosed against emulators of the stand-in. Prints the
+/// confusion matrix; asserts the targets.
+#[test]
+fn heavy_ion_blind_test_confusion_matrix() {
+    use mdpipe::config::{CandidateConfig, ModelConfig, ParamSpec};
+    use mdpipe::design::{DesignParameter, DesignSpec};
+    use mdpipe::models::heavy_ion::{self, events::SmoothTables, DeltaF};
+    use mdpipe::models::Simulator;
+    use rand_distr::{Distribution, StandardNormal};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("mdpipe-blind-hi-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut cfg = Config::load(&root.join("pipeline/heavy_ion_2param.toml")).unwrap();
+    let settings = cfg.emulator.clone().unwrap();
+    let spec = DesignSpec::load(&root.join("design/heavy_ion_2param.toml")).unwrap();
+    smooth_emulator(&spec, &settings, DeltaF::None, 60, 21, &dir.join("model"));
+    for (k, cand) in heavy_ion::CANDIDATES.iter().enumerate() {
+        let (mut s, mut e) = (spec.clone(), settings.clone());
+        if let Some(p) = cand.parameter {
+            s.parameters.push(DesignParameter { name: p.name.into(), min: p.min, max: p.max, log: false, key: p.key.into(), units: p.units.into() });
+            e.parameters.push(p.name.into());
+        }
+        let df = if cand.shear_delta_f { DeltaF::Grad } else { DeltaF::None };
+        smooth_emulator(&s, &e, df, 60, 30 + k as u64, &dir.join(cand.name));
+        cfg.candidates.push(CandidateConfig {
+            name: cand.name.into(),
+            description: cand.description.into(),
+            emulator: dir.join(cand.name).join("emulator"),
+            parameters: cand.parameter.iter().map(|p| (p.name.to_string(), ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() })).collect(),
+        });
+    }
+    cfg.model = ModelConfig::Emulator { artifact: dir.join("model").join("emulator") };
+    cfg.sampler.smc.particles = 600;
+    cfg.sampler.smc.replicates = 2;
+    cfg.predictions.draws = 300;
+    let model = mdpipe::models::EmulatedModel::load(&dir.join("model").join("emulator")).unwrap();
+    // Errors of the real iEBE-MUSIC table: relative for spectra, absolute for v_n.
+    let reference = mdpipe::artifacts::read_paper_table(&root.join("pipeline/reference/iebe_music_grad_shear0p1_esw0p2.dat")).unwrap();
+    let error_of = |obs: &str, x: f64, value: f64| {
+        let r = reference.iter().find(|m| m.observable == obs && (m.x - x).abs() < 1e-6).unwrap();
+        if obs.ends_with("spectrum") { r.error / r.value * value } else { r.error }
+    };
+    let edges = mdpipe::ingest::IngestSettings::default().pt_edges;
+    let names = model.observable_names();
+    let settings = DiagnoseSettings { repair: false, ..Default::default() };
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(2027);
+    let mut rows = Vec::new();
+    for k in 0..25 {
+        let b = heavy_ion_blind_effect(k, &mut rng);
+        let truth = SmoothTables::new(&b.params, b.delta_f).expected(&edges);
+        let mut data = Vec::new();
+        let mut clean = Vec::new();
+        for (obs, values) in &truth {
+            for (i, &v) in values.iter().enumerate() {
+                let x = 0.5 * (edges[i] + edges[i + 1]);
+                let tail = 1.0 + b.hard_tail * x.powi(3);
+                let v = if obs.ends_with("spectrum") { v * tail } else { v / tail };
+                let e = error_of(obs, x, v);
+                let z: f64 = StandardNormal.sample(&mut rng);
+                clean.push(mdpipe::artifacts::Measurement::new(obs, x, v, e));
+                data.push(mdpipe::artifacts::Measurement::new(obs, x, v + e * z, e));
+            }
+        }
+        // Noise-free size of the effect: the largest |truth − best f_eq fit|/σ,
+        // the fit a χ² grid search over (η/s, ε_sw) on the model emulator.
+        let xs: Vec<f64> = edges.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+        let mut best = (f64::INFINITY, 0.0);
+        for i in 0..60 {
+            for j in 0..60 {
+                let theta = [0.4 * (i as f64 + 0.5) / 60.0, 0.1 + 0.4 * (j as f64 + 0.5) / 60.0];
+                let (mut chi2, mut worst) = (0.0, 0.0f64);
+                for (o, name) in names.iter().enumerate() {
+                    let mut eta = vec![0.0; xs.len()];
+                    model.predict(o, &xs, &theta, &mut eta);
+                    for (q, m) in clean.iter().filter(|m| &m.observable == name).enumerate() {
+                        let z = (m.value - eta[q]) / m.error;
+                        chi2 += z * z;
+                        worst = worst.max(z.abs());
+                    }
+                }
+                if chi2 < best.0 {
+                    best = (chi2, worst);
+                }
+            }
+        }
+        let path = dir.join(format!("blind_{k}.csv"));
+        mdpipe::artifacts::write_measurements(&path, &data, None).unwrap();
+        let run = diagnose::run(&cfg, &Overrides { data: Some(path), ..Default::default() }, 200 + k as u64, &settings, None).unwrap();
+        println!("  data set {k:>2}: concealed {:<20} verdict {:<20} noise-free mismatch {:.1}σ", b.expected, run.diagnosis.verdict.best, best.1);
+        rows.push((b.expected, run.diagnosis.verdict.best.clone(), best.1));
+    }
+    let labels = ["none", "grad_shear_delta_f", "bulk_delta_f", "proton_annihilation", "unexplained"];
+    println!("heavy-ion confusion matrix (rows: concealed effect, columns: verdict)");
+    print!("{:>20}", "");
+    for l in labels {
+        print!("{l:>20}");
+    }
+    println!();
+    for e in labels {
+        print!("{e:>20}");
+        for p in labels {
+            print!("{:>20}", rows.iter().filter(|r| r.0 == e && r.1 == p).count());
+        }
+        println!();
+    }
+    let nulls: Vec<_> = rows.iter().filter(|r| r.0 == "none").collect();
+    let false_alarms = nulls.iter().filter(|r| r.1 != "none").count();
+    assert!(false_alarms as f64 <= 0.05 * nulls.len() as f64, "{false_alarms} false alarms in {} null data sets", nulls.len());
+    let moderate: Vec<_> = rows.iter().filter(|r| r.0 != "none" && r.0 != "unexplained" && r.2 >= 3.0).collect();
+    let correct = moderate.iter().filter(|r| r.0 == r.1).count();
+    assert!(!moderate.is_empty());
+    assert!(correct as f64 >= 0.9 * moderate.len() as f64, "{correct}/{} moderate in-library effects named correctly", moderate.len());
+    let outside: Vec<_> = rows.iter().filter(|r| r.0 == "unexplained" && r.2 >= 3.0).collect();
+    assert!(outside.iter().all(|r| r.1 == "unexplained"), "out-of-library effects given a name: {outside:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
