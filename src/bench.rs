@@ -212,3 +212,23 @@ pub fn heavy_ion_point(events: usize, oversample: usize, dir: &Path) -> Result<H
     let ingest_s = t.elapsed().as_secs_f64();
     Ok(HeavyIonBench { events, oversample, particles: particles as usize, smooth_tables_s, sampling_s, write_hdf5_s, write_text_s, ingest_s })
 }
+
+#[derive(Debug, serde::Serialize)]
+pub struct DiagnoseBench {
+    pub seconds: f64,
+    pub calibrations: usize,
+    pub verdict: String,
+}
+
+/// Wall time of one full `diagnose` (base ± MD, every candidate, the repair)
+/// with the config's settings, writing nothing.
+pub fn diagnose_time(config: &Config, seed: u64) -> Result<DiagnoseBench> {
+    let settings = crate::diagnose::DiagnoseSettings::default();
+    let start = Instant::now();
+    let run = crate::diagnose::run(config, &Overrides::default(), seed, &settings, None)?;
+    Ok(DiagnoseBench {
+        seconds: start.elapsed().as_secs_f64(),
+        calibrations: 2 + run.candidates.len() + usize::from(run.repaired_md.is_some()),
+        verdict: run.diagnosis.verdict.best,
+    })
+}

@@ -88,6 +88,9 @@ enum Command {
         /// Benchmark one heavy-ion stand-in design point of this many events instead
         #[arg(long)]
         heavy_ion_events: Option<usize>,
+        /// Time one full `diagnose` of the config's data instead
+        #[arg(long)]
+        diagnose: bool,
     },
     /// Locate the mismatch, name the missing physics, repair the model, show the fit improve
     Diagnose {
@@ -377,6 +380,11 @@ fn run(cli: Cli) -> Result<()> {
             println!("  ingest (HDF5)             {:>7.3} s", b.ingest_s);
             println!("  simulate, HDF5 layout     {:>7.3} s total", b.smooth_tables_s + b.sampling_s + b.write_hdf5_s);
         }
+        Command::Bench { diagnose: true, config, seed, .. } => {
+            let config = Config::load(&config)?;
+            let b = mdpipe::bench::diagnose_time(&config, seed)?;
+            println!("diagnose {}: {} calibrations in {:.1} s on {} threads; verdict {}", config.path.display(), b.calibrations, b.seconds, rayon::current_num_threads(), b.verdict);
+        }
         Command::Bench { emulator: Some(dir), .. } => {
             let b = mdpipe::bench::emulator_throughput(&dir, 200_000)?;
             println!("emulator: {} design points, {} components, {} outputs", b.n_points, b.n_components, b.n_outputs);
@@ -386,7 +394,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("  all components, batches of 256: {:>9.0} predictions/s ({} threads)", b.batched_predictions_per_second, rayon::current_num_threads());
             println!("  mean + full {}x{} covariance:  {:>10.0} predictions/s ({} threads)", b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second, rayon::current_num_threads());
         }
-        Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator: None, heavy_ion_events: None } => {
+        Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator: None, heavy_ion_events: None, diagnose: false } => {
             let config = Config::load(&config)?;
             for kernel in compare::KERNELS {
                 let b = mdpipe::bench::likelihood_throughput(&config, kernel, evaluations)?;

@@ -233,11 +233,11 @@ impl Runner<'_> {
             "ingest" => serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()}),
             "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.config.emulator)?, "seed": self.opts.seed}),
             "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()}),
-            "calibrate" => serde_json::json!({"config": self.config.hash, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
+            "calibrate" => serde_json::json!({"config": self.analysis_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
             "candidates" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "candidates": run.candidates, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
                 "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.config.emulator)?, "seed": self.opts.seed}),
             "diagnose" => serde_json::json!({"config": self.config.hash, "observables": self.diagnose_observables(), "seed": self.opts.seed}),
-            _ => serde_json::json!({"config": self.config.hash}),
+            _ => serde_json::json!({"config": self.analysis_hash()?}),
         })
     }
 
@@ -272,6 +272,16 @@ impl Runner<'_> {
         self.keys.insert(name.into(), key);
         self.outcomes.push(StageOutcome { stage: name.into(), ran: true, seconds });
         Ok(())
+    }
+
+    /// SHA-256 of the config without its `[run]` table: what the calibrations
+    /// depend on beyond their stage settings and upstream keys (so declaring a
+    /// diagnose candidate does not redo them).
+    fn analysis_hash(&self) -> Result<String> {
+        let text = std::fs::read_to_string(&self.config.path).with_context(|| format!("reading {}", self.config.path.display()))?;
+        let mut table: toml::Table = toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", self.config.path.display()))?;
+        table.remove("run");
+        Ok(artifacts::sha256_hex(serde_json::to_string(&table)?.as_bytes()))
     }
 
     fn all_observables(&self) -> Vec<String> {
@@ -435,7 +445,7 @@ impl Runner<'_> {
                 let dir = self.paths.calibrate().join(&name);
                 let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
                 // Each finished case is stamped, so an interrupted stage resumes where it stopped.
-                let material = serde_json::json!({"config": self.config.hash, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock")});
+                let material = serde_json::json!({"config": self.analysis_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock")});
                 let key = artifacts::sha256_hex(material.to_string().as_bytes());
                 let stamp = self.paths.stamp(&format!("calibrate/{name}"));
                 if !self.opts.force && read_stamp(&stamp).is_some_and(|s| s.key == key) && dir.join("summary.json").exists() {
@@ -497,12 +507,12 @@ impl Runner<'_> {
             }
             let mut spec = crate::design::DesignSpec::load(&spec_path)?;
             let mut settings = base_settings.clone();
-            if let Some(p) = cand.parameter {
-                spec.parameters.push(crate::design::DesignParameter { name: p.name.into(), min: p.min, max: p.max, log: false, key: p.key.into(), units: p.units.into() });
-                settings.parameters.push(p.name.into());
+            if let Some(p) = cand.design_parameter() {
+                settings.parameters.push(p.name.clone());
+                spec.parameters.push(p);
             }
             let seed = self.opts.seed.wrapping_add(1_000 * (k as u64 + 1));
-            let delta_f = if cand.shear_delta_f { DeltaF::Grad } else { model_delta_f };
+            let delta_f = cand.delta_f(model_delta_f);
             let design_dir = dir.join("design");
             spec.slurm.command = format!(
                 "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {} --oversample {} --layout hdf5 --seed {seed} --out runs",
@@ -533,11 +543,7 @@ impl Runner<'_> {
             .run
             .candidates
             .iter()
-            .map(|name| {
-                let cand = heavy_ion::candidate(name)?;
-                let parameters = cand.parameter.iter().map(|p| (p.name.to_string(), crate::config::ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() })).collect();
-                Ok(crate::config::CandidateConfig { name: name.clone(), description: cand.description.into(), emulator: absolute(&self.paths.candidate(name).join("emulator")), parameters })
-            })
+            .map(|name| Ok(heavy_ion::candidate(name)?.declaration(absolute(&self.paths.candidate(name).join("emulator")))))
             .collect::<Result<_>>()?;
         let out = self.paths.diagnose();
         let overrides = Overrides { observables: Some(self.diagnose_observables()), ..Default::default() };

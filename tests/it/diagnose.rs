@@ -190,37 +190,39 @@ fn smooth_emulator(spec: &mdpipe::design::DesignSpec, settings: &mdpipe::emulato
     mdpipe::emulator::train_with_settings(settings, "test", "test", &training, None, &dir.join("emulator"), seed).unwrap();
 }
 
+/// The 2-parameter heavy-ion config with the f_eq stand-in and every library
+/// candidate emulated from smooth runs (60 points each) under `dir`.
+fn emulated_stand_in(dir: &Path, model_seed: u64, candidate_seed: u64) -> Config {
+    use mdpipe::design::DesignSpec;
+    use mdpipe::models::heavy_ion::{self, DeltaF};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut cfg = Config::load(&root.join("pipeline/heavy_ion_2param.toml")).unwrap();
+    let settings = cfg.emulator.clone().unwrap();
+    let spec = DesignSpec::load(&root.join("design/heavy_ion_2param.toml")).unwrap();
+    smooth_emulator(&spec, &settings, DeltaF::None, 60, model_seed, &dir.join("model"));
+    for (k, cand) in heavy_ion::CANDIDATES.iter().enumerate() {
+        let (mut s, mut e) = (spec.clone(), settings.clone());
+        if let Some(p) = cand.design_parameter() {
+            e.parameters.push(p.name.clone());
+            s.parameters.push(p);
+        }
+        smooth_emulator(&s, &e, cand.delta_f(DeltaF::None), 60, candidate_seed + k as u64, &dir.join(cand.name));
+        cfg.candidates.push(cand.declaration(dir.join(cand.name).join("emulator")));
+    }
+    cfg.model = mdpipe::config::ModelConfig::Emulator { artifact: dir.join("model").join("emulator") };
+    cfg
+}
+
 /// The heavy-ion half of the issue: Grad shear δf concealed in event-by-event
 /// mock data, the f_eq model emulated, the stand-in's library declared as
 /// variant emulators. Diagnose must locate the mismatch at high pT in the
 /// spectra and v2, name the shear δf and recover η/s and ε_sw.
 #[test]
 fn heavy_ion_grad_delta_f_is_located_and_named() {
-    use mdpipe::config::{CandidateConfig, ModelConfig, ParamSpec};
-    use mdpipe::design::{DesignParameter, DesignSpec};
     use mdpipe::models::heavy_ion::{self, DeltaF, HeavyIonParams};
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = std::env::temp_dir().join(format!("mdpipe-diagnose-hi-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let mut cfg = Config::load(&root.join("pipeline/heavy_ion_2param.toml")).unwrap();
-    let settings = cfg.emulator.clone().unwrap();
-    let spec = DesignSpec::load(&root.join("design/heavy_ion_2param.toml")).unwrap();
-    smooth_emulator(&spec, &settings, DeltaF::None, 60, 1, &dir.join("model"));
-    for (k, cand) in heavy_ion::CANDIDATES.iter().enumerate() {
-        let (mut s, mut e) = (spec.clone(), settings.clone());
-        if let Some(p) = cand.parameter {
-            s.parameters.push(DesignParameter { name: p.name.into(), min: p.min, max: p.max, log: false, key: p.key.into(), units: p.units.into() });
-            e.parameters.push(p.name.into());
-        }
-        let df = if cand.shear_delta_f { DeltaF::Grad } else { DeltaF::None };
-        smooth_emulator(&s, &e, df, 60, 10 + k as u64, &dir.join(cand.name));
-        cfg.candidates.push(CandidateConfig {
-            name: cand.name.into(),
-            description: cand.description.into(),
-            emulator: dir.join(cand.name).join("emulator"),
-            parameters: cand.parameter.iter().map(|p| (p.name.to_string(), ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() })).collect(),
-        });
-    }
+    let mut cfg = emulated_stand_in(&dir, 1, 10);
     // Mock data: 3000 events at the truth with the Grad δf, through ingest.
     let runs = dir.join("mock");
     heavy_ion::simulate_runs(&[(0, HeavyIonParams::constant(0.1, 0.2))], DeltaF::Grad, 3000, 50, 7, heavy_ion::events::Layout::Hdf5, &runs).unwrap();
@@ -228,7 +230,6 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     let data: Vec<mdpipe::artifacts::Measurement> = ingested.rows.iter().map(|r| mdpipe::artifacts::Measurement::new(&r.observable, r.x, r.value, r.error)).collect();
     let measurements = dir.join("measurements.parquet");
     mdpipe::artifacts::write_measurements(&measurements, &data, None).unwrap();
-    cfg.model = ModelConfig::Emulator { artifact: dir.join("model").join("emulator") };
     cfg.data.measurements = measurements;
 
     let run = diagnose::run(&cfg, &Overrides::default(), 3, &DiagnoseSettings::default(), Some(&dir.join("diagnose"))).unwrap();
@@ -293,34 +294,13 @@ fn heavy_ion_blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> HeavyIonBli
 /// confusion matrix; asserts the issue's targets.
 #[test]
 fn heavy_ion_blind_test_confusion_matrix() {
-    use mdpipe::config::{CandidateConfig, ModelConfig, ParamSpec};
-    use mdpipe::design::{DesignParameter, DesignSpec};
-    use mdpipe::models::heavy_ion::{self, events::SmoothTables, DeltaF};
+    use mdpipe::models::heavy_ion::events::SmoothTables;
     use mdpipe::models::Simulator;
     use rand_distr::{Distribution, StandardNormal};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = std::env::temp_dir().join(format!("mdpipe-blind-hi-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let mut cfg = Config::load(&root.join("pipeline/heavy_ion_2param.toml")).unwrap();
-    let settings = cfg.emulator.clone().unwrap();
-    let spec = DesignSpec::load(&root.join("design/heavy_ion_2param.toml")).unwrap();
-    smooth_emulator(&spec, &settings, DeltaF::None, 60, 21, &dir.join("model"));
-    for (k, cand) in heavy_ion::CANDIDATES.iter().enumerate() {
-        let (mut s, mut e) = (spec.clone(), settings.clone());
-        if let Some(p) = cand.parameter {
-            s.parameters.push(DesignParameter { name: p.name.into(), min: p.min, max: p.max, log: false, key: p.key.into(), units: p.units.into() });
-            e.parameters.push(p.name.into());
-        }
-        let df = if cand.shear_delta_f { DeltaF::Grad } else { DeltaF::None };
-        smooth_emulator(&s, &e, df, 60, 30 + k as u64, &dir.join(cand.name));
-        cfg.candidates.push(CandidateConfig {
-            name: cand.name.into(),
-            description: cand.description.into(),
-            emulator: dir.join(cand.name).join("emulator"),
-            parameters: cand.parameter.iter().map(|p| (p.name.to_string(), ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() })).collect(),
-        });
-    }
-    cfg.model = ModelConfig::Emulator { artifact: dir.join("model").join("emulator") };
+    let mut cfg = emulated_stand_in(&dir, 21, 30);
     cfg.sampler.smc.particles = 600;
     cfg.sampler.smc.replicates = 2;
     cfg.predictions.draws = 300;

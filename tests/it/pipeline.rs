@@ -16,7 +16,7 @@ fn tmpdir(tag: &str) -> PathBuf {
 }
 
 /// A small 2-parameter study: few points, few events, few particles.
-fn write_config(dir: &Path, mock_events: usize) -> PathBuf {
+fn write_config(dir: &Path, mock_events: usize, candidate_points: usize) -> PathBuf {
     let spec = Path::new(env!("CARGO_MANIFEST_DIR")).join("design/heavy_ion_2param.toml");
     let text = format!(
         r#"
@@ -58,7 +58,7 @@ mock_events = {mock_events}
 observable_sets = [["ch_spectrum"], ["ch_spectrum", "ch_v2"]]
 kernels = ["none", "II"]
 candidates = ["grad_shear_delta_f", "proton_annihilation"]
-candidate_points = 12
+candidate_points = {candidate_points}
 "#,
         spec.display()
     );
@@ -79,7 +79,7 @@ fn ran(outcomes: &[StageOutcome]) -> Vec<String> {
 fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let dir = tmpdir("all");
     let out = dir.join("out");
-    let config = Config::load(&write_config(&dir, 300)).unwrap();
+    let config = Config::load(&write_config(&dir, 300, 12)).unwrap();
 
     let first = run(&config, &opts(&out, None, false)).unwrap();
     assert_eq!(ran(&first), STAGES.to_vec());
@@ -134,9 +134,14 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     assert_ne!(std::fs::metadata(&redone).unwrap().modified().unwrap(), redone_time, "the unfinished case was not recomputed");
 
     // More mock events: the mock data and everything after them rerun; the runs and emulator do not.
-    let config2 = Config::load(&write_config(&dir, 400)).unwrap();
+    let config2 = Config::load(&write_config(&dir, 400, 12)).unwrap();
     let third = run(&config2, &opts(&out, None, false)).unwrap();
     assert_eq!(ran(&third), vec!["mock", "calibrate", "report", "diagnose"]);
+
+    // A changed candidate setting redoes the variants and the diagnosis, not the calibrations.
+    let config3 = Config::load(&write_config(&dir, 400, 10)).unwrap();
+    let variants = run(&config3, &opts(&out, None, false)).unwrap();
+    assert_eq!(ran(&variants), vec!["candidates", "diagnose"]);
 
     // Deleted runs are made again, and what was built on them is redone.
     std::fs::remove_dir_all(out.join("design/runs")).unwrap();
@@ -176,7 +181,7 @@ fn run_slurm_array(design_dir: &Path, n: usize) {
 #[test]
 fn slurm_array_runs_are_the_simulate_stage_runs() {
     let dir = tmpdir("slurm");
-    let config = Config::load(&write_config(&dir, 300)).unwrap();
+    let config = Config::load(&write_config(&dir, 300, 12)).unwrap();
     // Reference: the pipeline simulates and ingests.
     let local = dir.join("local");
     run(&config, &opts(&local, Some("design"), false)).unwrap();

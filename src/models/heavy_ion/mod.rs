@@ -413,6 +413,32 @@ pub const CANDIDATES: [StandInCandidate; 3] = [
     },
 ];
 
+impl StandInCandidate {
+    /// The candidate's own parameter as a design dimension.
+    pub fn design_parameter(&self) -> Option<crate::design::DesignParameter> {
+        self.parameter.map(|p| crate::design::DesignParameter { name: p.name.into(), min: p.min, max: p.max, log: false, key: p.key.into(), units: p.units.into() })
+    }
+
+    /// The particlization of the variant's runs, given the model's.
+    pub fn delta_f(&self, model: DeltaF) -> DeltaF {
+        if self.shear_delta_f {
+            DeltaF::Grad
+        } else {
+            model
+        }
+    }
+
+    /// Its `[[candidates]]` declaration, with its variant emulator at `emulator`.
+    pub fn declaration(&self, emulator: std::path::PathBuf) -> crate::config::CandidateConfig {
+        crate::config::CandidateConfig {
+            name: self.name.into(),
+            description: self.description.into(),
+            emulator,
+            parameters: self.parameter.iter().map(|p| (p.name.to_string(), crate::config::ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() })).collect(),
+        }
+    }
+}
+
 /// The library candidate called `name`.
 pub fn candidate(name: &str) -> anyhow::Result<&'static StandInCandidate> {
     CANDIDATES.iter().find(|c| c.name == name).ok_or_else(|| {
