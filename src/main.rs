@@ -47,6 +47,11 @@ enum Command {
         /// Sampler: smc or ensemble (default: the config's)
         #[arg(long)]
         sampler: Option<String>,
+        /// Stop cleanly after this many seconds with the sampler's state saved
+        /// in OUT/.checkpoint (e.g. before a SLURM time limit); the same command
+        /// resumes it. The state is saved as the run goes either way.
+        #[arg(long)]
+        time_limit: Option<f64>,
     },
     /// Run the paper's grid: growing observable sets × {no MD, Kernel I, Kernel II}
     Compare {
@@ -278,11 +283,13 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Calibrate { args, kernel, observables, sampler } => {
+        Command::Calibrate { args, kernel, observables, sampler, time_limit } => {
             let config = Config::load(&args.config)?;
             let overrides = parse_overrides(args.data, kernel, observables, sampler)?;
             let problem = Problem::new(&config, &overrides)?;
-            let cal = calibrate::run(&problem, args.seed, true)?;
+            let limit = time_limit.map(std::time::Duration::from_secs_f64);
+            let checkpoint = calibrate::checkpoint::Checkpointing::new(&args.out.join(".checkpoint"), calibrate::checkpoint_key(&problem, args.seed), limit);
+            let cal = calibrate::run_checkpointed(&problem, args.seed, true, Some(&checkpoint))?;
             calibrate::write_outputs(&args.out, &problem, &cal)?;
             print_summary(&cal.summary);
             println!("wrote {}/{{posterior.parquet, summary.json, predictions.parquet}}", args.out.display());

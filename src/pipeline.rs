@@ -455,7 +455,9 @@ impl Runner<'_> {
                 }
                 let ov = Overrides { kernel: Some(kernel), observables: Some(set.clone()), ..Default::default() };
                 let problem = Problem::new(&config, &ov)?;
-                let cal = calibrate::run(&problem, seed, self.opts.show_progress)?;
+                // Killed mid-case, the case resumes from its last saved tempering step.
+                let checkpoint = calibrate::checkpoint::Checkpointing::new(&dir.join(".checkpoint"), calibrate::checkpoint_key(&problem, seed), None);
+                let cal = calibrate::run_checkpointed(&problem, seed, self.opts.show_progress, Some(&checkpoint))?;
                 calibrate::write_outputs(&dir, &problem, &cal)?;
                 let seconds = cal.summary.diagnostics.wall_seconds;
                 let prov = Provenance::new(self.config.hash.clone(), String::new(), seed, &format!("run {} --stage calibrate ({name})", self.config.path.display()));

@@ -4,6 +4,7 @@
 //! A sampler sees a calibration problem as a [`UniformPrior`] and a
 //! [`LogLikelihood`]; [`Problem`] builds both from a config and data.
 
+pub mod checkpoint;
 pub mod compare;
 pub mod diagnostics;
 pub mod ensemble;
@@ -245,6 +246,30 @@ pub struct Calibration {
 
 /// Runs the configured sampler and summarizes the result.
 pub fn run(problem: &Problem, seed: u64, show_progress: bool) -> Result<Calibration> {
+    run_checkpointed(problem, seed, show_progress, None)
+}
+
+/// Identifies a calibration for its checkpoints: config, data, kernel,
+/// observables, prior, sampler settings and seed.
+pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
+    let material = format!(
+        "{}|{}|{seed}|{}|{:?}|{:?}|{:?}|{:?}|{:?}",
+        problem.config.hash,
+        artifacts::measurements_hash(&problem.measurements),
+        DiscrepancyKernel::label(problem.likelihood.kernel),
+        problem.observables(),
+        problem.prior.names,
+        problem.prior.lower,
+        problem.prior.upper,
+        problem.config.sampler.smc
+    );
+    artifacts::sha256_hex(material.as_bytes())
+}
+
+/// As `run`; with `checkpoint` the SMC sampler saves its state as it goes,
+/// resumes from a matching saved state, and clears it when done. Stopped at
+/// the checkpoint's time limit it returns a `checkpoint::Stopped` error.
+pub fn run_checkpointed(problem: &Problem, seed: u64, show_progress: bool, checkpoint: Option<&checkpoint::Checkpointing>) -> Result<Calibration> {
     let start = std::time::Instant::now();
     let jitter_before = crate::gp::jitter_events();
     let label = format!("{} kernel={} obs={}", problem.config.name, DiscrepancyKernel::label(problem.likelihood.kernel), problem.observables().join("+"));
@@ -252,9 +277,13 @@ pub fn run(problem: &Problem, seed: u64, show_progress: bool) -> Result<Calibrat
         SamplerKind::Smc => {
             let settings = problem.config.sampler.smc.clone();
             let pb = show_progress.then(|| crate::progress_bar(1000 * settings.replicates as u64, &format!("SMC {label}")));
-            let out = smc::Smc::new(settings).run(&problem.prior, &problem.likelihood, seed, pb.as_ref());
+            let out = smc::Smc::new(settings).run_checkpointed(&problem.prior, &problem.likelihood, seed, pb.as_ref(), checkpoint);
             if let Some(pb) = pb {
                 pb.finish_and_clear();
+            }
+            let out = out?;
+            if let Some(c) = checkpoint {
+                c.clear();
             }
             let evals = out.likelihood_evaluations();
             let details = summary::SamplerDetails::from_smc(&out);

@@ -18,6 +18,7 @@
 //! the R̂/ESS diagnostics, with each replicate's draws ordered by ancestor so
 //! that copies of one particle that the moves failed to separate lower the ESS.
 
+use super::checkpoint::{from_bits, to_bits, Checkpointing, ReplicateDone, ReplicateState, Stopped};
 use super::prior::UniformPrior;
 use super::{Chains, LogLikelihood, TermStructure};
 use crate::gp::CholeskyWorkspace;
@@ -70,7 +71,7 @@ impl SmcSettings {
 }
 
 /// What one tempering step did.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SmcStep {
     pub beta: f64,
     /// Sweeps: each moves every group of coordinates once.
@@ -121,14 +122,29 @@ impl Smc {
     }
 
     pub fn run(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, progress: Option<&ProgressBar>) -> SmcOutput {
+        match self.run_checkpointed(prior, likelihood, seed, progress, None) {
+            Ok(out) => out,
+            Err(stopped) => unreachable!("no time limit without checkpointing: {stopped}"),
+        }
+    }
+
+    /// As `run`, saving each replicate's state after tempering steps and
+    /// resuming from what an earlier, interrupted run of the same problem saved
+    /// (`super::checkpoint` describes the files).
+    pub fn run_checkpointed(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, progress: Option<&ProgressBar>, ck: Option<&Checkpointing>) -> Result<SmcOutput, Stopped> {
         let k = self.settings.replicates.max(1);
-        let replicates: Vec<ReplicateOutput> = (0..k)
+        let results: Vec<Option<ReplicateOutput>> = (0..k)
             .into_par_iter()
             .map(|r| {
                 let rseed = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(r as u64 * 0xD1B5_4A32_D192_ED03 + 1);
-                run_replicate(&self.settings, prior, likelihood, rseed, progress)
+                run_replicate(&self.settings, prior, likelihood, rseed, progress, ck.map(|c| (c, r)))
             })
             .collect();
+        if results.iter().any(Option::is_none) {
+            let c = ck.expect("only a checkpointed run stops early");
+            return Err(Stopped { dir: c.dir.clone(), seconds: c.started.elapsed().as_secs_f64() });
+        }
+        let replicates: Vec<ReplicateOutput> = results.into_iter().flatten().collect();
         // Pooled estimate Ẑ = mean_k Ẑ_k; its relative variance is Σ_k v_k / K²
         // (replicates are independent and each Ẑ_k ≈ Z).
         let logs: Vec<f64> = replicates.iter().map(|r| r.log_evidence).collect();
@@ -136,7 +152,7 @@ impl Smc {
         let rel_var: f64 = replicates.iter().map(|r| r.relative_variance.max(0.0)).sum::<f64>() / (k * k) as f64;
         let log_evidence_err = rel_var.ln_1p().sqrt();
         let chains = Chains { names: prior.names.clone(), dim: prior.dim(), chains: replicates.iter().map(|r| r.particles.clone()).collect() };
-        SmcOutput { chains, log_evidence, log_evidence_err, replicates }
+        Ok(SmcOutput { chains, log_evidence, log_evidence_err, replicates })
     }
 }
 
@@ -421,22 +437,10 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
         .reduce(MoveCounts::default, MoveCounts::merge)
 }
 
-fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, progress: Option<&ProgressBar>) -> ReplicateOutput {
+/// Draws the particles from the prior, in the unbounded coordinates u (see
+/// `UniformPrior::to_unbounded`), with their log-likelihoods (and terms).
+fn initial_cloud(prior: &UniformPrior, likelihood: &dyn LogLikelihood, rngs: &mut [Xoshiro256PlusPlus], n: usize, n_terms: usize) -> Cloud {
     let dim = prior.dim();
-    let n = settings.particles.max(2);
-    let mut master = Xoshiro256PlusPlus::seed_from_u64(seed);
-    // One independent stream per particle slot, so parallel moves are reproducible.
-    let mut rngs: Vec<Xoshiro256PlusPlus> = (0..n)
-        .map(|_| {
-            master.jump();
-            master.clone()
-        })
-        .collect();
-    master.long_jump();
-
-    let structure = likelihood.term_structure();
-    let n_terms = structure.as_ref().map(|s| s.own.len()).unwrap_or(0);
-    // Particles live in the unbounded coordinates u; see UniformPrior::to_unbounded.
     let mut x = vec![0.0; n * dim];
     let mut terms = vec![0.0; n * n_terms];
     let mut term_chunks: Vec<&mut [f64]> = if n_terms > 0 { terms.chunks_mut(n_terms).collect() } else { (0..n).map(|_| &mut [][..]).collect() };
@@ -457,7 +461,46 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
         .collect();
     drop(term_chunks);
     let logprior: Vec<f64> = x.chunks(dim).map(|u| prior.log_density_unbounded(u)).collect();
-    let mut cloud = Cloud { dim, x, loglik, logprior, terms, n_terms };
+    Cloud { dim, x, loglik, logprior, terms, n_terms }
+}
+
+/// One replicate; `None` when it stopped at the checkpoint's time limit.
+fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, progress: Option<&ProgressBar>, ck: Option<(&Checkpointing, usize)>) -> Option<ReplicateOutput> {
+    if let Some((c, r)) = ck {
+        if let Some(done) = c.load::<ReplicateDone>(&c.done_path(r)) {
+            if let Some(pb) = progress {
+                pb.inc(1000);
+            }
+            return Some(ReplicateOutput {
+                particles: from_bits(&done.particles),
+                log_evidence: f64::from_bits(done.log_evidence),
+                relative_variance: f64::from_bits(done.relative_variance),
+                steps: done.steps,
+                likelihood_evaluations: done.likelihood_evaluations,
+                term_evaluations: done.term_evaluations,
+                unique_fraction: f64::from_bits(done.unique_fraction),
+            });
+        }
+    }
+    let dim = prior.dim();
+    let n = settings.particles.max(2);
+    let mut master = Xoshiro256PlusPlus::seed_from_u64(seed);
+    // One independent stream per particle slot, so parallel moves are reproducible.
+    let mut rngs: Vec<Xoshiro256PlusPlus> = (0..n)
+        .map(|_| {
+            master.jump();
+            master.clone()
+        })
+        .collect();
+    master.long_jump();
+
+    let structure = likelihood.term_structure();
+    let n_terms = structure.as_ref().map(|s| s.own.len()).unwrap_or(0);
+    let saved = ck.and_then(|(c, r)| c.load::<ReplicateState>(&c.state_path(r)));
+    let mut cloud = match &saved {
+        Some(st) => Cloud { dim, x: from_bits(&st.x), loglik: from_bits(&st.loglik), logprior: from_bits(&st.logprior), terms: from_bits(&st.terms), n_terms },
+        None => initial_cloud(prior, likelihood, &mut rngs, n, n_terms),
+    };
     let mut evaluations = n as u64;
     let mut term_evaluations = 0u64;
     let mut eve: Vec<usize> = (0..n).collect();
@@ -475,6 +518,22 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
     let max_steps = (settings.max_steps_per_dim * sweep_dim as f64).ceil().max(base_steps) as usize;
     let target_ess = settings.ess_fraction * n as f64;
     let mut progress_done = 0u64;
+    if let Some(saved) = saved {
+        rngs = saved.rngs;
+        master = saved.master;
+        eve = saved.eve;
+        for (g, s) in groups.iter_mut().zip(&saved.scales) {
+            g.scale = f64::from_bits(*s);
+        }
+        beta = f64::from_bits(saved.beta);
+        log_z = f64::from_bits(saved.log_z);
+        stages = saved.stages;
+        last_acceptance = f64::from_bits(saved.last_acceptance);
+        steps_log = saved.steps;
+        evaluations = saved.evaluations;
+        term_evaluations = saved.term_evaluations;
+    }
+    let mut last_save = std::time::Instant::now();
 
     let weights = loop {
         let delta = next_increment(&cloud.loglik, beta, target_ess);
@@ -507,6 +566,37 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
         last_acceptance = (0..groups.len()).map(|gi| counts.acceptance(gi)).fold(f64::INFINITY, f64::min);
         steps_log.push(SmcStep { beta: next, mcmc_steps: steps, acceptance: counts.acceptance(0), group_acceptance: (0..groups.len()).map(|gi| counts.acceptance(gi)).collect() });
         beta = next;
+        if let Some((c, r)) = ck {
+            let out_of_time = c.out_of_time();
+            if out_of_time || last_save.elapsed() >= c.min_interval {
+                let state = ReplicateState {
+                    key: c.key.clone(),
+                    x: to_bits(&cloud.x),
+                    loglik: to_bits(&cloud.loglik),
+                    logprior: to_bits(&cloud.logprior),
+                    terms: to_bits(&cloud.terms),
+                    rngs: rngs.clone(),
+                    master: master.clone(),
+                    eve: eve.clone(),
+                    scales: groups.iter().map(|g| g.scale.to_bits()).collect(),
+                    beta: beta.to_bits(),
+                    log_z: log_z.to_bits(),
+                    stages,
+                    last_acceptance: last_acceptance.to_bits(),
+                    steps: steps_log.clone(),
+                    evaluations,
+                    term_evaluations,
+                };
+                // A failed save only costs the resume, never the run.
+                if let Err(e) = c.save(&c.state_path(r), &state) {
+                    eprintln!("warning: could not save checkpoint {}: {e:#}", c.state_path(r).display());
+                }
+                last_save = std::time::Instant::now();
+            }
+            if out_of_time {
+                return None;
+            }
+        }
     };
 
     // Lee & Whiteley (2018): Var(Ẑ)/Z² ≈ 1 - (n/(n-1))^T Σ_{i,j: E_i≠E_j} W_i W_j.
@@ -535,7 +625,23 @@ fn run_replicate(settings: &SmcSettings, prior: &UniformPrior, likelihood: &dyn 
         prior.from_unbounded(u, out);
     }
 
-    ReplicateOutput { particles, log_evidence: log_z, relative_variance, steps: steps_log, likelihood_evaluations: evaluations, term_evaluations, unique_fraction }
+    let out = ReplicateOutput { particles, log_evidence: log_z, relative_variance, steps: steps_log, likelihood_evaluations: evaluations, term_evaluations, unique_fraction };
+    if let Some((c, r)) = ck {
+        let done = ReplicateDone {
+            key: c.key.clone(),
+            particles: to_bits(&out.particles),
+            log_evidence: out.log_evidence.to_bits(),
+            relative_variance: out.relative_variance.to_bits(),
+            steps: out.steps.clone(),
+            likelihood_evaluations: out.likelihood_evaluations,
+            term_evaluations: out.term_evaluations,
+            unique_fraction: out.unique_fraction.to_bits(),
+        };
+        if let Err(e) = c.save(&c.done_path(r), &done) {
+            eprintln!("warning: could not save checkpoint {}: {e:#}", c.done_path(r).display());
+        }
+    }
+    Some(out)
 }
 
 #[cfg(test)]

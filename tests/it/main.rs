@@ -1,6 +1,7 @@
 //! Integration tests, in one binary so that the release build links once.
 
 mod ball_drop;
+mod checkpoint;
 mod closed_form;
 mod common;
 mod diagnose;
