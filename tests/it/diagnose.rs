@@ -7,7 +7,6 @@ use mdpipe::diagnose::{self, DiagnoseSettings};
 use mdpipe::models::ball_drop::{self, ExtraForces, MockOptions};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use std::collections::BTreeMap;
 use std::path::Path;
 
 fn config() -> Config {
@@ -111,6 +110,37 @@ fn effect_size(opts: &MockOptions) -> f64 {
     rows.iter().map(|&(p, q, y, s)| ((y - p * g - q * v0) / s).abs()).fold(0.0, f64::max)
 }
 
+/// Prints the confusion matrix of blind verdicts (rows: concealed effect,
+/// verdict, noise-free mismatch in σ) and asserts the targets: at
+/// most 5% false alarms on null data, at least 90% of in-library effects of
+/// 3σ or more named correctly, and out-of-library effects never given a name.
+fn confusion_matrix_meets_targets(system: &str, labels: &[&str], rows: &[(&str, String, f64)]) {
+    let width = labels.iter().map(|l| l.len()).max().unwrap_or(0) + 2;
+    println!("{system}: confusion matrix (rows: concealed effect, columns: verdict)");
+    print!("{:>width$}", "");
+    for l in labels {
+        print!("{l:>width$}");
+    }
+    println!();
+    for e in labels.iter().filter(|e| rows.iter().any(|r| r.0 == **e)) {
+        print!("{e:>width$}");
+        for p in labels {
+            print!("{:>width$}", rows.iter().filter(|r| r.0 == *e && r.1 == *p).count());
+        }
+        println!();
+    }
+    let nulls: Vec<_> = rows.iter().filter(|r| r.0 == "none").collect();
+    let false_alarms = nulls.iter().filter(|r| r.1 != "none").count();
+    assert!(false_alarms as f64 <= 0.05 * nulls.len() as f64, "{false_alarms} false alarms in {} null data sets", nulls.len());
+    let moderate: Vec<_> = rows.iter().filter(|r| r.0 != "none" && r.0 != "unexplained" && r.2 >= 3.0).collect();
+    let correct = moderate.iter().filter(|r| r.0 == r.1).count();
+    assert!(!moderate.is_empty());
+    assert!(correct as f64 >= 0.9 * moderate.len() as f64, "{correct}/{} moderate in-library effects named correctly", moderate.len());
+    for r in rows.iter().filter(|r| r.0 == "unexplained") {
+        assert!(r.1 == "unexplained" || (r.1 == "none" && r.2 < 3.0), "out-of-library effect ({:.1}σ) called {}", r.2, r.1);
+    }
+}
+
 /// The concealed effect of a blind data set, and the verdict it deserves.
 fn blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> (ExtraForces, &'static str) {
     let u: f64 = rng.random(); // magnitude, weak to strong
@@ -146,37 +176,10 @@ fn blind_test_confusion_matrix() {
         rows.push((expected, run.diagnosis.verdict.best.clone(), effect_size(&opts)));
     }
     let labels = ["none", "linear_drag", "quadratic_drag", "field_gradient", "constant_force", "unexplained"];
-    let mut matrix: BTreeMap<(&str, String), usize> = BTreeMap::new();
-    for (e, p, _) in &rows {
-        *matrix.entry((e, p.clone())).or_default() += 1;
-    }
-    println!("confusion matrix (rows: concealed effect, columns: verdict)");
-    print!("{:>16}", "");
-    for l in labels {
-        print!("{l:>16}");
-    }
-    println!();
-    for e in labels.iter().filter(|l| **l != "constant_force") {
-        print!("{e:>16}");
-        for p in labels {
-            print!("{:>16}", matrix.get(&(*e, p.to_string())).copied().unwrap_or(0));
-        }
-        println!();
-    }
     for (e, p, s) in &rows {
         println!("  concealed {e:<15} verdict {p:<15} noise-free mismatch {s:.1}σ");
     }
-    let nulls: Vec<_> = rows.iter().filter(|r| r.0 == "none").collect();
-    let false_alarms = nulls.iter().filter(|r| r.1 != "none").count();
-    assert!(false_alarms as f64 <= 0.05 * nulls.len() as f64, "{false_alarms} false alarms in {} null data sets", nulls.len());
-    let moderate: Vec<_> = rows.iter().filter(|r| r.0 != "none" && r.0 != "unexplained" && r.2 >= 3.0).collect();
-    let correct = moderate.iter().filter(|r| r.0 == r.1).count();
-    assert!(!moderate.is_empty());
-    assert!(correct as f64 >= 0.9 * moderate.len() as f64, "{correct}/{} moderate in-library effects named correctly", moderate.len());
-    // Outside the library: never a wrong name.
-    for r in rows.iter().filter(|r| r.0 == "unexplained") {
-        assert!(r.1 == "unexplained" || (r.1 == "none" && r.2 < 3.0), "out-of-library effect ({:.1}σ) called {}", r.2, r.1);
-    }
+    confusion_matrix_meets_targets("ball drop", &labels, &rows);
 }
 
 /// Trains an emulator on the smooth stand-in (the infinite-statistics limit
@@ -361,27 +364,6 @@ fn heavy_ion_blind_test_confusion_matrix() {
         rows.push((b.expected, run.diagnosis.verdict.best.clone(), best.1));
     }
     let labels = ["none", "grad_shear_delta_f", "bulk_delta_f", "proton_annihilation", "unexplained"];
-    println!("heavy-ion confusion matrix (rows: concealed effect, columns: verdict)");
-    print!("{:>20}", "");
-    for l in labels {
-        print!("{l:>20}");
-    }
-    println!();
-    for e in labels {
-        print!("{e:>20}");
-        for p in labels {
-            print!("{:>20}", rows.iter().filter(|r| r.0 == e && r.1 == p).count());
-        }
-        println!();
-    }
-    let nulls: Vec<_> = rows.iter().filter(|r| r.0 == "none").collect();
-    let false_alarms = nulls.iter().filter(|r| r.1 != "none").count();
-    assert!(false_alarms as f64 <= 0.05 * nulls.len() as f64, "{false_alarms} false alarms in {} null data sets", nulls.len());
-    let moderate: Vec<_> = rows.iter().filter(|r| r.0 != "none" && r.0 != "unexplained" && r.2 >= 3.0).collect();
-    let correct = moderate.iter().filter(|r| r.0 == r.1).count();
-    assert!(!moderate.is_empty());
-    assert!(correct as f64 >= 0.9 * moderate.len() as f64, "{correct}/{} moderate in-library effects named correctly", moderate.len());
-    let outside: Vec<_> = rows.iter().filter(|r| r.0 == "unexplained" && r.2 >= 3.0).collect();
-    assert!(outside.iter().all(|r| r.1 == "unexplained"), "out-of-library effects given a name: {outside:?}");
+    confusion_matrix_meets_targets("heavy ion", &labels, &rows);
     let _ = std::fs::remove_dir_all(&dir);
 }
