@@ -111,6 +111,17 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
     assert_eq!(names.len(), 2);
     assert!(names.contains(&"grad_shear_delta_f") && names.contains(&"proton_annihilation"));
+    // A declared variant whose own parameter has no prior is refused, naming the config and the field.
+    let mut declared = config.clone();
+    declared.model = mdpipe::config::ModelConfig::Emulator { artifact: out.join("emulator") };
+    declared.candidates = vec![mdpipe::config::CandidateConfig {
+        name: "annihilation".into(),
+        description: "p annihilation".into(),
+        emulator: out.join("candidates/proton_annihilation/emulator"),
+        parameters: Default::default(),
+    }];
+    let msg = format!("{:#}", mdpipe::diagnose::candidate_models(&declared).err().expect("missing prior accepted"));
+    assert!(msg.contains("study.toml") && msg.contains("[candidates.parameters.p_survival]"), "{msg}");
 
     // Unchanged: nothing runs.
     let second = run(&config, &opts(&out, None, false)).unwrap();

@@ -33,6 +33,10 @@
 //!   v2 falls by 0.014 (Bjorken only: 0.022). Hydro's Israel–Stewart shear at
 //!   freeze-out is dominated by the longitudinal component, so `Grad`
 //!   (longitudinal) is the default and the mock truth.
+//! - **Diagnose candidates** (off in the model and in the paper's truth):
+//!   a bulk viscous δf from ζ/s at T_sw (`zeta_s`, 14-moment relaxation-time
+//!   form, see `yield_and_flow`) and (anti)proton annihilation in the
+//!   hadronic phase (`p_survival`); `CANDIDATES` lists them with the Grad δf.
 //! - **What was fitted.** Resonance decays are not simulated. Seven constants
 //!   (dS/dy, ρ_max's offset, k_2, k_3 and the yield factors π 1.60, K 1.07,
 //!   p 1.89 standing in for feed-down) were fitted once, by least squares, to
