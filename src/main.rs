@@ -287,6 +287,9 @@ fn run(cli: Cli) -> Result<()> {
             let config = Config::load(&args.config)?;
             let overrides = parse_overrides(args.data, kernel, observables, sampler)?;
             let problem = Problem::new(&config, &overrides)?;
+            if let Some(t) = time_limit.filter(|t| !(t.is_finite() && *t >= 0.0)) {
+                bail!("--time-limit {t}: give a number of seconds, 0 or more");
+            }
             let limit = time_limit.map(std::time::Duration::from_secs_f64);
             let checkpoint = calibrate::checkpoint::Checkpointing::new(&args.out.join(".checkpoint"), calibrate::checkpoint_key(&problem, args.seed), limit);
             let cal = calibrate::run_checkpointed(&problem, args.seed, true, Some(&checkpoint))?;
