@@ -549,6 +549,19 @@ impl CholeskyWorkspace {
         Err(NotPositiveDefinite { n, max_jitter: *JITTER_LADDER.last().unwrap() })
     }
 
+    /// Factorizes without jitter: false when the matrix is not numerically
+    /// positive definite. For callers to whom singularity is the answer (a
+    /// Fisher matrix of unidentified parameters), not a nuisance to regularize.
+    pub fn factorize_exact(&mut self) -> bool {
+        let n = self.n;
+        if n <= SMALL_N {
+            cholesky_small(&mut self.factor, n)
+        } else {
+            let a = MatMut::from_column_major_slice_mut(&mut self.factor, n, n);
+            cholesky_in_place(a, Default::default(), Par::Seq, MemStack::new(&mut self.stack), Spec::<LltParams, f64>::default()).is_ok()
+        }
+    }
+
     /// `log det A` from the factor.
     pub fn log_det(&self) -> f64 {
         let n = self.n;

@@ -190,6 +190,58 @@ impl MdLikelihood {
         self.with_workspace(|ws| self.block_log_likelihood(params, b, ws))
     }
 
+    /// Fisher information of θ for the model without MD at `theta`,
+    /// `F = Σ_b J_bᵀ diag(σ_b⁻²) J_b` (column-major d × d), with the Jacobian
+    /// by central differences of step `steps[k]` in θ_k. `None` when the model
+    /// carries its own θ-dependent covariance (an emulator): that dependence
+    /// carries information this form leaves out, so it would be no bound.
+    pub fn fisher_information(&self, theta: &[f64], steps: &[f64]) -> Option<Vec<f64>> {
+        if self.model_covariance {
+            return None;
+        }
+        let d = self.n_theta;
+        let mut fisher = vec![0.0; d * d];
+        let mut shifted = theta.to_vec();
+        for block in &self.blocks {
+            let n = block.len();
+            let (mut up, mut down) = (vec![0.0; n], vec![0.0; n]);
+            let mut jac = vec![0.0; n * d];
+            for k in 0..d {
+                shifted[k] = theta[k] + steps[k];
+                self.simulator.predict(block.model_index, &block.x, &shifted, &mut up);
+                shifted[k] = theta[k] - steps[k];
+                self.simulator.predict(block.model_index, &block.x, &shifted, &mut down);
+                shifted[k] = theta[k];
+                for i in 0..n {
+                    jac[i + k * n] = (up[i] - down[i]) / (2.0 * steps[k] * block.error[i]);
+                }
+            }
+            for a in 0..d {
+                for b in 0..d {
+                    fisher[a + b * d] += (0..n).map(|i| jac[i + a * n] * jac[i + b * n]).sum::<f64>();
+                }
+            }
+        }
+        Some(fisher)
+    }
+
+    /// Cramér–Rao standard deviations of θ at `theta`: the smallest spread any
+    /// unbiased analysis of these data can reach with this model, `sqrt(diag F⁻¹)`.
+    /// `None` as for `fisher_information`, or when F is singular (parameters
+    /// the data cannot tell apart, such as g and a constant extra force).
+    pub fn cramer_rao_sd(&self, theta: &[f64], steps: &[f64]) -> Option<Vec<f64>> {
+        let d = self.n_theta;
+        let fisher = self.fisher_information(theta, steps)?;
+        let mut chol = CholeskyWorkspace::new(d);
+        chol.factor.copy_from_slice(&fisher);
+        if !chol.factorize_exact() {
+            return None;
+        }
+        let inv = chol.inverse();
+        let sd: Vec<f64> = (0..d).map(|k| inv[k + k * d].sqrt()).collect();
+        sd.iter().all(|v| v.is_finite()).then_some(sd)
+    }
+
     fn block_log_likelihood(&self, params: &[f64], b: usize, ws: &mut Workspace) -> f64 {
         let theta = &params[..self.n_theta];
         let block = &self.blocks[b];

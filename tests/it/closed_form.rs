@@ -107,3 +107,21 @@ fn smc_evidence_error_is_calibrated() {
     }
     assert!(z2 > 0.29 && z2 < 2.5, "mean squared z-score {z2}");
 }
+
+#[test]
+fn cramer_rao_sd_equals_the_linear_models_posterior_sd() {
+    // For a linear model with Gaussian errors the posterior covariance under a
+    // flat prior is exactly F⁻¹, at any θ; finite differences are exact too.
+    let (x, y, err) = data(5);
+    let lik = linear_likelihood(&measurements(&x, &y, &err), None);
+    let diag: Vec<f64> = (0..x.len() * x.len()).map(|k| if k % (x.len() + 1) == 0 { err[k / (x.len() + 1)].powi(2) } else { 0.0 }).collect();
+    let exact = analytic_linear(&x, &y, &diag);
+    let sd = lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).expect("identified parameters");
+    for p in 0..2 {
+        assert!((sd[p] / exact.sd[p] - 1.0).abs() < 1e-9, "θ{p}: Cramér–Rao sd {} vs posterior sd {}", sd[p], exact.sd[p]);
+    }
+    // One x value cannot separate intercept and slope: F is singular, and no bound is claimed.
+    let same_x = vec![0.5; 10];
+    let lik = linear_likelihood(&measurements(&same_x, &y, &err), None);
+    assert!(lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).is_none());
+}
