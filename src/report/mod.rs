@@ -456,6 +456,15 @@ pub fn build(dirs: &[PathBuf], title: &str) -> Result<String> {
                 html.push_str(&format!("<tr><td>{}</td><td>{:.2}</td><td>{:.2} ± {:.2}</td><td>{:.1}</td><td>{}</td></tr>\n", f.label, f.chi2_per_dof, f.log_evidence, f.log_evidence_err, dmax, ps.join(", ")));
             }
             html.push_str("</table>\n");
+            let narrowing: Vec<String> = imp
+                .interval_narrowing
+                .iter()
+                .map(|(n, r)| match imp.information_limit.get(n) {
+                    Some(l) => format!("{n}: {r:.2}× (Cramér–Rao limit of these data {l:.2}×)"),
+                    None => format!("{n}: {r:.2}×"),
+                })
+                .collect();
+            html.push_str(&format!("<p>95% intervals, repaired model against model + δ: {}.</p>\n", narrowing.join("; ")));
         }
         for (name, label) in [("base_md", "before: model + δ"), ("repaired_md", "after: repaired model + δ")] {
             if let Some(run) = runs.iter().find(|r| r.dir.file_name().map(|f| f == name).unwrap_or(false)) {

@@ -51,7 +51,7 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
     for bad in ["src=\"http", "href=\"http", "url(http", "<script src", "<link"] {
         assert!(!html.contains(bad), "external reference {bad}");
     }
-    for label in ["x [s]", "acceleration [m/s²]", "log BF", "δ/σ", "truth"] {
+    for label in ["x [s]", "acceleration [m/s²]", "log BF", "δ/σ", "truth", "Cramér–Rao limit"] {
         assert!(html.contains(label), "report lacks label {label}");
     }
     let report = out.join("report.html");
