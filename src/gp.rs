@@ -704,6 +704,28 @@ mod tests {
     }
 
     #[test]
+    fn every_factorization_path_reproduces_the_matrix() {
+        // n = 3, 10: fixed-size; 20: unblocked; 30: faer. L Lᵀ must give A back.
+        for n in [3usize, 10, 20, 30] {
+            let x: Vec<f64> = (0..n).map(|i| 0.1 + 0.07 * i as f64 + 0.01 * (i as f64).sin()).collect();
+            let mut a = vec![0.0; n * n];
+            discrepancy_cross_cov(DiscrepancyKernel::KernelI, &[1.1, 0.3, 0.8, 0.4], &x, &x, &mut a);
+            for i in 0..n {
+                a[i + i * n] += 0.05;
+            }
+            let mut ws = CholeskyWorkspace::new(n);
+            ws.factor.copy_from_slice(&a);
+            assert!(ws.factorize_exact(), "n = {n}");
+            for j in 0..n {
+                for i in j..n {
+                    let llt: f64 = (0..=j).map(|k| ws.factor[i + k * n] * ws.factor[j + k * n]).sum();
+                    assert!((llt - a[i + j * n]).abs() < 1e-12, "n = {n}, ({i},{j}): {llt} vs {}", a[i + j * n]);
+                }
+            }
+        }
+    }
+
+    #[test]
     fn indefinite_matrix_is_an_error_not_a_silent_answer() {
         let mut ws = CholeskyWorkspace::new(2);
         ws.factor.copy_from_slice(&[1.0, 3.0, 3.0, 1.0]);
