@@ -40,8 +40,8 @@
 //!   (cosh ρ / τ), keeping the diagonal rest-frame shear and neglecting ∂_τ u.
 //!   Measured at η/s = 0.1, ε_sw = 0.2: those rates nearly equal the
 //!   longitudinal one at this freeze-out, so the shear largely cancels: at
-//!   1.9 GeV the charged spectrum rises by 0.7% (Bjorken only: 11.6%) and
-//!   v2 falls by 0.014 (Bjorken only: 0.022). Hydro's Israel–Stewart shear at
+//!   1.9 GeV the charged spectrum rises by 2.6% (Bjorken only: 8.9%) and
+//!   v2 (0.206 with f_eq) falls by 0.0076 (Bjorken only: 0.0096). Hydro's Israel–Stewart shear at
 //!   freeze-out is dominated by the longitudinal component, so `Grad`
 //!   (longitudinal) is the default and the mock truth.
 //! - **Diagnose candidates** (off in the model and in the paper's truth):
