@@ -60,9 +60,10 @@
 //!   v_n bin within 21%, apart from the proton v2 below 0.4 GeV, which
 //!   iEBE-MUSIC itself measures only to ±20–100% (printed by
 //!   `cargo test --release --test it stand_in -- --nocapture`).
-//! - **Why decays are not simulated.** Two-body decay kinematics were tried
-//!   (ρ, ω, K*, Δ with the blast wave's own parents): a ρ → ππ daughter at
-//!   0.1–0.3 GeV is emitted mostly sideways to its parent, so feed-down
+//! - **Why decays are not simulated.** Two-body decays (ρ, ω, K*, Δ fed by
+//!   the blast wave's own parents) were tried in a numpy prototype, not in
+//!   this crate: a ρ → ππ daughter at 0.3 GeV leaves mostly sideways to a
+//!   0.2–0.8 GeV parent (⟨cos 2Δφ⟩ from −0.13 to −0.39), so feed-down
 //!   lowered the low-pT pion v2 instead of raising it, and worsened the fit.
 
 pub mod events;
