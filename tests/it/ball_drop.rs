@@ -3,13 +3,15 @@
 //! agreement of the two samplers, and clear errors on bad input.
 
 use mdpipe::calibrate::summary::{ParamSummary, Summary};
-use mdpipe::calibrate::{self, compare, diagnostics, Overrides, Problem};
-use mdpipe::config::{Config, SamplerKind};
+use mdpipe::calibrate::{self, diagnostics, Analysis, Overrides, Problem, SamplerKind};
+use mdpipe::compare;
+use mdpipe::progress::Silent;
+use mdpipe::config::Config;
 use mdpipe::gp::DiscrepancyKernel;
 use std::path::{Path, PathBuf};
 
-fn config() -> Config {
-    Config::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml").as_path()).unwrap()
+fn config() -> Analysis {
+    mdpipe::systems::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml").as_path()).unwrap()
 }
 
 fn tmp(tag: &str) -> PathBuf {
@@ -26,7 +28,7 @@ fn all_obs() -> Vec<String> {
 fn paper_findings_hold_on_bundled_data() {
     let cfg = config();
     let out = tmp("grid");
-    let cases = compare::run_grid(&cfg, &Overrides::default(), 1, &out, false).unwrap();
+    let cases = compare::run_grid(&cfg, &Overrides::default(), 1, &out, &Silent).unwrap();
     assert_eq!(cases.len(), 9);
     let find = |n: usize, k: Option<DiscrepancyKernel>| -> &Summary {
         &cases.iter().find(|c| c.observables.len() == n && c.kernel == k).unwrap().calibration.summary
@@ -70,7 +72,7 @@ fn smc_and_ensemble_agree_on_ball_drop() {
         for sampler in [SamplerKind::Smc, SamplerKind::Ensemble] {
             let ov = Overrides { kernel: Some(kernel), observables: Some(all_obs()), sampler: Some(sampler), ..Default::default() };
             let problem = Problem::new(&cfg, &ov).unwrap();
-            let cal = calibrate::run(&problem, 21, false).unwrap();
+            let cal = calibrate::run(&problem, 21, &Silent).unwrap();
             runs.push(cal.chains);
         }
         for p in 0..2 {
@@ -95,7 +97,7 @@ fn smc_and_ensemble_agree_on_ball_drop() {
 fn calibrate_writes_artifacts_with_provenance() {
     let cfg = config();
     let problem = Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() }).unwrap();
-    let cal = calibrate::run(&problem, 5, false).unwrap();
+    let cal = calibrate::run(&problem, 5, &Silent).unwrap();
     let out = tmp("artifacts");
     calibrate::write_outputs(&out, &problem, &cal).unwrap();
     let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
@@ -104,7 +106,7 @@ fn calibrate_writes_artifacts_with_provenance() {
         assert!(summary["parameters"]["acceleration.cbar"][key].is_number());
     }
     assert!(summary["log_evidence"].is_number() && summary["log_evidence_err"].is_number());
-    assert_eq!(summary["provenance"]["config_hash"].as_str().unwrap(), cfg.hash);
+    assert_eq!(summary["provenance"]["config_hash"].as_str().unwrap(), cfg.config_hash);
     assert_eq!(summary["provenance"]["seed"].as_u64().unwrap(), 5);
     let post = mdpipe::artifacts::read_parquet(&out.join("posterior.parquet")).unwrap();
     assert!(post.column("height.ell").is_ok() && post.column("v0").is_ok());

@@ -6,13 +6,13 @@
 use mdpipe::calibrate::checkpoint::Checkpointing;
 use mdpipe::calibrate::smc::Smc;
 use mdpipe::calibrate::{Overrides, Problem};
-use mdpipe::config::Config;
 use mdpipe::gp::DiscrepancyKernel;
+use mdpipe::progress::Silent;
 use std::path::Path;
 use std::time::Duration;
 
 fn problem() -> Problem {
-    let mut cfg = Config::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
+    let mut cfg = mdpipe::systems::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
     cfg.sampler.smc.particles = 300;
     cfg.sampler.smc.replicates = 2;
     Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() }).unwrap()
@@ -26,13 +26,13 @@ fn stop_every_step(dir: &Path, key: &str) -> Checkpointing {
 #[test]
 fn resumed_smc_equals_uninterrupted_smc_bit_for_bit() {
     let p = problem();
-    let smc = Smc::new(p.config.sampler.smc.clone());
-    let whole = smc.run(&p.prior, &p.likelihood, 5, None);
+    let smc = Smc::new(p.analysis.sampler.smc.clone());
+    let whole = smc.run(&p.prior, &p.likelihood, 5, &Silent);
     let dir = std::env::temp_dir().join(format!("mdpipe-checkpoint-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let mut stops = 0;
     let resumed = loop {
-        match smc.run_checkpointed(&p.prior, &p.likelihood, 5, None, Some(&stop_every_step(&dir, "run-a"))) {
+        match smc.run_checkpointed(&p.prior, &p.likelihood, 5, &Silent, Some(&stop_every_step(&dir, "run-a"))) {
             Ok(out) => break out,
             Err(stopped) => {
                 stops += 1;
@@ -53,9 +53,9 @@ fn resumed_smc_equals_uninterrupted_smc_bit_for_bit() {
 
     // A state saved by another run (here: another key) is ignored, not resumed.
     let _ = std::fs::remove_dir_all(&dir);
-    assert!(smc.run_checkpointed(&p.prior, &p.likelihood, 5, None, Some(&stop_every_step(&dir, "run-a"))).is_err());
+    assert!(smc.run_checkpointed(&p.prior, &p.likelihood, 5, &Silent, Some(&stop_every_step(&dir, "run-a"))).is_err());
     let other = Checkpointing::new(&dir, "run-b".into(), None);
-    let fresh = smc.run_checkpointed(&p.prior, &p.likelihood, 5, None, Some(&other)).unwrap();
+    let fresh = smc.run_checkpointed(&p.prior, &p.likelihood, 5, &Silent, Some(&other)).unwrap();
     assert_eq!(fresh.log_evidence.to_bits(), whole.log_evidence.to_bits());
     let _ = std::fs::remove_dir_all(&dir);
 }

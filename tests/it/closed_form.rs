@@ -13,6 +13,7 @@ use mdpipe::calibrate::smc::{Smc, SmcSettings};
 use mdpipe::calibrate::summary::ParamSummary;
 use mdpipe::calibrate::{diagnostics, Chains};
 use mdpipe::gp::DiscrepancyKernel;
+use mdpipe::progress::Silent;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -55,7 +56,7 @@ fn smc_matches_closed_form_posterior_and_evidence() {
     let lik = linear_likelihood(&measurements(&x, &y, &err), Some(kernel));
     let exact = analytic_linear(&x, &y, &md_covariance(&lik, kernel, &HYPER));
     let prior = pinned_prior(THETA_BOX, &HYPER, lik.parameter_names());
-    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() }).run(&prior, &lik, 3, None);
+    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() }).run(&prior, &lik, 3, &Silent);
     check_theta(&out.chains, &exact, "SMC");
     let log_z_exact = exact.log_integral - (40.0f64 * 40.0).ln();
     assert!(out.log_evidence_err > 0.0 && out.log_evidence_err < 0.5);
@@ -75,7 +76,7 @@ fn ensemble_matches_closed_form_posterior() {
     let exact = analytic_linear(&x, &y, &md_covariance(&lik, kernel, &HYPER));
     let prior = pinned_prior(THETA_BOX, &HYPER, lik.parameter_names());
     let settings = EnsembleSettings { walkers: 32, steps: 20000, burn: 5000, thin: 5, stretch: 2.0 };
-    let out = Ensemble::new(settings).run(&prior, &lik, 4, None);
+    let out = Ensemble::new(settings).run(&prior, &lik, 4, &Silent);
     check_theta(&out.chains, &exact, "ensemble");
     for p in 0..2 {
         let rhat = diagnostics::rhat(&out.chains.param_chains(p));
@@ -101,7 +102,7 @@ fn smc_evidence_error_is_calibrated() {
     let runs = 16;
     let mut z2 = 0.0;
     for seed in 0..runs {
-        let out = Smc::new(SmcSettings { particles: 300, replicates: 1, ..Default::default() }).run(&prior, &lik, 100 + seed, None);
+        let out = Smc::new(SmcSettings { particles: 300, replicates: 1, ..Default::default() }).run(&prior, &lik, 100 + seed, &Silent);
         let z = (out.log_evidence - log_z_exact) / out.log_evidence_err;
         z2 += z * z / runs as f64;
     }

@@ -6,7 +6,7 @@
 use mdpipe::artifacts::Measurement;
 use mdpipe::calibrate::{MdLikelihood, ObservableBlock, UniformPrior};
 use mdpipe::gp::{discrepancy_cross_cov, DiscrepancyKernel};
-use mdpipe::models::Simulator;
+use mdpipe::model::Simulator;
 use std::sync::Arc;
 
 /// η(x, θ) = θ0 + θ1 x: linear in θ, so with Gaussian noise and a fixed

@@ -4,20 +4,21 @@
 use mdpipe::calibrate::Overrides;
 use mdpipe::config::Config;
 use mdpipe::diagnose::{self, DiagnoseSettings};
-use mdpipe::models::ball_drop::{self, ExtraForces, MockOptions};
+use mdpipe::progress::Silent;
+use mdpipe::systems::ball_drop::{self, ExtraForces, MockOptions};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::path::Path;
 
-fn config() -> Config {
-    Config::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml").as_path()).unwrap()
+fn config() -> mdpipe::calibrate::Analysis {
+    mdpipe::systems::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml").as_path()).unwrap()
 }
 
 #[test]
 fn names_quadratic_drag_and_recovers_k_and_g() {
     let cfg = config();
     let out = std::env::temp_dir().join(format!("mdpipe-diagnose-{}", std::process::id()));
-    let run = diagnose::run(&cfg, &Overrides::default(), 1, &DiagnoseSettings::default(), Some(&out)).unwrap();
+    let run = diagnose::run(&cfg, &Overrides::default(), 1, &DiagnoseSettings::default(), Some(&out), &Silent).unwrap();
     let d = &run.diagnosis;
     assert_eq!(d.verdict.best, "quadratic_drag", "{}", d.verdict.statement);
     let winner = &d.candidates[0];
@@ -44,7 +45,7 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
         assert!(!json[key].is_null(), "diagnosis.json lacks {key}");
     }
     // The report is self-contained: every figure inline, nothing fetched from the network.
-    let html = mdpipe::report::build(&[out.clone()], "test").unwrap();
+    let html = mdpipe::report::build(&[out.clone()], "test", &mdpipe::systems::figures()).unwrap();
     let figures = html.matches("<svg").count();
     // Mismatch map, BF chart, 2 × (3 δ bands + 3 predictions), a corner plot per observable set.
     assert!(figures >= 15, "{figures} figures");
@@ -178,7 +179,7 @@ fn blind_test_confusion_matrix() {
         let data = ball_drop::mock_measurements(&opts, &mut rng);
         let path = dir.join(format!("blind_{k}.csv"));
         mdpipe::artifacts::write_measurements(&path, &data, None).unwrap();
-        let run = diagnose::run(&cfg, &Overrides { data: Some(path), ..Default::default() }, 100 + k as u64, &settings, None).unwrap();
+        let run = diagnose::run(&cfg, &Overrides { data: Some(path), ..Default::default() }, 100 + k as u64, &settings, None, &Silent).unwrap();
         rows.push((expected, run.diagnosis.verdict.best.clone(), effect_size(&opts)));
     }
     let labels = ["none", "linear_drag", "quadratic_drag", "field_gradient", "constant_force", "unexplained"];
@@ -190,10 +191,10 @@ fn blind_test_confusion_matrix() {
 
 /// Trains an emulator on the smooth stand-in (the infinite-statistics limit
 /// of simulate + ingest) over a fresh design of `spec`, saved under `dir`.
-fn smooth_emulator(spec: &mdpipe::design::DesignSpec, settings: &mdpipe::emulator::EmulatorSettings, delta_f: mdpipe::models::heavy_ion::DeltaF, points: usize, seed: u64, dir: &Path) {
+fn smooth_emulator(spec: &mdpipe::design::DesignSpec, settings: &mdpipe::emulator::EmulatorSettings, delta_f: mdpipe::systems::heavy_ion::DeltaF, points: usize, seed: u64, dir: &Path) {
     let design = dir.join("design");
     mdpipe::design::write_design(spec, "test", points, seed, &design).unwrap();
-    let table = mdpipe::models::heavy_ion::simulate_design(&design.join("design.parquet"), delta_f).unwrap();
+    let table = mdpipe::systems::heavy_ion::simulate_design(&design.join("design.parquet"), delta_f).unwrap();
     let training = dir.join("training.parquet");
     table.write(&training, None).unwrap();
     mdpipe::emulator::train_with_settings(settings, "test", "test", &training, None, &dir.join("emulator"), seed).unwrap();
@@ -203,10 +204,10 @@ fn smooth_emulator(spec: &mdpipe::design::DesignSpec, settings: &mdpipe::emulato
 /// candidate emulated from smooth runs (60 points each) under `dir`.
 fn emulated_stand_in(dir: &Path, model_seed: u64, candidate_seed: u64) -> Config {
     use mdpipe::design::DesignSpec;
-    use mdpipe::models::heavy_ion::{self, DeltaF};
+    use mdpipe::systems::heavy_ion::{self, DeltaF};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut cfg = Config::load(&root.join("pipeline/heavy_ion_2param.toml")).unwrap();
-    let settings = cfg.emulator.clone().unwrap();
+    let settings = mdpipe::emulator::EmulatorSettings::load(&cfg.path).unwrap();
     let spec = DesignSpec::load(&root.join("design/heavy_ion_2param.toml")).unwrap();
     smooth_emulator(&spec, &settings, DeltaF::None, 60, model_seed, &dir.join("model"));
     for (k, cand) in heavy_ion::CANDIDATES.iter().enumerate() {
@@ -216,9 +217,9 @@ fn emulated_stand_in(dir: &Path, model_seed: u64, candidate_seed: u64) -> Config
             s.parameters.push(p);
         }
         smooth_emulator(&s, &e, cand.delta_f(DeltaF::None), 60, candidate_seed + k as u64, &dir.join(cand.name));
-        cfg.candidates.push(cand.declaration(dir.join(cand.name).join("emulator")));
+        cfg.candidates.push(cand.declaration(dir.join(cand.name).join("emulator")).to_table().unwrap());
     }
-    cfg.model = mdpipe::config::ModelConfig::Emulator { artifact: dir.join("model").join("emulator") };
+    cfg.model = mdpipe::emulator::EmulatorFamily::model_table(&dir.join("model").join("emulator"));
     cfg
 }
 
@@ -228,7 +229,7 @@ fn emulated_stand_in(dir: &Path, model_seed: u64, candidate_seed: u64) -> Config
 /// spectra and v2, name the shear δf and recover η/s and ε_sw.
 #[test]
 fn heavy_ion_grad_delta_f_is_located_and_named() {
-    use mdpipe::models::heavy_ion::{self, DeltaF, HeavyIonParams};
+    use mdpipe::systems::heavy_ion::{self, DeltaF, HeavyIonParams};
     let dir = std::env::temp_dir().join(format!("mdpipe-diagnose-hi-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let mut cfg = emulated_stand_in(&dir, 1, 10);
@@ -240,8 +241,9 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     let measurements = dir.join("measurements.parquet");
     mdpipe::artifacts::write_measurements(&measurements, &data, None).unwrap();
     cfg.data.measurements = measurements;
+    let cfg = mdpipe::systems::resolve(&cfg).unwrap();
 
-    let run = diagnose::run(&cfg, &Overrides::default(), 3, &DiagnoseSettings::default(), Some(&dir.join("diagnose"))).unwrap();
+    let run = diagnose::run(&cfg, &Overrides::default(), 3, &DiagnoseSettings::default(), Some(&dir.join("diagnose")), &Silent).unwrap();
     let d = &run.diagnosis;
     diagnose::print(d);
     assert_eq!(d.verdict.best, "grad_shear_delta_f", "{}", d.verdict.statement);
@@ -279,15 +281,15 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
 
 /// One heavy-ion blind data set: the concealed effect and the verdict it deserves.
 struct HeavyIonBlind {
-    params: mdpipe::models::heavy_ion::HeavyIonParams,
-    delta_f: mdpipe::models::heavy_ion::DeltaF,
+    params: mdpipe::systems::heavy_ion::HeavyIonParams,
+    delta_f: mdpipe::systems::heavy_ion::DeltaF,
     /// Out-of-library: a hard-scattering tail `× (1 + a pT³)` on every spectrum, diluting v_n.
     hard_tail: f64,
     expected: &'static str,
 }
 
 fn heavy_ion_blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> HeavyIonBlind {
-    use mdpipe::models::heavy_ion::{DeltaF, HeavyIonParams};
+    use mdpipe::systems::heavy_ion::{DeltaF, HeavyIonParams};
     let base = HeavyIonParams::constant(0.05 + 0.25 * rng.random::<f64>(), 0.15 + 0.25 * rng.random::<f64>());
     let u: f64 = rng.random(); // magnitude, weak to strong
     let (params, delta_f, hard_tail, expected) = match k % 5 {
@@ -307,17 +309,17 @@ fn heavy_ion_blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> HeavyIonBli
 /// confusion matrix; asserts the targets.
 #[test]
 fn heavy_ion_blind_test_confusion_matrix() {
-    use mdpipe::models::heavy_ion::events::SmoothTables;
-    use mdpipe::models::Simulator;
+    use mdpipe::systems::heavy_ion::events::SmoothTables;
+    use mdpipe::model::Simulator;
     use rand_distr::{Distribution, StandardNormal};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = std::env::temp_dir().join(format!("mdpipe-blind-hi-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let mut cfg = emulated_stand_in(&dir, 21, 30);
+    let mut cfg = mdpipe::systems::resolve(&emulated_stand_in(&dir, 21, 30)).unwrap();
     cfg.sampler.smc.particles = 600;
     cfg.sampler.smc.replicates = 2;
     cfg.predictions.draws = 300;
-    let model = mdpipe::models::EmulatedModel::load(&dir.join("model").join("emulator")).unwrap();
+    let model = mdpipe::emulator::EmulatedModel::load(&dir.join("model").join("emulator")).unwrap();
     // Errors of the real iEBE-MUSIC table: relative for spectra, absolute for v_n.
     let reference = mdpipe::artifacts::read_paper_table(&root.join("pipeline/reference/iebe_music_grad_shear0p1_esw0p2.dat")).unwrap();
     let error_of = |obs: &str, x: f64, value: f64| {
@@ -369,7 +371,7 @@ fn heavy_ion_blind_test_confusion_matrix() {
         }
         let path = dir.join(format!("blind_{k}.csv"));
         mdpipe::artifacts::write_measurements(&path, &data, None).unwrap();
-        let run = diagnose::run(&cfg, &Overrides { data: Some(path), ..Default::default() }, 200 + k as u64, &settings, None).unwrap();
+        let run = diagnose::run(&cfg, &Overrides { data: Some(path), ..Default::default() }, 200 + k as u64, &settings, None, &Silent).unwrap();
         println!("  data set {k:>2}: concealed {:<20} verdict {:<20} noise-free mismatch {:.1}σ", b.expected, run.diagnosis.verdict.best, best.1);
         rows.push((b.expected, run.diagnosis.verdict.best.clone(), best.1));
     }

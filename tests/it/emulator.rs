@@ -4,7 +4,6 @@
 //! an emulator reproducing calibration with the exact model.
 
 use mdpipe::calibrate::{self, Overrides, Problem};
-use mdpipe::config::Config;
 use mdpipe::emulator::{self, read_training_table, store, train, validate, EmulatorSettings};
 use mdpipe::gp::{ard_log_marginal_likelihood, ArdHyper, ArdKernel};
 use rand::{Rng, SeedableRng};
@@ -231,7 +230,7 @@ fn bad_tables_get_errors_naming_file_row_and_field() {
 fn calibration_through_an_emulator_matches_the_exact_model() {
     let dir = tmpdir("ballemu");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let exact_cfg = Config::load(&root.join("pipeline/ball_drop.toml")).unwrap();
+    let exact_cfg = mdpipe::systems::load(&root.join("pipeline/ball_drop.toml")).unwrap();
     let obs = vec!["velocity".to_string(), "acceleration".to_string()];
     let overrides = Overrides { kernel: Some(None), observables: Some(obs.clone()), ..Default::default() };
     let exact = Problem::new(&exact_cfg, &overrides).unwrap();
@@ -243,7 +242,7 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
         let (g, v0) = (20.0 * rng.random::<f64>(), -2.0 + 4.0 * rng.random::<f64>());
         for (k, name) in ["velocity", "acceleration"].iter().enumerate() {
             for &t in &times {
-                let v = mdpipe::models::ball_drop::model_value(k + 1, 60.0, g, v0, t);
+                let v = mdpipe::systems::ball_drop::model_value(k + 1, 60.0, g, v0, t);
                 text.push_str(&format!("{i},{name},{t},{v},{g},{v0}\n"));
             }
         }
@@ -262,10 +261,10 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
     );
     std::fs::write(dir.join("emulated.toml"), cfg_text).unwrap();
     emulator::train_and_save(&dir.join("emulated.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1).unwrap();
-    let emu_cfg = Config::load(&dir.join("emulated.toml")).unwrap();
+    let emu_cfg = mdpipe::systems::load(&dir.join("emulated.toml")).unwrap();
     let emulated = Problem::new(&emu_cfg, &overrides).unwrap();
-    let a = calibrate::run(&exact, 3, false).unwrap();
-    let b = calibrate::run(&emulated, 4, false).unwrap();
+    let a = calibrate::run(&exact, 3, &mdpipe::progress::Silent).unwrap();
+    let b = calibrate::run(&emulated, 4, &mdpipe::progress::Silent).unwrap();
     for p in ["g", "v0"] {
         let (x, y) = (&a.summary.parameters[p], &b.summary.parameters[p]);
         let width = x.q975 - x.q025;

@@ -2,7 +2,7 @@
 //! the Grad shear δf, and the parameter dependence physics requires.
 
 use mdpipe::artifacts::read_paper_table;
-use mdpipe::models::heavy_ion::{analysis_pt, mean_pt, observables, DeltaF, HeavyIonParams, PROTON};
+use mdpipe::systems::heavy_ion::{analysis_pt, mean_pt, observables, DeltaF, HeavyIonParams, PROTON};
 use std::path::Path;
 
 fn reference() -> Vec<mdpipe::artifacts::Measurement> {

@@ -157,7 +157,7 @@ fn ingest_writes_a_training_table_and_reports_corrupt_text() {
 /// errors; text and HDF5 agree.
 #[test]
 fn stand_in_runs_round_trip_through_ingest() {
-    use mdpipe::models::heavy_ion::{events, simulate_runs, DeltaF, HeavyIonParams};
+    use mdpipe::systems::heavy_ion::{events, simulate_runs, DeltaF, HeavyIonParams};
     let dir = std::env::temp_dir().join(format!("mdpipe-standin-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let p = HeavyIonParams::parse("eta_s=0.1,e_sw=0.2").unwrap();

@@ -5,7 +5,7 @@
 //! script are the runs the simulate stage would have made.
 
 use mdpipe::config::Config;
-use mdpipe::pipeline::{run, RunOptions, StageOutcome, STAGES};
+use mdpipe::systems::heavy_ion::study_runner::{run, RunOptions, StageOutcome, STAGES};
 use std::path::{Path, PathBuf};
 
 fn tmpdir(tag: &str) -> PathBuf {
@@ -105,22 +105,23 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let report = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(report.contains("Consistency checks") && report.contains("bias"));
     // The proton-annihilation variant is emulated over θ and its own parameter.
-    let variant = mdpipe::models::EmulatedModel::load(&out.join("candidates/proton_annihilation/emulator")).unwrap();
-    assert_eq!(mdpipe::models::Simulator::parameter_names(&variant), vec!["eta_s", "e_sw", "p_survival"]);
+    let variant = mdpipe::emulator::EmulatedModel::load(&out.join("candidates/proton_annihilation/emulator")).unwrap();
+    assert_eq!(mdpipe::model::Simulator::parameter_names(&variant), vec!["eta_s", "e_sw", "p_survival"]);
     let diagnosis: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
     let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
     assert_eq!(names.len(), 2);
     assert!(names.contains(&"grad_shear_delta_f") && names.contains(&"proton_annihilation"));
     // A declared variant whose own parameter has no prior is refused, naming the config and the field.
     let mut declared = config.clone();
-    declared.model = mdpipe::config::ModelConfig::Emulator { artifact: out.join("emulator") };
-    declared.candidates = vec![mdpipe::config::CandidateConfig {
+    declared.model = mdpipe::emulator::EmulatorFamily::model_table(&out.join("emulator"));
+    let declaration = mdpipe::emulator::family::CandidateDeclaration {
         name: "annihilation".into(),
         description: "p annihilation".into(),
         emulator: out.join("candidates/proton_annihilation/emulator"),
         parameters: Default::default(),
-    }];
-    let msg = format!("{:#}", mdpipe::diagnose::candidate_models(&declared).err().expect("missing prior accepted"));
+    };
+    declared.candidates = vec![declaration.to_table().unwrap()];
+    let msg = format!("{:#}", mdpipe::systems::resolve(&declared).unwrap().candidates().err().expect("missing prior accepted"));
     assert!(msg.contains("study.toml") && msg.contains("[candidates.parameters.p_survival]"), "{msg}");
 
     // Unchanged: nothing runs.

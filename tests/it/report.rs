@@ -3,9 +3,8 @@
 //! PNG copies of every figure.
 
 use mdpipe::calibrate::{self, Overrides, Problem};
-use mdpipe::config::Config;
 use mdpipe::gp::DiscrepancyKernel;
-use mdpipe::models::heavy_ion::{analysis_pt, observables, DeltaF, HeavyIonParams};
+use mdpipe::systems::heavy_ion::{analysis_pt, observables, DeltaF, HeavyIonParams};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::path::PathBuf;
@@ -78,10 +77,10 @@ log_observables = ["ch_spectrum"]
     std::fs::write(dir.join("hi.toml"), config).unwrap();
     mdpipe::emulator::train_and_save(&dir.join("hi.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1).unwrap();
     mdpipe::emulator::validate::run(&dir.join("emu"), None, 4, 1).unwrap();
-    let cfg = Config::load(&dir.join("hi.toml")).unwrap();
+    let cfg = mdpipe::systems::load(&dir.join("hi.toml")).unwrap();
     for (kernel, name) in [(None, "none"), (Some(DiscrepancyKernel::KernelII), "II")] {
         let problem = Problem::new(&cfg, &Overrides { kernel: Some(kernel), ..Default::default() }).unwrap();
-        let cal = calibrate::run(&problem, 2, false).unwrap();
+        let cal = calibrate::run(&problem, 2, &mdpipe::progress::Silent).unwrap();
         calibrate::write_outputs(&dir.join(name), &problem, &cal).unwrap();
     }
 
@@ -89,7 +88,7 @@ log_observables = ["ch_spectrum"]
     let pred = mdpipe::artifacts::read_parquet(&dir.join("II/predictions.parquet")).unwrap();
     let truth = pred.column("truth").unwrap().f64().unwrap().clone();
     assert!(truth.iter().all(|t| t.is_some_and(f64::is_finite)), "truth column: {truth:?}");
-    let html = mdpipe::report::build(&[dir.clone()], "heavy-ion test").unwrap();
+    let html = mdpipe::report::build(&[dir.clone()], "heavy-ion test", &mdpipe::systems::figures()).unwrap();
     let figures = html.matches("<svg").count();
     // 2 corner plots... one per observable set: corner, η/s(T) + inset, 2 runs × 2 observables of boxes;
     // emulator: one z-score histogram (cv4) and a parity plot per observable.

@@ -1,0 +1,258 @@
+//! The command line: what each command and flag means (clap). `main.rs`
+//! parses it and hands it to [`super::run`].
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(name = "mdpipe", version, about = "Locate, explain and model simulator-data mismatch with Bayesian model discrepancy")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(clap::Args, Clone)]
+pub struct CalibrationArgs {
+    /// Analysis config (TOML), e.g. pipeline/ball_drop.toml
+    pub config: PathBuf,
+    /// Measurements file (CSV or Parquet: observable,x,value,error); replaces the config's
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Random seed
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output directory
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Calibrate a model against measurements, with or without model discrepancy
+    Calibrate {
+        #[command(flatten)]
+        args: CalibrationArgs,
+        /// Discrepancy kernel: none, I or II (default: the config's)
+        #[arg(long)]
+        kernel: Option<String>,
+        /// Comma-separated observables to use (default: the config's)
+        #[arg(long, value_delimiter = ',')]
+        observables: Option<Vec<String>>,
+        /// Sampler: smc or ensemble (default: the config's)
+        #[arg(long)]
+        sampler: Option<String>,
+        /// Stop cleanly after this many seconds with the sampler's state saved
+        /// in OUT/.checkpoint (e.g. before a SLURM time limit); the same command
+        /// resumes it. The state is saved as the run goes either way.
+        #[arg(long)]
+        time_limit: Option<f64>,
+    },
+    /// Run the paper's grid: growing observable sets × {no MD, Kernel I, Kernel II}
+    Compare {
+        #[command(flatten)]
+        args: CalibrationArgs,
+        #[arg(long)]
+        sampler: Option<String>,
+        /// Run the grid on this many independent mock data sets drawn from the config's
+        /// [truth] (ball drop) and tabulate how often each case covers the truth
+        #[arg(long)]
+        replicates: Option<usize>,
+    },
+    /// The bundled ball-drop example end to end: mock data with concealed drag, then the 3x3 grid
+    Demo {
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, default_value = "outputs/demo")]
+        out: PathBuf,
+    },
+    /// Benchmarks: likelihood throughput (one core) and the full comparison grid
+    Bench {
+        #[arg(default_value = "pipeline/ball_drop.toml")]
+        config: PathBuf,
+        /// Likelihood evaluations per kernel
+        #[arg(long, default_value_t = 2_000_000)]
+        evaluations: usize,
+        /// Skip the comparison grid
+        #[arg(long)]
+        likelihood_only: bool,
+        #[arg(long)]
+        sampler: Option<String>,
+        #[arg(long, default_value = "outputs/bench")]
+        out: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Benchmark this emulator folder (training and prediction throughput) instead
+        #[arg(long)]
+        emulator: Option<PathBuf>,
+        /// Benchmark one heavy-ion stand-in design point of this many events instead
+        #[arg(long)]
+        heavy_ion_events: Option<usize>,
+        /// Time one full `diagnose` of the config's data instead
+        #[arg(long)]
+        diagnose: bool,
+    },
+    /// Locate the mismatch, name the missing physics, repair the model, show the fit improve
+    Diagnose {
+        #[command(flatten)]
+        args: CalibrationArgs,
+    },
+    /// Build a self-contained HTML report from run folders (calibrate, compare or diagnose outputs)
+    Report {
+        /// Run folders
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        #[arg(long, default_value = "report.html")]
+        out: PathBuf,
+        /// Also write every figure as a PNG into this folder
+        #[arg(long)]
+        png: Option<PathBuf>,
+    },
+    /// Maximin Latin-hypercube design with iEBE-MUSIC parameter files and a SLURM array script
+    Design {
+        /// Parameter-space spec, e.g. design/heavy_ion_2param.toml
+        spec: PathBuf,
+        #[arg(long)]
+        points: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Read iEBE-MUSIC runs (one folder per design point; combined HDF5 or per-event text files)
+    /// into a long table of spectra and v_n{2}; or convert a paper .dat table to measurements
+    Ingest {
+        /// Runs folder (RUNS_DIR/<design id>/...), or a 15-column paper table (.dat)
+        runs: PathBuf,
+        /// Analysis pT bin edges in GeV, comma-separated (default: 10 bins over 0-2 GeV)
+        #[arg(long, value_delimiter = ',')]
+        pt_bins: Option<Vec<f64>>,
+        /// Design (design.parquet) whose parameters are joined in; default RUNS_DIR/design.parquet if present
+        #[arg(long)]
+        design: Option<PathBuf>,
+        /// Design points with fewer good events are flagged and left out
+        #[arg(long, default_value_t = 10)]
+        min_events: usize,
+        /// auto (HDF5 if present), hdf5 or text
+        #[arg(long, default_value = "auto")]
+        format: String,
+        /// Output table (.parquet); for a .dat input, a measurements file (.csv or .parquet)
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// PCA + per-component GP emulator from simulator runs (long or wide table)
+    TrainEmulator {
+        /// Config with an [emulator] table (parameters, kernel, components, …)
+        config: PathBuf,
+        /// Training table (Parquet or CSV): design_id, observable, x, value, <parameters>
+        #[arg(long)]
+        training: PathBuf,
+        /// The design the runs came from: every point must be in the table
+        #[arg(long)]
+        design: Option<PathBuf>,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Check an emulator on a held-out design and by k-fold cross-validation
+    ValidateEmulator {
+        /// Emulator folder written by train-emulator
+        emulator: PathBuf,
+        /// Held-out validation table (same layout as the training table)
+        #[arg(long)]
+        validation: Option<PathBuf>,
+        /// Cross-validation folds (0 to skip)
+        #[arg(long, default_value_t = 5)]
+        folds: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// The whole heavy-ion study from a config's [run] table: design, simulate, ingest, emulator,
+    /// mock data, the calibration grid and the report; stages whose inputs are unchanged are skipped
+    Run {
+        /// Analysis config with a [run] table, e.g. pipeline/heavy_ion_2param.toml
+        config: PathBuf,
+        /// Run only this stage: design, simulate, ingest, emulator, mock, calibrate or report
+        #[arg(long)]
+        stage: Option<String>,
+        /// Run the selected stages even if their inputs are unchanged
+        #[arg(long)]
+        force: bool,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder (default: outputs/<config name>)
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Generate mock measurements from a built-in truth
+    Simulate {
+        #[command(subcommand)]
+        system: SimulateSystem,
+    },
+}
+
+#[derive(Subcommand)]
+pub enum SimulateSystem {
+    /// Heavy-ion blast-wave stand-in for iEBE-MUSIC. Writes event-by-event runs in iEBE-MUSIC's
+    /// layout (OUT/<design id>/: per-event text files and spvn_results.h5) for `mdpipe ingest`;
+    /// with an --out ending in .csv or .parquet and no --events, writes smooth expectation values
+    /// instead (a measurements file for --point, a training table for --design)
+    HeavyIon {
+        /// Parameter point, e.g. eta_s=0.1,e_sw=0.2 or T_kink=0.18,a_low=-1,a_high=1,eta_s_kink=0.1,e_sw=0.2
+        #[arg(long, conflicts_with = "design", required_unless_present = "design")]
+        point: Option<String>,
+        /// Run every point of a design.parquet
+        #[arg(long)]
+        design: Option<PathBuf>,
+        /// With --design: run only this design id (one SLURM array task)
+        #[arg(long, requires = "design")]
+        only: Option<i64>,
+        /// Particlization: none (f_eq), grad (Grad 14-moment shear δf, Bjorken shear) or grad-transverse
+        /// (adds the blast wave's transverse expansion rates)
+        #[arg(long, default_value = "grad")]
+        delta_f: String,
+        /// Events per design point (default 100 when writing runs)
+        #[arg(long)]
+        events: Option<usize>,
+        /// Cooper–Frye samples per event (the count and v_n columns sum them; yields are per sample)
+        #[arg(long, default_value_t = crate::systems::heavy_ion::events::DEFAULT_OVERSAMPLE)]
+        oversample: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run layout: text, hdf5 or both
+        #[arg(long, default_value = "both")]
+        layout: String,
+        /// Smooth --point output only: relative 1σ error attached to every value
+        #[arg(long, default_value_t = 0.01)]
+        relative_error: f64,
+        /// Runs folder, or a .csv/.parquet file for smooth values
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Ball drop with quadratic drag: dv/dt = g - k v|v|, dh/dt = -v
+    BallDrop {
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output file (.csv or .parquet)
+        #[arg(long)]
+        out: PathBuf,
+        /// Quadratic drag coefficient k (1/m)
+        #[arg(long, default_value_t = 0.4)]
+        k: f64,
+        #[arg(long, default_value_t = 9.8)]
+        g: f64,
+        #[arg(long, default_value_t = 0.0)]
+        v0: f64,
+        #[arg(long, default_value_t = 60.0)]
+        h0: f64,
+        /// Number of measurement times, equally spaced over [0, t-max]
+        #[arg(long, default_value_t = 10)]
+        points: usize,
+        #[arg(long, default_value_t = 1.0)]
+        t_max: f64,
+        /// 1-sigma errors of height, velocity, acceleration
+        #[arg(long, value_delimiter = ',', default_values_t = [0.1, 0.2, 0.3])]
+        sigma: Vec<f64>,
+    },
+}
+

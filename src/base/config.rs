@@ -1,0 +1,170 @@
+//! Analysis configuration (`pipeline/*.toml`) as plain data.
+//!
+//! This module only parses TOML: tables that belong to one stage or one model
+//! family stay raw ([`toml::Table`]) and are decoded by their owner (`[model]`,
+//! `[truth]` and `[[candidates]]` by the model family, `[sampler]` by
+//! `calibrate`, `[emulator]` by `emulator`, `[run]` by the study runner), each
+//! with errors that name this file and the table.
+
+use anyhow::{anyhow, bail, Context, Result};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub name: String,
+    /// `kind = "<family>"` and that family's settings.
+    pub model: toml::Table,
+    pub data: DataConfig,
+    /// Calibration parameters θ with uniform prior bounds.
+    pub parameters: BTreeMap<String, ParamSpec>,
+    #[serde(default)]
+    pub discrepancy: DiscrepancyConfig,
+    /// Sampler choice and settings, decoded by `calibrate`.
+    #[serde(default)]
+    pub sampler: toml::Table,
+    #[serde(default)]
+    pub predictions: PredictionConfig,
+    /// Emulator training settings, when this config also drives `train-emulator`.
+    pub emulator: Option<toml::Table>,
+    /// The process that made mock data (`kind = "<family>"` and its settings).
+    pub truth: Option<toml::Table>,
+    /// The whole study for `mdpipe run`, decoded by the study runner.
+    pub run: Option<toml::Table>,
+    /// Model variants `mdpipe diagnose` weighs, decoded by the model family.
+    #[serde(default)]
+    pub candidates: Vec<toml::Table>,
+    /// Where the file was read from; relative paths resolve against its folder.
+    #[serde(skip)]
+    pub path: PathBuf,
+    /// SHA-256 of the file's bytes, for provenance.
+    #[serde(skip)]
+    pub hash: String,
+}
+
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    /// Measurements file (CSV or Parquet), relative to the config file.
+    pub measurements: PathBuf,
+    /// Observables to calibrate on; all of the model's by default.
+    pub observables: Option<Vec<String>>,
+}
+
+#[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParamSpec {
+    pub min: f64,
+    pub max: f64,
+    /// True value, when known (mock data); drawn in plots, never used in fits.
+    pub truth: Option<f64>,
+    /// Units for tables and plots.
+    #[serde(default)]
+    pub units: String,
+}
+
+impl ParamSpec {
+    /// Checks `min < max`, both finite; `what` names the table for the message.
+    pub fn check(&self, what: &str) -> Result<()> {
+        if !(self.min.is_finite() && self.max.is_finite() && self.min < self.max) {
+            bail!("{what}: bounds must satisfy min < max, got min = {}, max = {}", self.min, self.max);
+        }
+        Ok(())
+    }
+}
+
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DiscrepancyConfig {
+    /// "none", "I" or "II".
+    pub kernel: String,
+    /// Uniform prior bounds per hyperparameter name (cbar, ell, r, s).
+    pub bounds: BTreeMap<String, [f64; 2]>,
+}
+
+impl Default for DiscrepancyConfig {
+    fn default() -> Self {
+        let b = [0.0, 10.0];
+        DiscrepancyConfig {
+            kernel: "II".into(),
+            bounds: [("cbar", b), ("ell", b), ("r", b), ("s", b)].into_iter().map(|(k, v)| (k.to_string(), v)).collect(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PredictionConfig {
+    /// Grid for prediction bands; by default it runs from 0 to 1.5 × the largest x measured,
+    /// to show extrapolation as the paper does.
+    pub x_min: f64,
+    pub x_max: Option<f64>,
+    pub points: usize,
+    /// Posterior draws used for the bands.
+    pub draws: usize,
+}
+
+impl Default for PredictionConfig {
+    fn default() -> Self {
+        PredictionConfig { x_min: 0.0, x_max: None, points: 41, draws: 1000 }
+    }
+}
+
+impl Config {
+    pub fn load(path: &Path) -> Result<Config> {
+        let bytes = std::fs::read(path).with_context(|| format!("reading config {}", path.display()))?;
+        let text = String::from_utf8(bytes.clone()).with_context(|| format!("{}: not UTF-8", path.display()))?;
+        let mut cfg: Config = toml::from_str(&text).map_err(|e| anyhow!("{}: {}", path.display(), e))?;
+        cfg.path = path.to_path_buf();
+        cfg.hash = crate::base::artifacts::sha256_hex(&bytes);
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    fn validate(&self) -> Result<()> {
+        let file = self.path.display();
+        for (name, p) in &self.parameters {
+            p.check(&format!("{file}: [parameters.{name}]"))?;
+        }
+        for (name, b) in &self.discrepancy.bounds {
+            if !(b[0].is_finite() && b[1].is_finite() && b[0] < b[1]) {
+                bail!("{file}: [discrepancy.bounds] {name}: bounds must satisfy min < max, got [{}, {}]", b[0], b[1]);
+            }
+        }
+        self.model_kind()?;
+        Ok(())
+    }
+
+    /// The `kind` of a raw table (`[model]`, `[truth]`), named in errors by `table`.
+    pub fn kind_of<'a>(&self, table: &'a toml::Table, name: &str) -> Result<&'a str> {
+        table.get("kind").and_then(|k| k.as_str()).ok_or_else(|| anyhow!("{}: [{name}] needs a `kind` (a model family's name)", self.path.display()))
+    }
+
+    /// `[model] kind`.
+    pub fn model_kind(&self) -> Result<&str> {
+        self.kind_of(&self.model, "model")
+    }
+
+    /// Decodes a raw table into `T`, naming this file and the table in errors.
+    pub fn decode<T: serde::de::DeserializeOwned>(&self, table: &toml::Table, name: &str) -> Result<T> {
+        table.clone().try_into().map_err(|e| anyhow!("{}: [{name}]: {e}", self.path.display()))
+    }
+
+    /// As `decode`, for a family's table (`[model]`, `[truth]`): its `kind`,
+    /// which chose the family, is dropped first so `T` may deny unknown fields.
+    pub fn decode_family_table<T: serde::de::DeserializeOwned>(&self, table: &toml::Table, name: &str) -> Result<T> {
+        let mut t = table.clone();
+        t.remove("kind");
+        self.decode(&t, name)
+    }
+
+    /// Resolves a path from the config against the config's folder.
+    pub fn resolve(&self, p: &Path) -> PathBuf {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.path.parent().unwrap_or(Path::new(".")).join(p)
+        }
+    }
+}

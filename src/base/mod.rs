@@ -1,0 +1,6 @@
+//! The foundation: what every layer above may use and which imports nothing
+//! of the crate beyond itself.
+
+pub mod artifacts;
+pub mod config;
+pub mod progress;

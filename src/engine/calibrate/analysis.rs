@@ -1,0 +1,121 @@
+//! The one adapter from a config to what a calibration needs: an [`Analysis`]
+//! holds resolved values (the model family and its simulator, θ priors,
+//! kernel, sampler settings, units, the true process), built once.
+
+use super::settings::SamplerConfig;
+use crate::base::config::{Config, ParamSpec, PredictionConfig};
+use crate::engine::gp::DiscrepancyKernel;
+use crate::engine::model::{CandidateModel, ModelFamily, Registry, Simulator, Units};
+use anyhow::{anyhow, Result};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+#[derive(Clone)]
+pub struct Analysis {
+    pub name: String,
+    /// SHA-256 of the config file, for provenance.
+    pub config_hash: String,
+    pub config_path: PathBuf,
+    pub family: Arc<dyn ModelFamily>,
+    pub simulator: Arc<dyn Simulator>,
+    pub units: Units,
+    /// The process that made the data, when the config names one (`[truth]`).
+    pub truth: Option<Arc<dyn Simulator>>,
+    /// θ with uniform priors (and true values, when known).
+    pub parameters: BTreeMap<String, ParamSpec>,
+    pub kernel: Option<DiscrepancyKernel>,
+    /// Uniform prior bounds per discrepancy hyperparameter name.
+    pub hyper_bounds: BTreeMap<String, [f64; 2]>,
+    pub sampler: SamplerConfig,
+    pub predictions: PredictionConfig,
+    /// Measurements file.
+    pub data: PathBuf,
+    /// Observables to calibrate on; all of the model's by default.
+    pub observables: Option<Vec<String>>,
+    /// The config, read-only, for what the family decodes only when asked
+    /// (`[[candidates]]`).
+    source: Arc<Config>,
+}
+
+impl Analysis {
+    pub fn resolve(config: &Config, registry: &Registry) -> Result<Analysis> {
+        let file = config.path.display();
+        let family = registry.get(config.model_kind()?, config, "model")?;
+        let simulator = family.simulator(config)?;
+        let truth_family = match &config.truth {
+            Some(t) => Some((registry.get(config.kind_of(t, "truth")?, config, "truth")?, t)),
+            None => None,
+        };
+        let truth = truth_family.as_ref().map(|(f, t)| f.true_process(config, t)).transpose()?;
+        let config_units = Units { parameters: config.parameters.iter().map(|(n, p)| (n.clone(), p.units.clone())).collect(), ..Units::default() };
+        let mut units = family.units(config);
+        if let Some((f, _)) = &truth_family {
+            units = units.or(&f.units(config));
+        }
+        let kernel = DiscrepancyKernel::parse(&config.discrepancy.kernel)
+            .ok_or_else(|| anyhow!("{file}: discrepancy.kernel: unknown kernel {:?} (use none, I or II)", config.discrepancy.kernel))?;
+        Ok(Analysis {
+            name: config.name.clone(),
+            config_hash: config.hash.clone(),
+            config_path: config.path.clone(),
+            family,
+            simulator,
+            units: units.or(&config_units),
+            truth,
+            parameters: config.parameters.clone(),
+            kernel,
+            hyper_bounds: config.discrepancy.bounds.clone(),
+            sampler: config.decode(&config.sampler, "sampler")?,
+            predictions: config.predictions.clone(),
+            data: config.resolve(&config.data.measurements),
+            observables: config.data.observables.clone(),
+            source: Arc::new(config.clone()),
+        })
+    }
+
+    /// The family's candidate corrections (read from the config on demand:
+    /// variant emulators are loaded only by `diagnose`).
+    pub fn candidates(&self) -> Result<Vec<CandidateModel>> {
+        self.family.candidates(&self.source)
+    }
+
+    /// This analysis with the base model replaced by a candidate's, whose own
+    /// parameters join θ.
+    pub fn with_candidate(&self, candidate: &CandidateModel) -> Analysis {
+        let mut a = self.clone();
+        a.simulator = candidate.simulator.clone();
+        for (name, spec) in &candidate.extra_parameters {
+            a.parameters.insert(name.clone(), spec.clone());
+            a.units.parameters.entry(name.clone()).or_insert_with(|| spec.units.clone());
+        }
+        a
+    }
+
+    /// This analysis on another measurements file made by the same process.
+    pub fn with_data(&self, path: &Path) -> Analysis {
+        Analysis { data: path.to_path_buf(), ..self.clone() }
+    }
+
+    /// Bounds of a discrepancy hyperparameter.
+    pub fn hyper_bounds(&self, hyper: &str) -> Result<[f64; 2]> {
+        self.hyper_bounds.get(hyper).copied().ok_or_else(|| anyhow!("{}: [discrepancy.bounds] has no bounds for hyperparameter '{hyper}'", self.config_path.display()))
+    }
+
+    /// θ's true values, where the config gives them.
+    pub fn truth_values(&self) -> BTreeMap<String, f64> {
+        self.parameters.iter().filter_map(|(k, v)| v.truth.map(|t| (k.clone(), t))).collect()
+    }
+
+    /// The true curve of `observable` at `xs`: the `[truth]` process at the
+    /// parameters' true values, when all are known.
+    pub fn truth_curve(&self, observable: &str, xs: &[f64]) -> Option<Vec<f64>> {
+        let truth = self.truth.as_ref()?;
+        let values = self.truth_values();
+        let theta: Vec<f64> = truth.parameter_names().iter().map(|n| values.get(n).copied()).collect::<Option<_>>()?;
+        let k = truth.observable_names().iter().position(|o| o == observable)?;
+        let mut out = vec![0.0; xs.len()];
+        truth.predict(k, xs, &theta, &mut out);
+        Some(out)
+    }
+}

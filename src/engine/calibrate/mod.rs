@@ -1,0 +1,315 @@
+//! MD-augmented Bayesian calibration: the likelihood, priors, the two
+//! samplers, their diagnostics, and the `calibrate`/`compare` stages.
+//!
+//! A sampler sees a calibration problem as a [`UniformPrior`] and a
+//! [`LogLikelihood`]; [`Problem`] builds both from an [`Analysis`] (a config
+//! resolved once) and data.
+
+pub mod analysis;
+pub mod checkpoint;
+pub mod diagnostics;
+pub mod ensemble;
+pub mod likelihood;
+pub mod prior;
+pub mod settings;
+pub mod smc;
+pub mod summary;
+
+use crate::base::artifacts::{self, Measurement, Provenance};
+use crate::base::progress::Observer;
+use crate::engine::gp::DiscrepancyKernel;
+use crate::engine::model::Simulator;
+use anyhow::{anyhow, bail, Context, Result};
+pub use analysis::Analysis;
+pub use likelihood::{MdLikelihood, ObservableBlock};
+pub use settings::{SamplerConfig, SamplerKind};
+pub use prior::UniformPrior;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Anything a sampler can target, given a uniform prior.
+pub trait LogLikelihood: Sync {
+    fn log_likelihood(&self, x: &[f64]) -> f64;
+
+    /// How the log-likelihood splits into independent terms, when it does; a
+    /// sampler may then move one term's own parameters at the cost of that term.
+    fn term_structure(&self) -> Option<TermStructure> {
+        None
+    }
+
+    /// The log-likelihood, with each term written to `terms` (only called when
+    /// `term_structure` is given).
+    fn log_likelihood_terms(&self, x: &[f64], _terms: &mut [f64]) -> f64 {
+        self.log_likelihood(x)
+    }
+
+    /// One term (only called when `term_structure` is given).
+    fn log_likelihood_term(&self, _x: &[f64], _term: usize) -> f64 {
+        unreachable!("log_likelihood_term needs a term structure")
+    }
+}
+
+/// `log L(x) = const + Σ_t L_t(x_shared, x_own(t))`: every term depends on the
+/// shared parameters (θ) and on its own (one observable's φ), and on no other.
+#[derive(Clone, Debug)]
+pub struct TermStructure {
+    pub shared: Vec<usize>,
+    pub own: Vec<Vec<usize>>,
+}
+
+impl LogLikelihood for MdLikelihood {
+    fn log_likelihood(&self, x: &[f64]) -> f64 {
+        MdLikelihood::log_likelihood(self, x)
+    }
+    fn term_structure(&self) -> Option<TermStructure> {
+        let nh = self.n_hyper();
+        if nh == 0 {
+            return None;
+        }
+        let own = (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
+        Some(TermStructure { shared: (0..self.n_theta).collect(), own })
+    }
+    fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64 {
+        MdLikelihood::log_likelihood_terms(self, x, terms)
+    }
+    fn log_likelihood_term(&self, x: &[f64], term: usize) -> f64 {
+        MdLikelihood::log_likelihood_term(self, x, term)
+    }
+}
+
+/// Posterior draws grouped into chains (walkers for the ensemble sampler,
+/// replicates for SMC). Each chain is row-major `draws × dim`.
+#[derive(Clone, Debug)]
+pub struct Chains {
+    pub names: Vec<String>,
+    pub dim: usize,
+    pub chains: Vec<Vec<f64>>,
+}
+
+impl Chains {
+    pub fn n_draws(&self) -> usize {
+        self.chains.iter().map(|c| c.len() / self.dim).sum()
+    }
+
+    /// Per-chain series of parameter `p`.
+    pub fn param_chains(&self, p: usize) -> Vec<Vec<f64>> {
+        self.chains.iter().map(|c| c.chunks(self.dim).map(|row| row[p]).collect()).collect()
+    }
+
+    /// All draws of parameter `p`.
+    pub fn param(&self, p: usize) -> Vec<f64> {
+        self.chains.iter().flat_map(|c| c.chunks(self.dim).map(move |row| row[p])).collect()
+    }
+
+    /// All draws as rows.
+    pub fn rows(&self) -> impl Iterator<Item = &[f64]> {
+        self.chains.iter().flat_map(move |c| c.chunks(self.dim))
+    }
+}
+
+/// Choices that override the config from the command line.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    pub data: Option<PathBuf>,
+    pub kernel: Option<Option<DiscrepancyKernel>>,
+    pub observables: Option<Vec<String>>,
+    pub sampler: Option<SamplerKind>,
+}
+
+/// A fully specified calibration: the analysis, its data, likelihood and prior.
+pub struct Problem {
+    /// The analysis as resolved from its config (without `truth` when
+    /// `--data` replaced the data the truth describes).
+    pub analysis: Analysis,
+    pub data_path: PathBuf,
+    pub measurements: Vec<Measurement>,
+    pub simulator: Arc<dyn Simulator>,
+    pub likelihood: MdLikelihood,
+    pub prior: UniformPrior,
+    pub sampler: SamplerKind,
+}
+
+impl Problem {
+    pub fn new(analysis: &Analysis, overrides: &Overrides) -> Result<Problem> {
+        let simulator = analysis.simulator.clone();
+        let data_path = overrides.data.clone().unwrap_or_else(|| analysis.data.clone());
+        let measurements = artifacts::read_measurements(&data_path)?;
+        let kernel = overrides.kernel.unwrap_or(analysis.kernel);
+        check_observables_known(analysis, &simulator, &measurements, &data_path)?;
+        let selected: Vec<String> = match (&overrides.observables, &analysis.observables) {
+            (Some(o), _) | (None, Some(o)) => o.clone(),
+            (None, None) => simulator.observable_names().into_iter().filter(|o| measurements.iter().any(|m| &m.observable == o)).collect(),
+        };
+        let blocks = observable_blocks(&simulator, &selected, &measurements, &data_path)?;
+        let likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
+        let prior = prior_of(analysis, &likelihood)?;
+        let sampler = overrides.sampler.unwrap_or(analysis.sampler.kind);
+        let mut analysis = analysis.clone();
+        if overrides.data.is_some() {
+            // `[truth]` describes the config's own data file, not a --data replacement.
+            analysis.truth = None;
+        }
+        Ok(Problem { analysis, data_path, measurements, simulator, likelihood, prior, sampler })
+    }
+
+    pub fn observables(&self) -> Vec<String> {
+        self.likelihood.blocks.iter().map(|b| b.name.clone()).collect()
+    }
+
+    pub fn provenance(&self, seed: u64, command: &str) -> Provenance {
+        Provenance::new(self.analysis.config_hash.clone(), artifacts::measurements_hash(&self.measurements), seed, command)
+    }
+}
+
+/// Every row must belong to an observable the model knows, so that a
+/// misspelt name is an error, never silently dropped data.
+fn check_observables_known(analysis: &Analysis, simulator: &Arc<dyn Simulator>, measurements: &[Measurement], data_path: &Path) -> Result<()> {
+    let model_obs = simulator.observable_names();
+    if let Some(m) = measurements.iter().find(|m| !model_obs.contains(&m.observable)) {
+        bail!("{}, field 'observable': unknown observable '{}' (model '{}' predicts: {})", m.location(data_path), m.observable, analysis.name, model_obs.join(", "));
+    }
+    Ok(())
+}
+
+/// One standardized block per selected observable, checked against the model.
+fn observable_blocks(simulator: &Arc<dyn Simulator>, selected: &[String], measurements: &[Measurement], data_path: &Path) -> Result<Vec<ObservableBlock>> {
+    if selected.is_empty() {
+        bail!("no observables selected");
+    }
+    let model_obs = simulator.observable_names();
+    let mut blocks = Vec::new();
+    for name in selected {
+        let idx = model_obs.iter().position(|o| o == name).ok_or_else(|| anyhow!("unknown observable '{name}' requested (model predicts: {})", model_obs.join(", ")))?;
+        let rows: Vec<&Measurement> = measurements.iter().filter(|m| &m.observable == name).collect();
+        if rows.is_empty() {
+            bail!("{}: no measurements of observable '{name}'", data_path.display());
+        }
+        let block = ObservableBlock::new(name, idx, &rows).with_context(|| data_path.display().to_string())?;
+        simulator.check_inputs(idx, &block.x).with_context(|| data_path.display().to_string())?;
+        blocks.push(block);
+    }
+    Ok(blocks)
+}
+
+/// Uniform prior over θ (the analysis' bounds, in the model's order) and
+/// each block's discrepancy hyperparameters.
+fn prior_of(analysis: &Analysis, likelihood: &MdLikelihood) -> Result<UniformPrior> {
+    let file = analysis.config_path.display();
+    let theta_names = likelihood.simulator.parameter_names();
+    let (mut lower, mut upper) = (Vec::new(), Vec::new());
+    for name in &theta_names {
+        let spec = analysis.parameters.get(name).ok_or_else(|| anyhow!("{file}: [parameters] has no bounds for model parameter '{name}'"))?;
+        lower.push(spec.min);
+        upper.push(spec.max);
+    }
+    if let Some(name) = analysis.parameters.keys().find(|n| !theta_names.contains(n)) {
+        bail!("{file}: [parameters.{name}]: the model has no parameter '{name}' (it has: {})", theta_names.join(", "));
+    }
+    if let Some(k) = likelihood.kernel {
+        for _ in &likelihood.blocks {
+            for h in k.hyper_names() {
+                let b = analysis.hyper_bounds(h)?;
+                lower.push(b[0]);
+                upper.push(b[1]);
+            }
+        }
+    }
+    UniformPrior::new(likelihood.parameter_names(), lower, upper)
+}
+
+/// Output of one calibration run, in memory.
+pub struct Calibration {
+    pub chains: Chains,
+    pub summary: summary::Summary,
+    pub predictions: Vec<summary::PredictionRow>,
+}
+
+/// Runs the configured sampler and summarizes the result.
+pub fn run(problem: &Problem, seed: u64, observer: &dyn Observer) -> Result<Calibration> {
+    run_checkpointed(problem, seed, observer, None)
+}
+
+/// Identifies a calibration for its checkpoints: config, data, kernel,
+/// observables, prior, sampler settings and seed.
+pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
+    let material = format!(
+        "{}|{}|{seed}|{}|{:?}|{:?}|{:?}|{:?}|{:?}",
+        problem.analysis.config_hash,
+        artifacts::measurements_hash(&problem.measurements),
+        DiscrepancyKernel::label(problem.likelihood.kernel),
+        problem.observables(),
+        problem.prior.names,
+        problem.prior.lower,
+        problem.prior.upper,
+        problem.analysis.sampler.smc
+    );
+    artifacts::sha256_hex(material.as_bytes())
+}
+
+/// What a sampler returns, in the form the summary needs.
+struct Sampled {
+    chains: Chains,
+    evidence: Option<(f64, f64)>,
+    details: summary::SamplerDetails,
+    evaluations: u64,
+}
+
+/// As `run`; with `checkpoint` the SMC sampler saves its state as it goes,
+/// resumes from a matching saved state, and clears it when done. Stopped at
+/// the checkpoint's time limit it returns a `checkpoint::Stopped` error.
+pub fn run_checkpointed(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: Option<&checkpoint::Checkpointing>) -> Result<Calibration> {
+    let start = std::time::Instant::now();
+    let jitter_before = crate::engine::gp::jitter_events();
+    let label = format!("{} kernel={} obs={}", problem.analysis.name, DiscrepancyKernel::label(problem.likelihood.kernel), problem.observables().join("+"));
+    let sampled = match problem.sampler {
+        SamplerKind::Smc => run_smc(problem, seed, observer, checkpoint, &label)?,
+        SamplerKind::Ensemble => run_ensemble(problem, seed, observer, &label),
+    };
+    let wall = start.elapsed().as_secs_f64();
+    let jitter = crate::engine::gp::jitter_events() - jitter_before;
+    let summary = summary::summarize(problem, &sampled.chains, sampled.evidence, sampled.details, sampled.evaluations, wall, jitter, seed);
+    let predictions = summary::predictions(problem, &sampled.chains, seed)?;
+    Ok(Calibration { chains: sampled.chains, summary, predictions })
+}
+
+fn run_smc(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: Option<&checkpoint::Checkpointing>, label: &str) -> Result<Sampled> {
+    let settings = problem.analysis.sampler.smc.clone();
+    observer.begin(&format!("SMC {label}"), 1000 * settings.replicates as u64);
+    let out = smc::Smc::new(settings).run_checkpointed(&problem.prior, &problem.likelihood, seed, observer, checkpoint);
+    observer.end();
+    let out = out?;
+    if let Some(c) = checkpoint {
+        c.clear();
+    }
+    let evaluations = out.likelihood_evaluations();
+    let details = summary::SamplerDetails::from_smc(&out);
+    Ok(Sampled { evidence: Some((out.log_evidence, out.log_evidence_err)), chains: out.chains, details, evaluations })
+}
+
+fn run_ensemble(problem: &Problem, seed: u64, observer: &dyn Observer, label: &str) -> Sampled {
+    let settings = problem.analysis.sampler.ensemble.clone();
+    observer.begin(&format!("ensemble {label}"), (settings.burn + settings.steps) as u64);
+    let out = ensemble::Ensemble::new(settings).run(&problem.prior, &problem.likelihood, seed, observer);
+    observer.end();
+    let details = summary::SamplerDetails::Ensemble { walkers: out.chains.chains.len(), acceptance: out.acceptance };
+    Sampled { chains: out.chains, evidence: None, details, evaluations: out.likelihood_evaluations }
+}
+
+/// Writes `posterior.parquet`, `summary.json` and `predictions.parquet` into `dir`.
+pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let prov = &cal.summary.provenance;
+    let mut cols: Vec<(String, Vec<f64>)> = (0..cal.chains.dim).map(|p| (cal.chains.names[p].clone(), cal.chains.param(p))).collect();
+    // Which chain each draw came from, so diagnostics can be recomputed.
+    let chain_ids: Vec<f64> = cal.chains.chains.iter().enumerate().flat_map(|(k, c)| std::iter::repeat_n(k as f64, c.len() / cal.chains.dim)).collect();
+    cols.push(("chain".into(), chain_ids));
+    let mut df = artifacts::f64_frame(cols)?;
+    artifacts::write_parquet_atomic(&dir.join("posterior.parquet"), &mut df, Some(prov))?;
+    artifacts::write_json_atomic(&dir.join("summary.json"), &cal.summary)?;
+    let mut pred = summary::predictions_frame(&cal.predictions)?;
+    artifacts::write_parquet_atomic(&dir.join("predictions.parquet"), &mut pred, Some(prov))?;
+    // The measurements fitted, so that reports and re-analyses need nothing else.
+    let used: Vec<Measurement> = problem.measurements.iter().filter(|m| problem.observables().contains(&m.observable)).cloned().collect();
+    artifacts::write_measurements(&dir.join("measurements.parquet"), &used, Some(prov))?;
+    Ok(())
+}

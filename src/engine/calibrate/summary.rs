@@ -1,0 +1,404 @@
+//! Posterior summaries (`summary.json`) and posterior-predictive bands
+//! (`predictions.parquet`).
+
+use super::diagnostics::{self, ParamDiagnostics};
+use super::smc::{SmcOutput, SmcStep};
+use super::{Chains, Problem};
+use crate::base::artifacts::Provenance;
+use crate::engine::model::Units;
+use crate::engine::gp::{discrepancy_cross_cov, pow_r, CholeskyWorkspace, DiscrepancyKernel};
+use anyhow::Result;
+use polars::prelude::*;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct ParamSummary {
+    pub median: f64,
+    pub q025: f64,
+    pub q975: f64,
+    pub q16: f64,
+    pub q84: f64,
+    pub mean: f64,
+    pub sd: f64,
+}
+
+impl ParamSummary {
+    pub fn from_draws(draws: &[f64]) -> Self {
+        let mut v = draws.to_vec();
+        v.sort_by(|a, b| a.total_cmp(b));
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let sd = (v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
+        let q = |p| diagnostics::quantile_sorted(&v, p);
+        ParamSummary { median: q(0.5), q025: q(0.025), q975: q(0.975), q16: q(0.16), q84: q(0.84), mean, sd }
+    }
+
+    pub fn covers(&self, value: f64) -> bool {
+        self.q025 <= value && value <= self.q975
+    }
+
+    pub fn width95(&self) -> f64 {
+        self.q975 - self.q025
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum SamplerDetails {
+    Smc {
+        replicates: usize,
+        particles_per_replicate: usize,
+        replicate_log_evidence: Vec<f64>,
+        tempering_steps: Vec<usize>,
+        /// Schedule of the first replicate.
+        schedule: Vec<SmcStepRecord>,
+        unique_fraction: Vec<f64>,
+        /// Evaluations of one observable's term alone (its own φ moves), all replicates;
+        /// `likelihood_evaluations` counts whole-likelihood evaluations only.
+        #[serde(default)]
+        term_evaluations: u64,
+    },
+    Ensemble {
+        walkers: usize,
+        acceptance: f64,
+    },
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SmcStepRecord {
+    pub beta: f64,
+    pub mcmc_steps: usize,
+    pub acceptance: f64,
+    /// Joint move, then shared parameters, then each observable's own φ.
+    #[serde(default)]
+    pub group_acceptance: Vec<f64>,
+}
+
+impl From<&SmcStep> for SmcStepRecord {
+    fn from(s: &SmcStep) -> Self {
+        SmcStepRecord { beta: s.beta, mcmc_steps: s.mcmc_steps, acceptance: s.acceptance, group_acceptance: s.group_acceptance.clone() }
+    }
+}
+
+impl SamplerDetails {
+    pub fn from_smc(out: &SmcOutput) -> Self {
+        SamplerDetails::Smc {
+            replicates: out.replicates.len(),
+            particles_per_replicate: out.chains.chains.first().map(|c| c.len() / out.chains.dim).unwrap_or(0),
+            replicate_log_evidence: out.replicates.iter().map(|r| r.log_evidence).collect(),
+            tempering_steps: out.replicates.iter().map(|r| r.steps.len()).collect(),
+            schedule: out.replicates.first().map(|r| r.steps.iter().map(SmcStepRecord::from).collect()).unwrap_or_default(),
+            unique_fraction: out.replicates.iter().map(|r| r.unique_fraction).collect(),
+            term_evaluations: out.replicates.iter().map(|r| r.term_evaluations).sum(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Diagnostics {
+    pub converged: bool,
+    pub warnings: Vec<String>,
+    pub parameters: Vec<ParamDiagnostics>,
+    pub draws: usize,
+    pub likelihood_evaluations: u64,
+    pub wall_seconds: f64,
+    pub likelihood_evaluations_per_second: f64,
+    /// Smallest bulk/tail ESS over parameters, per second of wall time.
+    pub min_ess_per_second: f64,
+    /// Covariance matrices that needed jitter during this run.
+    pub jitter_events: usize,
+    pub sampler: SamplerDetails,
+}
+
+/// Goodness of fit of the model alone at the posterior median θ: the
+/// generalized χ² `rᵀ C⁻¹ r` with the covariance of the no-MD likelihood,
+/// `C = diag(σ²)` plus, for an emulator, its predictive covariance (without
+/// it an emulated model would be judged as if it were exact).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FitQuality {
+    pub chi2: f64,
+    pub dof: usize,
+    pub chi2_per_dof: f64,
+    /// χ² per observable.
+    pub per_observable: BTreeMap<String, f64>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Summary {
+    pub name: String,
+    pub kernel: String,
+    pub observables: Vec<String>,
+    pub sampler: String,
+    pub parameters: BTreeMap<String, ParamSummary>,
+    /// Parameter order as in `posterior.parquet`.
+    pub parameter_order: Vec<String>,
+    /// True values from the config, where known.
+    pub truth: BTreeMap<String, f64>,
+    /// Units of x, the observables and the parameters (from the model family).
+    #[serde(default)]
+    pub units: Units,
+    /// Uniform prior bounds of every parameter.
+    #[serde(default)]
+    pub prior_bounds: BTreeMap<String, [f64; 2]>,
+    pub log_evidence: Option<f64>,
+    pub log_evidence_err: Option<f64>,
+    pub fit: FitQuality,
+    pub diagnostics: Diagnostics,
+    pub provenance: Provenance,
+}
+
+#[allow(clippy::too_many_arguments)]
+pub fn summarize(
+    problem: &Problem,
+    chains: &Chains,
+    evidence: Option<(f64, f64)>,
+    sampler: SamplerDetails,
+    evaluations: u64,
+    wall_seconds: f64,
+    jitter_events: usize,
+    seed: u64,
+) -> Summary {
+    let mut parameters = BTreeMap::new();
+    let per_param: Vec<ParamDiagnostics> = (0..chains.dim)
+        .into_par_iter()
+        .map(|p| diagnostics::diagnose_param(&chains.names[p], &chains.param_chains(p)))
+        .collect();
+    for p in 0..chains.dim {
+        parameters.insert(chains.names[p].clone(), ParamSummary::from_draws(&chains.param(p)));
+    }
+    let mut warnings = Vec::new();
+    for d in &per_param {
+        if d.rhat > diagnostics::RHAT_MAX {
+            warnings.push(format!("{}: R-hat {:.3} > {}", d.name, d.rhat, diagnostics::RHAT_MAX));
+        }
+        let ess = d.ess_bulk.min(d.ess_tail);
+        if ess < diagnostics::ESS_MIN || !ess.is_finite() {
+            warnings.push(format!("{}: ESS {:.0} < {}", d.name, ess, diagnostics::ESS_MIN));
+        }
+    }
+    if jitter_events > 0 {
+        warnings.push(format!("{jitter_events} covariance matrices needed diagonal jitter to factorize"));
+    }
+    let min_ess = per_param.iter().map(|d| d.ess_bulk.min(d.ess_tail)).fold(f64::INFINITY, f64::min);
+    let theta_median: Vec<f64> = problem.simulator.parameter_names().iter().map(|n| parameters[n].median).collect();
+    Summary {
+        name: problem.analysis.name.clone(),
+        kernel: DiscrepancyKernel::label(problem.likelihood.kernel).to_string(),
+        observables: problem.observables(),
+        sampler: problem.sampler.label().to_string(),
+        parameter_order: chains.names.clone(),
+        parameters,
+        truth: problem.analysis.truth_values(),
+        units: problem.analysis.units.clone(),
+        prior_bounds: (0..problem.prior.dim()).map(|i| (problem.prior.names[i].clone(), [problem.prior.lower[i], problem.prior.upper[i]])).collect(),
+        log_evidence: evidence.map(|e| e.0),
+        log_evidence_err: evidence.map(|e| e.1),
+        fit: fit_quality(problem, &theta_median),
+        diagnostics: Diagnostics {
+            converged: warnings.is_empty(),
+            warnings,
+            parameters: per_param,
+            draws: chains.n_draws(),
+            likelihood_evaluations: evaluations,
+            wall_seconds,
+            likelihood_evaluations_per_second: evaluations as f64 / wall_seconds.max(1e-9),
+            min_ess_per_second: min_ess / wall_seconds.max(1e-9),
+            jitter_events,
+            sampler,
+        },
+        provenance: problem.provenance(seed, "calibrate"),
+    }
+}
+
+pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
+    let mut per_observable = BTreeMap::new();
+    let mut chi2 = 0.0;
+    let mut n = 0;
+    for b in &problem.likelihood.blocks {
+        let n_b = b.len();
+        let mut eta = vec![0.0; n_b];
+        problem.simulator.predict(b.model_index, &b.x, theta, &mut eta);
+        let mut r: Vec<f64> = (0..n_b).map(|i| b.y[i] - eta[i]).collect();
+        let c = if problem.simulator.has_model_covariance() {
+            let mut ws = crate::engine::gp::CholeskyWorkspace::new(n_b);
+            ws.factor.fill(0.0);
+            for i in 0..n_b {
+                ws.factor[i * n_b + i] = b.error[i] * b.error[i];
+            }
+            problem.simulator.add_model_covariance(b.model_index, &b.x, theta, 1.0, &mut ws.factor);
+            match ws.factorize() {
+                Ok(_) => {
+                    ws.solve_lower_in_place(&mut r);
+                    r.iter().map(|z| z * z).sum()
+                }
+                Err(_) => f64::INFINITY,
+            }
+        } else {
+            (0..n_b).map(|i| (r[i] / b.error[i]).powi(2)).sum()
+        };
+        per_observable.insert(b.name.clone(), c);
+        chi2 += c;
+        n += b.len();
+    }
+    let dof = n.saturating_sub(theta.len()).max(1);
+    FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable }
+}
+
+/// Posterior-predictive bands at one x for one observable.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PredictionRow {
+    pub observable: String,
+    /// "grid" for the prediction grid, "data" at measured points.
+    pub kind: &'static str,
+    pub x: f64,
+    /// Model alone η(x, θ): 2.5, 16, 50, 84, 97.5 percentiles.
+    pub model: [f64; 5],
+    /// Model + δ.
+    pub model_md: [f64; 5],
+    /// δ alone (original units) and its posterior mean.
+    pub delta: [f64; 5],
+    pub delta_mean: f64,
+    /// The true curve (config `[truth]`), NaN where unknown.
+    pub truth: f64,
+}
+
+const BAND_LEVELS: [f64; 5] = [0.025, 0.16, 0.5, 0.84, 0.975];
+
+fn bands(values: &mut [f64]) -> [f64; 5] {
+    values.sort_by(|a, b| a.total_cmp(b));
+    BAND_LEVELS.map(|q| diagnostics::quantile_sorted(values, q))
+}
+
+/// Bands of η and η + δ on a grid extending beyond the data, and at the data.
+/// δ at new x is drawn from the GP conditional on the residuals at the data;
+/// pointwise bands need only its marginals.
+pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<PredictionRow>> {
+    let cfg = &problem.analysis.predictions;
+    let lik = &problem.likelihood;
+    let n_theta = lik.n_theta;
+    let all: Vec<&[f64]> = chains.rows().collect();
+    let n_use = cfg.draws.min(all.len()).max(1);
+    let stride = all.len() as f64 / n_use as f64;
+    let draws: Vec<&[f64]> = (0..n_use).map(|i| all[(i as f64 * stride) as usize]).collect();
+    let mut rows = Vec::new();
+    for (b, block) in lik.blocks.iter().enumerate() {
+        let x_max = cfg.x_max.unwrap_or(1.5 * block.x.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+        let npts = cfg.points.max(2);
+        // An emulator knows only its training bins: no grid then.
+        let mut xs: Vec<(f64, &'static str)> = if problem.simulator.predicts_any_x() {
+            (0..npts).map(|i| (cfg.x_min + (x_max - cfg.x_min) * i as f64 / (npts - 1) as f64, "grid")).collect()
+        } else {
+            Vec::new()
+        };
+        xs.extend(block.x.iter().map(|&x| (x, "data")));
+        let xq: Vec<f64> = xs.iter().map(|p| p.0).collect();
+        let m = xq.len();
+        let truth = problem.analysis.truth_curve(&block.name, &xq).unwrap_or_else(|| vec![f64::NAN; m]);
+        // Per draw: η(xq) and δ(xq) samples, in original units.
+        let per_draw: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> = draws
+            .par_iter()
+            .enumerate()
+            .map(|(d, params)| {
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ ((b as u64) << 40) ^ (d as u64).wrapping_mul(0x9E37_79B9));
+                let theta = &params[..n_theta];
+                let mut eta = vec![0.0; m];
+                problem.simulator.predict(block.model_index, &xq, theta, &mut eta);
+                let (delta, delta_mean) = match lik.kernel {
+                    None => (vec![0.0; m], vec![0.0; m]),
+                    Some(kernel) => conditional_delta(kernel, lik.hyper_of(params, b), block, theta, &xq, problem, &mut rng),
+                };
+                (eta, delta, delta_mean)
+            })
+            .collect();
+        for (q, &(x, kind)) in xs.iter().enumerate() {
+            let mut model: Vec<f64> = per_draw.iter().map(|d| d.0[q]).collect();
+            let mut md: Vec<f64> = per_draw.iter().map(|d| d.0[q] + d.1[q]).collect();
+            let mut delta: Vec<f64> = per_draw.iter().map(|d| d.1[q]).collect();
+            let delta_mean = per_draw.iter().map(|d| d.2[q]).sum::<f64>() / per_draw.len() as f64;
+            rows.push(PredictionRow {
+                observable: block.name.clone(),
+                kind,
+                x,
+                model: bands(&mut model),
+                model_md: bands(&mut md),
+                delta: bands(&mut delta),
+                delta_mean,
+                truth: truth[q],
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// One draw of δ(xq) and its conditional mean, given the data residuals.
+fn conditional_delta(
+    kernel: DiscrepancyKernel,
+    hyper: &[f64],
+    block: &super::ObservableBlock,
+    theta: &[f64],
+    xq: &[f64],
+    problem: &Problem,
+    rng: &mut Xoshiro256PlusPlus,
+) -> (Vec<f64>, Vec<f64>) {
+    let n = block.len();
+    let m = xq.len();
+    let mut eta = vec![0.0; n];
+    problem.simulator.predict(block.model_index, &block.x, theta, &mut eta);
+    let mut ws = CholeskyWorkspace::new(n);
+    discrepancy_cross_cov(kernel, hyper, &block.x, &block.x, &mut ws.factor);
+    if problem.simulator.has_model_covariance() {
+        problem.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), &mut ws.factor);
+    }
+    for i in 0..n {
+        let s = block.error[i] / block.scale;
+        ws.factor[i * n + i] += s * s;
+    }
+    if ws.factorize().is_err() {
+        return (vec![f64::NAN; m], vec![f64::NAN; m]);
+    }
+    let mut alpha: Vec<f64> = (0..n).map(|i| (block.y[i] - eta[i]) / block.scale).collect();
+    ws.solve_in_place(&mut alpha);
+    let mut kq = vec![0.0; n];
+    let mut draw = vec![0.0; m];
+    let mut mean = vec![0.0; m];
+    for q in 0..m {
+        discrepancy_cross_cov(kernel, hyper, &block.x, &xq[q..q + 1], &mut kq);
+        let mu: f64 = kq.iter().zip(&alpha).map(|(a, b)| a * b).sum();
+        ws.solve_lower_in_place(&mut kq);
+        let prior_var = {
+            let p = pow_r(xq[q], hyper[2]);
+            let s2 = if kernel == DiscrepancyKernel::KernelI { hyper[3] * hyper[3] } else { 0.0 };
+            s2 + hyper[0] * hyper[0] * p * p
+        };
+        let var = (prior_var - kq.iter().map(|v| v * v).sum::<f64>()).max(0.0);
+        let z: f64 = StandardNormal.sample(rng);
+        mean[q] = mu * block.scale;
+        draw[q] = (mu + var.sqrt() * z) * block.scale;
+    }
+    (draw, mean)
+}
+
+pub fn predictions_frame(rows: &[PredictionRow]) -> Result<DataFrame> {
+    let names = ["q025", "q16", "median", "q84", "q975"];
+    let mut cols: Vec<Column> = vec![
+        Column::new("observable".into(), rows.iter().map(|r| r.observable.as_str()).collect::<Vec<_>>()),
+        Column::new("kind".into(), rows.iter().map(|r| r.kind).collect::<Vec<_>>()),
+        Column::new("x".into(), rows.iter().map(|r| r.x).collect::<Vec<_>>()),
+    ];
+    for (prefix, get) in [
+        ("model", (|r: &PredictionRow| r.model) as fn(&PredictionRow) -> [f64; 5]),
+        ("model_md", |r: &PredictionRow| r.model_md),
+        ("delta", |r: &PredictionRow| r.delta),
+    ] {
+        for (k, n) in names.iter().enumerate() {
+            cols.push(Column::new(format!("{prefix}_{n}").into(), rows.iter().map(|r| get(r)[k]).collect::<Vec<_>>()));
+        }
+    }
+    cols.push(Column::new("delta_mean".into(), rows.iter().map(|r| r.delta_mean).collect::<Vec<_>>()));
+    cols.push(Column::new("truth".into(), rows.iter().map(|r| r.truth).collect::<Vec<_>>()));
+    Ok(DataFrame::new(rows.len(), cols)?)
+}

@@ -1,0 +1,395 @@
+//! `mdpipe diagnose`: locate a model-data mismatch, name the physics that was
+//! left out, model it, and show the fit improve.
+//!
+//! 1. Locate: calibrate with and without MD; read δ(x) off the MD posterior.
+//! 2. Explain: calibrate the model augmented by each candidate correction from
+//!    the model's library and rank them by SMC log-evidence against the base.
+//! 3. Repair: refit with the winner, with and without MD, and compare.
+//!
+//! Decision rule (log Bayes factors, Kass & Raftery's "strong" = 3):
+//! * a candidate is named when it beats the base model by more than
+//!   `strong_log_bf`, fits adequately (χ² p-value ≥ `min_p_value` at its
+//!   posterior median) and is not itself beaten by the MD fit by more than
+//!   `strong_log_bf`;
+//! * otherwise the verdict is "unexplained" when the mismatch is significant
+//!   (MD beats the base by more than `strong_log_bf`, or the base χ² has
+//!   p < `min_p_value`), and "none" when it is not.
+
+mod locate;
+
+use crate::base::artifacts::{self, Provenance};
+use crate::base::progress::Observer;
+use crate::engine::calibrate::summary::{ParamSummary, PredictionRow, Summary};
+use crate::engine::calibrate::{self, Analysis, Calibration, Overrides, Problem};
+use crate::engine::gp::DiscrepancyKernel;
+use crate::engine::model::CandidateModel;
+use anyhow::Result;
+use locate::{locate, mismatch_phrase};
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+#[derive(Clone, Debug)]
+pub struct DiagnoseSettings {
+    pub kernel: DiscrepancyKernel,
+    pub strong_log_bf: f64,
+    pub min_p_value: f64,
+    /// Refit the winner with MD on top (step 3); blind tests skip it.
+    pub repair: bool,
+}
+
+impl Default for DiagnoseSettings {
+    fn default() -> Self {
+        DiagnoseSettings { kernel: DiscrepancyKernel::KernelII, strong_log_bf: 3.0, min_p_value: 1e-3, repair: true }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Region {
+    pub x_from: f64,
+    pub x_to: f64,
+    /// "above": data above the model (δ > 0); "below": δ < 0.
+    pub sign: String,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ObservableMismatch {
+    pub observable: String,
+    /// x ranges (within the data) where the 95% band of δ excludes zero.
+    pub regions: Vec<Region>,
+    /// Largest |posterior-mean δ| at a data point, in units of its 1σ error.
+    pub max_sigma: f64,
+    pub x_at_max: f64,
+    /// "above", "below", "mixed" or "none".
+    pub sign: String,
+    /// Whether |δ| grows with x over the data.
+    pub grows_with_x: bool,
+    /// Posterior of the growth exponent r of the discrepancy kernel.
+    pub r: ParamSummary,
+    /// Posterior-predictive check of the no-MD fit: residuals (y − η̂)
+    /// standardized by the whole predictive sd (measurement error, posterior
+    /// spread of η and, for an emulator, its own uncertainty), and χ².
+    pub no_md_residuals: Vec<(f64, f64)>,
+    /// Runs of consecutive data points whose no-MD residual exceeds 2 in
+    /// size with one sign (kept if two or more points, or one beyond 3): where
+    /// the model alone misses. Where an emulator's uncertainty leaves the δ
+    /// band wide (`regions` empty), this still locates the mismatch.
+    #[serde(default)]
+    pub residual_regions: Vec<Region>,
+    pub no_md_chi2: f64,
+    pub no_md_dof: usize,
+    /// Posterior-mean δ/σ at each data point: one row of the mismatch map.
+    pub map: Vec<(f64, f64)>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct CandidateResult {
+    pub name: String,
+    pub description: String,
+    pub log_evidence: f64,
+    pub log_evidence_err: f64,
+    /// Against the base model without MD.
+    pub log_bayes_factor: f64,
+    pub log_bayes_factor_err: f64,
+    pub parameters: BTreeMap<String, ParamSummary>,
+    pub chi2_per_dof: f64,
+    pub p_value: f64,
+    pub converged: bool,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Verdict {
+    /// A candidate name, "none" or "unexplained".
+    pub best: String,
+    pub statement: String,
+    /// Posterior probability of the verdict's model among the base, MD and
+    /// candidate models, with equal prior odds.
+    pub confidence: f64,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FitFigures {
+    pub label: String,
+    pub chi2_per_dof: f64,
+    pub log_evidence: f64,
+    pub log_evidence_err: f64,
+    pub parameters: BTreeMap<String, ParamSummary>,
+    /// Largest |posterior-mean δ|/σ per observable (0 without MD).
+    pub delta_max_sigma: BTreeMap<String, f64>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Improvement {
+    pub before: Vec<FitFigures>,
+    pub after: Vec<FitFigures>,
+    /// Width of the 95% interval of each model parameter, before (MD) / after (repaired).
+    pub interval_narrowing: BTreeMap<String, f64>,
+    /// The largest narrowing these data allow: the MD width over the repaired
+    /// model's Cramér–Rao 95% width (2 × 1.96 × sd) at its posterior median.
+    /// Empty for emulated models and for parameters the data cannot identify.
+    #[serde(default)]
+    pub information_limit: BTreeMap<String, f64>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Diagnosis {
+    pub mismatch: Vec<ObservableMismatch>,
+    pub candidates: Vec<CandidateResult>,
+    pub verdict: Verdict,
+    pub improvement: Option<Improvement>,
+    pub base_log_evidence: f64,
+    pub md_log_evidence: f64,
+    pub provenance: Provenance,
+}
+
+/// Everything `diagnose` computed, for the report.
+pub struct DiagnoseRun {
+    pub diagnosis: Diagnosis,
+    pub base: Calibration,
+    pub md: Calibration,
+    pub candidates: Vec<(String, Calibration)>,
+    pub repaired_md: Option<Calibration>,
+}
+
+fn p_value(chi2: f64, dof: usize) -> f64 {
+    ChiSquared::new(dof.max(1) as f64).map(|d| 1.0 - d.cdf(chi2)).unwrap_or(f64::NAN)
+}
+
+fn evidence(s: &Summary) -> (f64, f64) {
+    (s.log_evidence.unwrap_or(f64::NEG_INFINITY), s.log_evidence_err.unwrap_or(f64::NAN))
+}
+
+fn delta_max_sigma(problem: &Problem, preds: &[PredictionRow]) -> BTreeMap<String, f64> {
+    let mut out = BTreeMap::new();
+    for b in &problem.likelihood.blocks {
+        let m = preds
+            .iter()
+            .filter(|r| r.observable == b.name && r.kind == "data")
+            .filter_map(|r| b.x.iter().position(|x| *x == r.x).map(|i| (r.delta_mean / b.error[i]).abs()))
+            .fold(0.0, f64::max);
+        out.insert(b.name.clone(), m);
+    }
+    out
+}
+
+fn figures(label: &str, problem: &Problem, cal: &Calibration) -> FitFigures {
+    let (z, e) = evidence(&cal.summary);
+    let theta: Vec<String> = problem.simulator.parameter_names();
+    FitFigures {
+        label: label.to_string(),
+        chi2_per_dof: cal.summary.fit.chi2_per_dof,
+        log_evidence: z,
+        log_evidence_err: e,
+        parameters: theta.iter().map(|n| (n.clone(), cal.summary.parameters[n].clone())).collect(),
+        delta_max_sigma: delta_max_sigma(problem, &cal.predictions),
+    }
+}
+
+/// One candidate's fit, kept with what made it.
+struct CandidateRun {
+    result: CandidateResult,
+    candidate: CandidateModel,
+    problem: Problem,
+    calibration: Calibration,
+}
+
+/// What every calibration of one diagnosis shares.
+struct Diagnoser<'a> {
+    overrides: &'a Overrides,
+    out: Option<&'a Path>,
+    observer: &'a dyn Observer,
+}
+
+impl Diagnoser<'_> {
+    /// Calibrates `analysis` with `kernel` (None: no MD) and writes it to `out/name`.
+    fn calibrate(&self, analysis: &Analysis, kernel: Option<DiscrepancyKernel>, seed: u64, name: &str) -> Result<(Problem, Calibration)> {
+        let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..self.overrides.clone() })?;
+        let cal = calibrate::run(&problem, seed, self.observer)?;
+        if let Some(dir) = self.out {
+            calibrate::write_outputs(&dir.join(name), &problem, &cal)?;
+        }
+        Ok((problem, cal))
+    }
+
+    /// Explain: every candidate fitted without MD, best evidence first.
+    fn explain(&self, analysis: &Analysis, seed: u64, (z_base, e_base): (f64, f64)) -> Result<Vec<CandidateRun>> {
+        let mut runs = Vec::new();
+        for (k, candidate) in analysis.candidates()?.into_iter().enumerate() {
+            let (problem, calibration) = self.calibrate(&analysis.with_candidate(&candidate), None, seed.wrapping_add(10 + k as u64), &format!("candidate_{}", candidate.name))?;
+            let (z, e) = evidence(&calibration.summary);
+            let result = CandidateResult {
+                name: candidate.name.clone(),
+                description: candidate.description.clone(),
+                log_evidence: z,
+                log_evidence_err: e,
+                log_bayes_factor: z - z_base,
+                log_bayes_factor_err: (e * e + e_base * e_base).sqrt(),
+                parameters: problem.simulator.parameter_names().iter().map(|n| (n.clone(), calibration.summary.parameters[n].clone())).collect(),
+                chi2_per_dof: calibration.summary.fit.chi2_per_dof,
+                p_value: p_value(calibration.summary.fit.chi2, calibration.summary.fit.dof),
+                converged: calibration.summary.diagnostics.converged,
+            };
+            runs.push(CandidateRun { result, candidate, problem, calibration });
+        }
+        // A stable sort keeps the library's order among equal evidences.
+        runs.sort_by(|a, b| b.result.log_evidence.total_cmp(&a.result.log_evidence));
+        Ok(runs)
+    }
+}
+
+/// Runs the whole diagnosis. `out`, when given, receives every calibration.
+pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &DiagnoseSettings, out: Option<&Path>, observer: &dyn Observer) -> Result<DiagnoseRun> {
+    let d = Diagnoser { overrides, out, observer };
+    let (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
+    let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
+    let (z_base, e_base) = evidence(&base.summary);
+    let (z_md, _) = evidence(&md.summary);
+    let mismatch = locate(&md_problem, &md, &base_problem, &base);
+    let runs = d.explain(analysis, seed, (z_base, e_base))?;
+    let candidates: Vec<CandidateResult> = runs.iter().map(|r| r.result.clone()).collect();
+    let named = named_candidate(&candidates, settings, z_md);
+    let verdict = decide(&candidates, named, &runs, &mismatch, &base.summary, settings, (z_base, z_md));
+
+    // Repair: refit the winner with MD on top, to show δ shrink.
+    let mut improvement = None;
+    let mut repaired_md = None;
+    if let (Some(_), true) = (named, settings.repair) {
+        let winner = &runs[0];
+        let (rep_md_problem, rep_md) = d.calibrate(&analysis.with_candidate(&winner.candidate), Some(settings.kernel), seed.wrapping_add(99), "repaired_md")?;
+        let before = vec![figures("model, no MD", &base_problem, &base), figures("model + MD", &md_problem, &md)];
+        let after = vec![
+            figures(&format!("model + {}", winner.candidate.name), &winner.problem, &winner.calibration),
+            figures(&format!("model + {} + MD", winner.candidate.name), &rep_md_problem, &rep_md),
+        ];
+        let interval_narrowing =
+            base_problem.simulator.parameter_names().iter().map(|n| (n.clone(), md.summary.parameters[n].width95() / winner.calibration.summary.parameters[n].width95())).collect();
+        let information_limit = information_limit(&winner.problem, &winner.calibration, &md);
+        improvement = Some(Improvement { before, after, interval_narrowing, information_limit });
+        repaired_md = Some(rep_md);
+    }
+    let diagnosis = Diagnosis { mismatch, candidates, verdict, improvement, base_log_evidence: z_base, md_log_evidence: z_md, provenance: base_problem.provenance(seed, "diagnose") };
+    if let Some(dir) = out {
+        artifacts::write_json_atomic(&dir.join("diagnosis.json"), &diagnosis)?;
+    }
+    let candidates = runs.into_iter().map(|r| (r.candidate.name, r.calibration)).collect();
+    Ok(DiagnoseRun { diagnosis, base, md, candidates, repaired_md })
+}
+
+/// The best candidate, when it beats the base model by more than
+/// `strong_log_bf`, fits adequately and is not itself beaten by the MD fit.
+fn named_candidate<'c>(candidates: &'c [CandidateResult], settings: &DiagnoseSettings, z_md: f64) -> Option<&'c CandidateResult> {
+    candidates.first().filter(|c| c.log_bayes_factor > settings.strong_log_bf && c.p_value >= settings.min_p_value && c.log_evidence > z_md - settings.strong_log_bf)
+}
+
+/// The verdict: a named candidate, "unexplained" or "none" (see the module docs).
+fn decide(candidates: &[CandidateResult], named: Option<&CandidateResult>, runs: &[CandidateRun], mismatch: &[ObservableMismatch], base: &Summary, settings: &DiagnoseSettings, (z_base, z_md): (f64, f64)) -> Verdict {
+    let base_p = p_value(base.fit.chi2, base.fit.dof);
+    let significant = z_md - z_base > settings.strong_log_bf || base_p < settings.min_p_value;
+    let best = candidates.first();
+    // Posterior model probabilities with equal prior odds.
+    let mut all_z = vec![z_base, z_md];
+    all_z.extend(candidates.iter().map(|c| c.log_evidence));
+    let lse = crate::engine::calibrate::smc::log_sum_exp(&all_z);
+    let prob = |z: f64| (z - lse).exp();
+    let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
+    match named {
+        Some(c) => Verdict { best: c.name.clone(), statement: named_statement(c, &runs[0].candidate, candidates.get(1), mismatch), confidence: prob(c.log_evidence) },
+        None if significant => {
+            let w = worst.map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max)).unwrap_or_default();
+            let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
+            Verdict {
+                best: "unexplained".into(),
+                statement: format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.", z_md - z_base),
+                confidence: prob(z_md),
+            }
+        }
+        None => Verdict {
+            best: "none".into(),
+            statement: format!(
+                "no significant mismatch: δ is consistent with zero (largest posterior-mean |δ| = {:.1}σ), the model alone fits with χ²/dof = {:.2}, and no candidate is favoured (best log BF = {:.1}).",
+                worst.map(|w| w.max_sigma).unwrap_or(0.0),
+                base.fit.chi2_per_dof,
+                best.map(|c| c.log_bayes_factor).unwrap_or(f64::NAN)
+            ),
+            confidence: prob(z_base),
+        },
+    }
+}
+
+/// "…the data favour X (what it is), k = … over the runner-up by log BF = …".
+fn named_statement(c: &CandidateResult, model: &CandidateModel, runner_up: Option<&CandidateResult>, mismatch: &[ObservableMismatch]) -> String {
+    let fitted: Vec<String> = model
+        .extra_parameters
+        .iter()
+        .map(|(n, spec)| {
+            let p = &c.parameters[n];
+            format!("{n} = {:.3} [{:.3}, {:.3}]{}", p.median, p.q025, p.q975, if spec.units.is_empty() { String::new() } else { format!(" {}", spec.units) })
+        })
+        .collect();
+    let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
+    let trend = mismatch_phrase(mismatch);
+    let runner = runner_up.map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence)).unwrap_or_default();
+    format!("{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.", c.name.replace('_', " "), c.description, c.log_bayes_factor)
+}
+
+/// MD 95% width over the repaired model's Cramér–Rao 95% width, per
+/// parameter of the base model, at the repaired posterior median.
+fn information_limit(rep_problem: &Problem, rep: &Calibration, md: &Calibration) -> BTreeMap<String, f64> {
+    let lik = &rep_problem.likelihood;
+    let names = rep_problem.simulator.parameter_names();
+    let theta: Vec<f64> = names.iter().map(|n| rep.summary.parameters[n].median).collect();
+    // Central differences at 1e-5 of the prior range: truncation ~1e-10 relative.
+    let steps: Vec<f64> = (0..lik.n_theta).map(|k| 1e-5 * (rep_problem.prior.upper[k] - rep_problem.prior.lower[k])).collect();
+    let Some(sd) = lik.cramer_rao_sd(&theta, &steps) else {
+        return BTreeMap::new();
+    };
+    names
+        .iter()
+        .zip(&sd)
+        .filter_map(|(n, s)| md.summary.parameters.get(n).map(|p| (n.clone(), p.width95() / (2.0 * 1.959964 * s))))
+        .collect()
+}
+
+/// Plain-text summary for the terminal.
+pub fn print(d: &Diagnosis) {
+    println!("Locate (model + MD; δ in units of the measurement error):");
+    for m in &d.mismatch {
+        let show = |rs: &[Region]| -> String {
+            if rs.is_empty() {
+                "no region".into()
+            } else {
+                rs.iter().map(|r| format!("[{:.2}, {:.2}] {}", r.x_from, r.x_to, r.sign)).collect::<Vec<_>>().join(", ")
+            }
+        };
+        println!(
+            "  {:<14} max |δ| = {:>5.1}σ at x = {:.2}; δ ≠ 0 in {}; r = {:.2} [{:.2}, {:.2}]; no-MD χ²/n = {:.1}, misses in {}",
+            m.observable,
+            m.max_sigma,
+            m.x_at_max,
+            show(&m.regions),
+            m.r.median,
+            m.r.q025,
+            m.r.q975,
+            m.no_md_chi2 / m.no_md_dof as f64,
+            show(&m.residual_regions)
+        );
+    }
+    println!("Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):", d.md_log_evidence - d.base_log_evidence);
+    for c in &d.candidates {
+        println!("  {:<16} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof);
+    }
+    println!("Verdict: {} (confidence {:.2})", d.verdict.best, d.verdict.confidence);
+    println!("  {}", d.verdict.statement);
+    if let Some(imp) = &d.improvement {
+        println!("Repair (before → after):");
+        for f in imp.before.iter().chain(&imp.after) {
+            let g: Vec<String> = f.parameters.iter().map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975)).collect();
+            let dmax = f.delta_max_sigma.values().cloned().fold(0.0, f64::max);
+            println!("  {:<34} χ²/dof {:>6.2}  log Z {:>8.2}  max|δ| {:>4.1}σ  {}", f.label, f.chi2_per_dof, f.log_evidence, dmax, g.join(", "));
+        }
+        for (n, r) in &imp.interval_narrowing {
+            let limit = imp.information_limit.get(n).map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)")).unwrap_or_default();
+            println!("  95% interval of {n}: {r:.1}x narrower than with MD alone{limit}");
+        }
+    }
+}

@@ -1,0 +1,95 @@
+//! `[model] kind = "emulator"`: a trained emulator as the model, and as
+//! `diagnose` candidates the variant emulators declared in `[[candidates]]`
+//! (trained on runs with extra physics switched on).
+
+use super::EmulatedModel;
+use crate::base::config::{Config, ParamSpec};
+use crate::engine::model::{CandidateModel, ModelFamily, Simulator};
+use anyhow::{anyhow, bail, Context, Result};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+pub struct EmulatorFamily;
+
+/// `[model]` of kind "emulator".
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EmulatorModelTable {
+    /// Folder written by `mdpipe train-emulator`, relative to the config.
+    artifact: PathBuf,
+}
+
+/// A model variant declared as a diagnose candidate: an emulator (folder
+/// from `mdpipe train-emulator`, relative to the config) trained on runs with
+/// extra physics switched on, e.g. the Grad shear δf.
+#[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CandidateDeclaration {
+    pub name: String,
+    /// What physics the variant adds, in a phrase.
+    pub description: String,
+    pub emulator: PathBuf,
+    /// Uniform priors of the variant's own parameters (beyond the model's θ).
+    #[serde(default)]
+    pub parameters: BTreeMap<String, ParamSpec>,
+}
+
+impl CandidateDeclaration {
+    /// The declaration as a `[[candidates]]` table.
+    pub fn to_table(&self) -> Result<toml::Table> {
+        Ok(toml::Table::try_from(self)?)
+    }
+}
+
+impl EmulatorFamily {
+    /// A `[model]` table naming the emulator in `artifact`.
+    pub fn model_table(artifact: &std::path::Path) -> toml::Table {
+        toml::Table::from_iter([("kind".to_string(), "emulator".into()), ("artifact".to_string(), artifact.display().to_string().into())])
+    }
+}
+
+impl ModelFamily for EmulatorFamily {
+    fn kind(&self) -> &'static str {
+        "emulator"
+    }
+
+    fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>> {
+        let table: EmulatorModelTable = config.decode_family_table(&config.model, "model")?;
+        let model = EmulatedModel::load(&config.resolve(&table.artifact)).with_context(|| format!("{}: [model] artifact", config.path.display()))?;
+        Ok(Arc::new(model))
+    }
+
+    fn candidates(&self, config: &Config) -> Result<Vec<CandidateModel>> {
+        config
+            .candidates
+            .iter()
+            .map(|t| {
+                let c: CandidateDeclaration = config.decode(t, "[candidates]")?;
+                declared_candidate(config, &c)
+            })
+            .collect()
+    }
+}
+
+/// A declared variant: its parameters must be the base θ plus the variant's
+/// own, whose priors the declaration gives.
+fn declared_candidate(config: &Config, c: &CandidateDeclaration) -> Result<CandidateModel> {
+    let file = config.path.display();
+    let dir = config.resolve(&c.emulator);
+    let model = EmulatedModel::load(&dir).with_context(|| format!("{file}: [[candidates]] {}: loading the variant emulator {}", c.name, dir.display()))?;
+    let names = model.parameter_names();
+    if let Some(missing) = config.parameters.keys().find(|p| !names.contains(p)) {
+        bail!("{file}: [[candidates]] {}: the variant emulator {} lacks the model parameter '{missing}' (it has {})", c.name, dir.display(), names.join(", "));
+    }
+    let mut extra = Vec::new();
+    for n in names.iter().filter(|n| !config.parameters.contains_key(*n)) {
+        let spec = c.parameters.get(n).ok_or_else(|| anyhow!("{file}: [[candidates]] {}: give prior bounds for the variant's own parameter '{n}' in [candidates.parameters.{n}]", c.name))?;
+        spec.check(&format!("{file}: [[candidates]] {}: [candidates.parameters.{n}]", c.name))?;
+        extra.push((n.clone(), spec.clone()));
+    }
+    if let Some(unused) = c.parameters.keys().find(|k| !names.contains(k)) {
+        bail!("{file}: [[candidates]] {}: parameter '{unused}' is not one of the variant emulator's ({})", c.name, names.join(", "));
+    }
+    Ok(CandidateModel { name: c.name.clone(), description: c.description.clone(), extra_parameters: extra, simulator: Arc::new(model) })
+}

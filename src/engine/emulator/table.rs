@@ -1,0 +1,409 @@
+//! Training and validation tables: design parameters and simulator outputs
+//! per design point, long or wide, CSV or Parquet.
+//!
+//! Long (what `mdpipe ingest` writes): `design_id, observable, x, value`
+//! plus one column per design parameter (repeated on every row of a point).
+//! Wide: one row per design point, `design_id`, the parameter columns, and
+//! one column per output named `observable[x]` (or just `observable`, x = 0).
+
+use anyhow::{anyhow, bail, Context, Result};
+use polars::prelude::*;
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+/// One emulated output: an observable at one x (pT bin midpoint, time…).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct OutputKey {
+    pub observable: String,
+    pub x: f64,
+}
+
+impl std::fmt::Display for OutputKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}[{}]", self.observable, self.x)
+    }
+}
+
+/// Design points × outputs, dense.
+#[derive(Clone, Debug)]
+pub struct TrainingTable {
+    pub path: PathBuf,
+    pub parameter_names: Vec<String>,
+    pub design_ids: Vec<i64>,
+    /// Raw parameter values, row-major `n × d`.
+    pub inputs: Vec<f64>,
+    pub outputs: Vec<OutputKey>,
+    /// Row-major `n × m`.
+    pub values: Vec<f64>,
+}
+
+impl TrainingTable {
+    pub fn n_points(&self) -> usize {
+        self.design_ids.len()
+    }
+    pub fn n_outputs(&self) -> usize {
+        self.outputs.len()
+    }
+    pub fn input(&self, i: usize) -> &[f64] {
+        let d = self.parameter_names.len();
+        &self.inputs[i * d..(i + 1) * d]
+    }
+    pub fn row(&self, i: usize) -> &[f64] {
+        let m = self.outputs.len();
+        &self.values[i * m..(i + 1) * m]
+    }
+
+    /// The sub-table of the given rows (for cross-validation folds).
+    pub fn subset(&self, rows: &[usize]) -> TrainingTable {
+        TrainingTable {
+            path: self.path.clone(),
+            parameter_names: self.parameter_names.clone(),
+            design_ids: rows.iter().map(|&i| self.design_ids[i]).collect(),
+            inputs: rows.iter().flat_map(|&i| self.input(i).to_vec()).collect(),
+            outputs: self.outputs.clone(),
+            values: rows.iter().flat_map(|&i| self.row(i).to_vec()).collect(),
+        }
+    }
+
+    /// Writes the long table, Parquet or CSV by extension.
+    pub fn write(&self, path: &Path, provenance: Option<&crate::base::artifacts::Provenance>) -> Result<()> {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if ext == "parquet" || ext == "pq" {
+            return crate::base::artifacts::write_parquet_atomic(path, &mut self.to_long_frame()?, provenance);
+        }
+        let mut text = String::new();
+        if let Some(p) = provenance {
+            text.push_str(&format!("# mdpipe {} | {} | seed {}\n", p.mdpipe_version, p.command, p.seed));
+        }
+        text.push_str(&format!("design_id,observable,x,value,{}\n", self.parameter_names.join(",")));
+        for i in 0..self.n_points() {
+            let params: Vec<String> = self.input(i).iter().map(|v| v.to_string()).collect();
+            for (j, o) in self.outputs.iter().enumerate() {
+                text.push_str(&format!("{},{},{},{},{}\n", self.design_ids[i], o.observable, o.x, self.row(i)[j], params.join(",")));
+            }
+        }
+        crate::base::artifacts::write_text_atomic(path, &text)
+    }
+
+    /// Long-format columns `design_id, observable, x, value`, for storing.
+    pub fn to_long_frame(&self) -> Result<DataFrame> {
+        let (n, m) = (self.n_points(), self.n_outputs());
+        let mut ids = Vec::with_capacity(n * m);
+        let mut obs = Vec::with_capacity(n * m);
+        let mut xs = Vec::with_capacity(n * m);
+        for i in 0..n {
+            for o in &self.outputs {
+                ids.push(self.design_ids[i]);
+                obs.push(o.observable.as_str());
+                xs.push(o.x);
+            }
+        }
+        let mut cols = vec![
+            Column::new("design_id".into(), ids),
+            Column::new("observable".into(), obs),
+            Column::new("x".into(), xs),
+            Column::new("value".into(), self.values.clone()),
+        ];
+        let d = self.parameter_names.len();
+        for (k, name) in self.parameter_names.iter().enumerate() {
+            let v: Vec<f64> = (0..n).flat_map(|i| std::iter::repeat_n(self.inputs[i * d + k], m)).collect();
+            cols.push(Column::new(name.as_str().into(), v));
+        }
+        Ok(DataFrame::new(n * m, cols)?)
+    }
+}
+
+/// A table read as text cells (CSV) or typed columns (Parquet), with
+/// row numbers for error messages.
+enum RawTable {
+    Csv { headers: Vec<String>, rows: Vec<(usize, Vec<String>)> },
+    Parquet(DataFrame),
+}
+
+impl RawTable {
+    fn read(path: &Path) -> Result<RawTable> {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if ext == "parquet" || ext == "pq" {
+            return Ok(RawTable::Parquet(crate::base::artifacts::read_parquet(path)?));
+        }
+        let mut reader = csv::ReaderBuilder::new()
+            .comment(Some(b'#'))
+            .trim(csv::Trim::All)
+            .from_path(path)
+            .with_context(|| format!("opening table {}", path.display()))?;
+        let headers: Vec<String> = reader.headers().with_context(|| format!("{}: reading header", path.display()))?.iter().map(String::from).collect();
+        let mut rows = Vec::new();
+        for rec in reader.records() {
+            let rec = rec.with_context(|| format!("{}: malformed CSV", path.display()))?;
+            let line = rec.position().map(|p| p.line() as usize).unwrap_or(0);
+            rows.push((line, rec.iter().map(String::from).collect()));
+        }
+        Ok(RawTable::Csv { headers, rows })
+    }
+
+    fn columns(&self) -> Vec<String> {
+        match self {
+            RawTable::Csv { headers, .. } => headers.clone(),
+            RawTable::Parquet(df) => df.get_column_names().iter().map(|s| s.to_string()).collect(),
+        }
+    }
+
+    fn height(&self) -> usize {
+        match self {
+            RawTable::Csv { rows, .. } => rows.len(),
+            RawTable::Parquet(df) => df.height(),
+        }
+    }
+
+    /// "line N" (CSV) or "row N" (Parquet, 1-based).
+    fn location(&self, i: usize) -> String {
+        match self {
+            RawTable::Csv { rows, .. } => format!("line {}", rows[i].0),
+            RawTable::Parquet(_) => format!("row {}", i + 1),
+        }
+    }
+
+    fn has(&self, name: &str) -> bool {
+        self.columns().iter().any(|c| c == name)
+    }
+
+    fn missing(&self, path: &Path, name: &str) -> anyhow::Error {
+        anyhow!("{}: missing column '{name}' (found: {})", path.display(), self.columns().join(", "))
+    }
+
+    fn numbers(&self, path: &Path, name: &str) -> Result<Vec<f64>> {
+        let file = path.display();
+        match self {
+            RawTable::Csv { headers, rows } => {
+                let k = headers.iter().position(|h| h == name).ok_or_else(|| self.missing(path, name))?;
+                rows.iter()
+                    .map(|(line, cells)| {
+                        let s = cells.get(k).map(String::as_str).unwrap_or("");
+                        s.parse::<f64>().map_err(|_| anyhow!("{file}: line {line}, field '{name}': cannot parse {s:?} as a number"))
+                    })
+                    .collect()
+            }
+            RawTable::Parquet(df) => {
+                let c = df.column(name).map_err(|_| self.missing(path, name))?;
+                let c = c.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?;
+                let ca = c.f64()?;
+                (0..df.height()).map(|i| ca.get(i).ok_or_else(|| anyhow!("{file}: row {}, field '{name}': missing value", i + 1))).collect()
+            }
+        }
+    }
+
+    fn strings(&self, path: &Path, name: &str) -> Result<Vec<String>> {
+        match self {
+            RawTable::Csv { headers, rows } => {
+                let k = headers.iter().position(|h| h == name).ok_or_else(|| self.missing(path, name))?;
+                Ok(rows.iter().map(|(_, cells)| cells.get(k).cloned().unwrap_or_default()).collect())
+            }
+            RawTable::Parquet(df) => {
+                let c = df.column(name).map_err(|_| self.missing(path, name))?;
+                let ca = c.str().map_err(|_| anyhow!("{}: column '{name}' must be a string column", path.display()))?;
+                (0..df.height())
+                    .map(|i| ca.get(i).map(String::from).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", path.display(), i + 1)))
+                    .collect()
+            }
+        }
+    }
+}
+
+fn check_finite(path: &Path, raw: &RawTable, field: &str, values: &[f64]) -> Result<()> {
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        bail!("{}: {}, field '{field}': value is {}, must be a finite number", path.display(), raw.location(i), values[i]);
+    }
+    Ok(())
+}
+
+/// Parses `name[x]` into (name, x); a plain name has x = 0.
+fn parse_wide_column(name: &str) -> Option<OutputKey> {
+    match name.strip_suffix(']').and_then(|s| s.split_once('[')) {
+        Some((obs, x)) => x.trim().parse::<f64>().ok().map(|x| OutputKey { observable: obs.to_string(), x }),
+        None => Some(OutputKey { observable: name.to_string(), x: 0.0 }),
+    }
+}
+
+/// Reads a long or wide table of simulator runs. Every design point must have
+/// every output exactly once, and every value must be finite.
+pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<TrainingTable> {
+    read_training_table_selected(path, parameter_names, &[])
+}
+
+/// As [`read_training_table`], keeping only the named observables (all if
+/// `observables` is empty); each named one must be in the table.
+pub fn read_training_table_selected(path: &Path, parameter_names: &[String], observables: &[String]) -> Result<TrainingTable> {
+    let keep = |o: &str| observables.is_empty() || observables.iter().any(|k| k == o);
+    let raw = RawTable::read(path)?;
+    let file = path.display();
+    if raw.height() == 0 {
+        bail!("{file}: table has no rows");
+    }
+    let ids_f = raw.numbers(path, "design_id")?;
+    for (i, v) in ids_f.iter().enumerate() {
+        if v.fract() != 0.0 || !v.is_finite() {
+            bail!("{file}: {}, field 'design_id': {v} is not an integer", raw.location(i));
+        }
+    }
+    let ids: Vec<i64> = ids_f.iter().map(|&v| v as i64).collect();
+    let mut params = Vec::with_capacity(parameter_names.len());
+    for name in parameter_names {
+        let v = raw.numbers(path, name)?;
+        check_finite(path, &raw, name, &v)?;
+        params.push(v);
+    }
+
+    // Cells keyed by (design point, output).
+    let mut point_order: Vec<i64> = Vec::new();
+    let mut point_row: HashMap<i64, usize> = HashMap::new();
+    let mut outputs: Vec<OutputKey> = Vec::new();
+    let mut cells: BTreeMap<(usize, usize), (f64, usize)> = BTreeMap::new();
+    let output_index = |key: OutputKey, outputs: &mut Vec<OutputKey>| -> usize {
+        match outputs.iter().position(|o| *o == key) {
+            Some(k) => k,
+            None => {
+                outputs.push(key);
+                outputs.len() - 1
+            }
+        }
+    };
+    let mut add_cell = |point: usize, out: usize, value: f64, row: usize, outputs: &[OutputKey]| -> Result<()> {
+        if let Some((_, first)) = cells.insert((point, out), (value, row)) {
+            bail!("{file}: {}: design point {} has a second value for {} (first at {})", raw.location(row), ids[row], outputs[out], raw.location(first));
+        }
+        Ok(())
+    };
+
+    if raw.has("observable") {
+        let obs = raw.strings(path, "observable")?;
+        let xs = raw.numbers(path, "x")?;
+        let values = raw.numbers(path, "value")?;
+        check_finite(path, &raw, "x", &xs)?;
+        check_finite(path, &raw, "value", &values)?;
+        for i in 0..raw.height() {
+            if obs[i].trim().is_empty() {
+                bail!("{file}: {}, field 'observable': empty observable name", raw.location(i));
+            }
+            if !keep(&obs[i]) {
+                continue;
+            }
+            let point = *point_row.entry(ids[i]).or_insert_with(|| {
+                point_order.push(ids[i]);
+                point_order.len() - 1
+            });
+            let out = output_index(OutputKey { observable: obs[i].clone(), x: xs[i] }, &mut outputs);
+            add_cell(point, out, values[i], i, &outputs)?;
+        }
+    } else {
+        let reserved: Vec<&str> = std::iter::once("design_id").chain(parameter_names.iter().map(String::as_str)).collect();
+        let out_cols: Vec<String> = raw.columns().into_iter().filter(|c| !reserved.contains(&c.as_str())).collect();
+        if out_cols.is_empty() {
+            bail!("{file}: no output columns (a long table needs 'observable, x, value'; a wide one, columns named like 'ch_v2[0.3]')");
+        }
+        for c in &out_cols {
+            let key = parse_wide_column(c).ok_or_else(|| anyhow!("{file}: column '{c}': expected 'observable[x]' with a numeric x"))?;
+            if !keep(&key.observable) {
+                continue;
+            }
+            let values = raw.numbers(path, c)?;
+            check_finite(path, &raw, c, &values)?;
+            let out = output_index(key, &mut outputs);
+            for i in 0..raw.height() {
+                let point = *point_row.entry(ids[i]).or_insert_with(|| {
+                    point_order.push(ids[i]);
+                    point_order.len() - 1
+                });
+                add_cell(point, out, values[i], i, &outputs)?;
+            }
+        }
+    }
+
+    // Parameters must agree on every row of a point.
+    let d = parameter_names.len();
+    let mut inputs = vec![f64::NAN; point_order.len() * d];
+    for i in 0..raw.height() {
+        // A point whose rows were all of unselected observables is not trained on.
+        let Some(&p) = point_row.get(&ids[i]) else { continue };
+        for k in 0..d {
+            let v = params[k][i];
+            let slot = &mut inputs[p * d + k];
+            if slot.is_nan() {
+                *slot = v;
+            } else if *slot != v {
+                bail!("{file}: {}, field '{}': design point {} has {} here but {} on an earlier row", raw.location(i), parameter_names[k], ids[i], v, slot);
+            }
+        }
+    }
+
+    // Sort outputs by observable (first appearance) then x, so bins are in order.
+    let obs_order: Vec<String> = outputs.iter().fold(Vec::new(), |mut acc, o| {
+        if !acc.contains(&o.observable) {
+            acc.push(o.observable.clone());
+        }
+        acc
+    });
+    if let Some(missing) = observables.iter().find(|o| !obs_order.contains(o)) {
+        bail!("{file}: no values for observable '{missing}' (found: {})", obs_order.join(", "));
+    }
+    let mut perm: Vec<usize> = (0..outputs.len()).collect();
+    perm.sort_by(|&a, &b| {
+        let oa = obs_order.iter().position(|o| *o == outputs[a].observable);
+        let ob = obs_order.iter().position(|o| *o == outputs[b].observable);
+        oa.cmp(&ob).then(outputs[a].x.total_cmp(&outputs[b].x))
+    });
+    let m = outputs.len();
+    let n = point_order.len();
+    let mut values = vec![0.0; n * m];
+    for p in 0..n {
+        for (new_k, &old_k) in perm.iter().enumerate() {
+            match cells.get(&(p, old_k)) {
+                Some((v, _)) => values[p * m + new_k] = *v,
+                None => bail!(
+                    "{file}: design point {} has no value for {} (every design point needs every output; drop or rerun failed points before training)",
+                    point_order[p],
+                    outputs[old_k]
+                ),
+            }
+        }
+    }
+    Ok(TrainingTable {
+        path: path.to_path_buf(),
+        parameter_names: parameter_names.to_vec(),
+        design_ids: point_order,
+        inputs,
+        outputs: perm.iter().map(|&k| outputs[k].clone()).collect(),
+        values,
+    })
+}
+
+/// Checks a training table against the design it was run from (`design.parquet`
+/// from `mdpipe design`, or a CSV with the same columns): every design point
+/// must be present, with the same parameter values. Missing points are named.
+pub fn check_against_design(table: &TrainingTable, design: &Path) -> Result<()> {
+    let raw = RawTable::read(design)?;
+    let ids: Vec<i64> = raw.numbers(design, "design_id")?.into_iter().map(|v| v as i64).collect();
+    let missing: Vec<i64> = ids.iter().copied().filter(|id| !table.design_ids.contains(id)).collect();
+    if !missing.is_empty() {
+        let shown: Vec<String> = missing.iter().take(20).map(|i| i.to_string()).collect();
+        bail!(
+            "{}: {} of the {} design points in {} have no runs ({}{}); rerun them, or train on the rest with a design that lists only the finished points",
+            table.path.display(),
+            missing.len(),
+            ids.len(),
+            design.display(),
+            shown.join(", "),
+            if missing.len() > 20 { ", …" } else { "" }
+        );
+    }
+    for (k, name) in table.parameter_names.iter().enumerate() {
+        let values = raw.numbers(design, name)?;
+        for (row, (id, v)) in ids.iter().zip(&values).enumerate() {
+            let i = table.design_ids.iter().position(|d| d == id).expect("checked above");
+            let t = table.input(i)[k];
+            if (t - v).abs() > 1e-9 * v.abs().max(1.0) {
+                bail!("{}: {}, field '{name}': design point {id} has {v} in the design but {t} in {}", design.display(), raw.location(row), table.path.display());
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,431 @@
+//! Training: transform, standardize, PCA by SVD, then one GP per component
+//! with hyperparameters from L-BFGS (argmin) over several parallel restarts.
+
+use super::{Emulator, EmulatorParts, TrainingTable};
+use crate::engine::gp::{ard_log_marginal_likelihood, ArdHyper, ArdKernel};
+use anyhow::{anyhow, bail, Context, Result};
+use argmin::core::{CostFunction, Executor, Gradient, State, TerminationReason};
+use argmin::solver::linesearch::MoreThuenteLineSearch;
+use argmin::solver::quasinewton::LBFGS;
+use rand::{Rng, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
+use std::cell::RefCell;
+use std::path::Path;
+
+/// The `[emulator]` table of a pipeline config.
+#[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmulatorSettings {
+    /// Design parameters, in the order θ is passed to the emulator.
+    pub parameters: Vec<String>,
+    /// "matern52" (default) or "se".
+    #[serde(default = "default_kernel")]
+    pub kernel: String,
+    /// Number of principal components; if absent, the fewest explaining
+    /// `variance_fraction` of the standardized variance.
+    pub components: Option<usize>,
+    #[serde(default = "default_fraction")]
+    pub variance_fraction: f64,
+    /// Optimizer starts per component (the first from a fixed default).
+    #[serde(default = "default_restarts")]
+    pub restarts: usize,
+    #[serde(default = "default_iters")]
+    pub max_iters: u64,
+    /// Observables emulated in log space (spectra).
+    #[serde(default)]
+    pub log_observables: Vec<String>,
+    /// Observables to emulate (default: every observable in the training table).
+    #[serde(default)]
+    pub observables: Vec<String>,
+}
+
+fn default_kernel() -> String {
+    "matern52".into()
+}
+fn default_fraction() -> f64 {
+    0.99
+}
+fn default_restarts() -> usize {
+    8
+}
+fn default_iters() -> u64 {
+    200
+}
+
+impl EmulatorSettings {
+    /// Reads the `[emulator]` table of a TOML file, ignoring other tables.
+    pub fn load(path: &Path) -> Result<EmulatorSettings> {
+        #[derive(serde::Deserialize)]
+        struct File {
+            emulator: Option<EmulatorSettings>,
+        }
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let file: File = toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        let s = file.emulator.ok_or_else(|| anyhow!("{}: no [emulator] table", path.display()))?;
+        s.kernel().with_context(|| path.display().to_string())?;
+        if s.parameters.is_empty() {
+            bail!("{}: [emulator] parameters is empty", path.display());
+        }
+        if !(s.variance_fraction > 0.0 && s.variance_fraction <= 1.0) {
+            bail!("{}: [emulator] variance_fraction must be in (0, 1], got {}", path.display(), s.variance_fraction);
+        }
+        if s.restarts == 0 {
+            bail!("{}: [emulator] restarts must be at least 1", path.display());
+        }
+        Ok(s)
+    }
+
+    pub fn kernel(&self) -> Result<ArdKernel> {
+        ArdKernel::parse(&self.kernel).ok_or_else(|| anyhow!("[emulator] kernel: unknown kernel {:?} (use matern52 or se)", self.kernel))
+    }
+}
+
+/// Search box for the log-hyperparameters (inputs are on the unit cube and
+/// component scores have unit variance, so one box fits every problem).
+/// The same bounds are used by `bench/emulator_vs_sklearn.py`.
+pub const SIGNAL_VAR_BOUNDS: (f64, f64) = (1e-4, 1e4);
+pub const LENGTH_BOUNDS: (f64, f64) = (1e-2, 1e3);
+pub const CONSTANT_BOUNDS: (f64, f64) = (1e-6, 1e4);
+pub const NOISE_BOUNDS: (f64, f64) = (1e-8, 1e1);
+/// The first optimizer start: σ_f² = 1, ℓ = 0.5, c = 0.1, σ_n² = 1e-3.
+pub const DEFAULT_START: (f64, f64, f64, f64) = (1.0, 0.5, 0.1, 1e-3);
+
+fn log_bounds(d: usize) -> Vec<(f64, f64)> {
+    let lb = |b: (f64, f64)| (b.0.ln(), b.1.ln());
+    let mut v = vec![lb(SIGNAL_VAR_BOUNDS)];
+    v.extend(std::iter::repeat_n(lb(LENGTH_BOUNDS), d));
+    v.push(lb(CONSTANT_BOUNDS));
+    v.push(lb(NOISE_BOUNDS));
+    v
+}
+
+/// Negative log marginal likelihood, with a quadratic wall outside the
+/// bounds so that L-BFGS (unconstrained) stays in the box.
+struct NegLogMarginal<'a> {
+    kernel: ArdKernel,
+    x: &'a [f64],
+    y: &'a [f64],
+    bounds: Vec<(f64, f64)>,
+    /// argmin asks for cost and gradient at the same point; both come from one factorization.
+    cache: RefCell<Option<(Vec<f64>, f64, Vec<f64>)>>,
+    evaluations: &'a std::cell::Cell<u64>,
+}
+
+const WALL: f64 = 1e3;
+/// Stop when the log marginal likelihood changes by less than this between
+/// iterations: scipy L-BFGS-B's default relative `ftol` (2.2e-9) at
+/// |log L| ≈ 5000, and looser below. Tighter only burns line-search
+/// evaluations on rounding noise.
+const COST_TOLERANCE: f64 = 1e-5;
+/// How far (in log units) outside the bounds the likelihood is still evaluated.
+const CLAMP_MARGIN: f64 = 2.0;
+
+impl NegLogMarginal<'_> {
+    fn evaluate(&self, p: &[f64]) -> (f64, Vec<f64>) {
+        if let Some((q, c, g)) = self.cache.borrow().as_ref() {
+            if q.as_slice() == p {
+                return (*c, g.clone());
+            }
+        }
+        self.evaluations.set(self.evaluations.get() + 1);
+        // Far outside the box exp() overflows, so the likelihood is taken at the
+        // point clamped to a margin around it and the wall does the rest.
+        let clamped: Vec<f64> = p.iter().zip(&self.bounds).map(|(&v, &(lo, hi))| v.clamp(lo - CLAMP_MARGIN, hi + CLAMP_MARGIN)).collect();
+        let mut grad = vec![0.0; p.len()];
+        let hyper = ArdHyper { log_params: clamped.clone() };
+        let (cost, grad) = match ard_log_marginal_likelihood(self.kernel, &hyper, self.x, self.y, Some(&mut grad)) {
+            Ok(lml) if lml.is_finite() => {
+                let mut cost = -lml;
+                let mut g: Vec<f64> = grad.iter().map(|v| -v).collect();
+                for (k, &(lo, hi)) in self.bounds.iter().enumerate() {
+                    if clamped[k] != p[k] {
+                        g[k] = 0.0;
+                    }
+                    let excess = if p[k] < lo { p[k] - lo } else if p[k] > hi { p[k] - hi } else { 0.0 };
+                    cost += WALL * excess * excess;
+                    g[k] += 2.0 * WALL * excess;
+                }
+                (cost, g)
+            }
+            // Not factorizable even with jitter: a large finite cost makes the line search step back.
+            _ => (1e300, vec![0.0; p.len()]),
+        };
+        *self.cache.borrow_mut() = Some((p.to_vec(), cost, grad.clone()));
+        (cost, grad)
+    }
+}
+
+impl CostFunction for NegLogMarginal<'_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, p: &Self::Param) -> Result<f64, argmin::core::Error> {
+        Ok(self.evaluate(p).0)
+    }
+}
+
+impl Gradient for NegLogMarginal<'_> {
+    type Param = Vec<f64>;
+    type Gradient = Vec<f64>;
+    fn gradient(&self, p: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
+        Ok(self.evaluate(p).1)
+    }
+}
+
+/// How one optimizer start ended.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct OptimizerRun {
+    pub component: usize,
+    pub restart: usize,
+    pub log_marginal_likelihood: f64,
+    pub iterations: u64,
+    /// Marginal-likelihood evaluations (each with its gradient).
+    pub evaluations: u64,
+    /// "converged", "max_iters", or the failure.
+    pub outcome: String,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TrainingReport {
+    pub n_points: usize,
+    pub n_outputs: usize,
+    pub n_components: usize,
+    /// Fraction of the standardized variance each kept component explains.
+    pub explained_variance: Vec<f64>,
+    pub kernel: ArdKernel,
+    pub restarts: usize,
+    pub runs: Vec<OptimizerRun>,
+    pub failures: usize,
+    /// Best log marginal likelihood per component.
+    pub log_marginal_likelihood: Vec<f64>,
+    pub training_seconds: f64,
+}
+
+/// Where one optimizer start ended.
+struct Optimum {
+    log_params: Vec<f64>,
+    log_marginal_likelihood: f64,
+    iterations: u64,
+    evaluations: u64,
+    outcome: String,
+}
+
+fn optimize(kernel: ArdKernel, x: &[f64], y: &[f64], start: Vec<f64>, max_iters: u64) -> Result<Optimum> {
+    let d = start.len() - 3;
+    let evaluations = std::cell::Cell::new(0);
+    let problem = NegLogMarginal { kernel, x, y, bounds: log_bounds(d), cache: RefCell::new(None), evaluations: &evaluations };
+    let solver = LBFGS::new(MoreThuenteLineSearch::new(), 10).with_tolerance_grad(1e-5)?.with_tolerance_cost(COST_TOLERANCE)?;
+    let res = Executor::new(problem, solver).configure(|s| s.param(start).max_iters(max_iters)).timer(false).run()?;
+    let state = res.state();
+    let best = state.get_best_param().cloned().ok_or_else(|| anyhow!("no parameters returned"))?;
+    let outcome = match state.get_termination_reason() {
+        Some(TerminationReason::MaxItersReached) => "max_iters".to_string(),
+        // At the optimum, rounding makes the quasi-Newton direction fail the descent test.
+        Some(TerminationReason::SolverExit(s)) if s.contains("descent direction") => "converged (line search at optimum)".to_string(),
+        Some(TerminationReason::SolverExit(s)) => format!("exit: {s}"),
+        _ => "converged".to_string(),
+    };
+    let evaluations = evaluations.get();
+    Ok(Optimum { log_params: best, log_marginal_likelihood: -state.get_best_cost(), iterations: state.get_iter(), evaluations, outcome })
+}
+
+fn random_start(d: usize, rng: &mut impl Rng) -> Vec<f64> {
+    let u = |rng: &mut dyn rand::RngCore, lo: f64, hi: f64| lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln());
+    let mut v = vec![u(rng, 0.1, 10.0)];
+    for _ in 0..d {
+        v.push(u(rng, 0.05, 2.0));
+    }
+    v.push(u(rng, 1e-3, 1.0));
+    v.push(u(rng, 1e-6, 1e-1));
+    v
+}
+
+fn default_start(d: usize) -> Vec<f64> {
+    let (sf, l, c, n) = DEFAULT_START;
+    let mut v = vec![sf.ln()];
+    v.extend(std::iter::repeat_n(l.ln(), d));
+    v.push(c.ln());
+    v.push(n.ln());
+    v
+}
+
+/// Trains the emulator. Deterministic for a given seed (restarts run in
+/// parallel but each has its own seeded start).
+pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> Result<(Emulator, TrainingReport)> {
+    let started = std::time::Instant::now();
+    let file = table.path.display();
+    let kernel = settings.kernel()?;
+    let (n, m, d) = (table.n_points(), table.n_outputs(), table.parameter_names.len());
+    if n < 3 {
+        bail!("{file}: {n} design point(s); an emulator needs at least 3");
+    }
+    // Input box from the training design.
+    let mut lo = vec![f64::INFINITY; d];
+    let mut hi = vec![f64::NEG_INFINITY; d];
+    for i in 0..n {
+        for (p, &v) in table.input(i).iter().enumerate() {
+            lo[p] = lo[p].min(v);
+            hi[p] = hi[p].max(v);
+        }
+    }
+    for p in 0..d {
+        if lo[p] >= hi[p] {
+            bail!("{file}: parameter '{}' is constant ({}) over the design; drop it from [emulator] parameters", table.parameter_names[p], lo[p]);
+        }
+    }
+    // Transform and standardize each output.
+    let log_transform: Vec<bool> = table.outputs.iter().map(|o| settings.log_observables.contains(&o.observable)).collect();
+    let mut z = vec![0.0; n * m];
+    let (mut mean, mut std) = (vec![0.0; m], vec![0.0; m]);
+    for j in 0..m {
+        for i in 0..n {
+            let v = table.values[i * m + j];
+            z[i * m + j] = if log_transform[j] {
+                if v <= 0.0 {
+                    bail!("{file}: design point {}, output {}: value {v} is not positive, but '{}' is in log_observables", table.design_ids[i], table.outputs[j], table.outputs[j].observable);
+                }
+                v.ln()
+            } else {
+                v
+            };
+        }
+        mean[j] = (0..n).map(|i| z[i * m + j]).sum::<f64>() / n as f64;
+        std[j] = ((0..n).map(|i| (z[i * m + j] - mean[j]).powi(2)).sum::<f64>() / n as f64).sqrt();
+        if !(std[j] > 1e-12 * mean[j].abs().max(1e-300)) {
+            bail!("{file}: output {} is constant over the design ({}); it carries no information about the parameters, remove it", table.outputs[j], mean[j]);
+        }
+        for i in 0..n {
+            z[i * m + j] = (z[i * m + j] - mean[j]) / std[j];
+        }
+    }
+    // PCA by thin SVD.
+    let zmat = faer::Mat::<f64>::from_fn(n, m, |i, j| z[i * m + j]);
+    let svd = zmat.thin_svd().map_err(|e| anyhow!("SVD of the standardized outputs failed: {e:?}"))?;
+    let r = n.min(m);
+    let sv: Vec<f64> = (0..r).map(|k| svd.S().column_vector()[k]).collect();
+    let total: f64 = sv.iter().map(|s| s * s).sum();
+    let n_components = match settings.components {
+        Some(k) => {
+            if k == 0 || k > r {
+                bail!("[emulator] components = {k}, but at most {r} are possible with {n} design points and {m} outputs");
+            }
+            if k >= n {
+                bail!("[emulator] components = {k} must be fewer than the {n} design points");
+            }
+            k
+        }
+        None => {
+            let mut acc = 0.0;
+            let mut k = 0;
+            while k < r && acc / total < settings.variance_fraction {
+                acc += sv[k] * sv[k];
+                k += 1;
+            }
+            k.min(n - 1).max(1)
+        }
+    };
+    let mut basis = vec![0.0; m * r];
+    for k in 0..r {
+        for j in 0..m {
+            basis[k * m + j] = svd.V()[(j, k)];
+        }
+    }
+    // Whitened scores √n U_k; unit variance by construction.
+    let mut scores = vec![0.0; n_components * n];
+    for k in 0..n_components {
+        for i in 0..n {
+            scores[k * n + i] = svd.U()[(i, k)] * (n as f64).sqrt();
+        }
+    }
+    let mut unit = vec![0.0; n * d];
+    for i in 0..n {
+        for p in 0..d {
+            unit[i * d + p] = (table.input(i)[p] - lo[p]) / (hi[p] - lo[p]);
+        }
+    }
+
+    // Every (component, restart) is independent work.
+    let jobs: Vec<(usize, usize)> = (0..n_components).flat_map(|k| (0..settings.restarts).map(move |r| (k, r))).collect();
+    let bar = crate::base::progress::bar(jobs.len() as u64, "training GP emulators");
+    let results: Vec<(usize, usize, Result<Optimum>)> = jobs
+        .par_iter()
+        .map(|&(k, restart)| {
+            let start = if restart == 0 {
+                default_start(d)
+            } else {
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ ((k as u64) << 32) ^ restart as u64);
+                random_start(d, &mut rng)
+            };
+            let out = optimize(kernel, &unit, &scores[k * n..(k + 1) * n], start, settings.max_iters);
+            bar.inc(1);
+            (k, restart, out)
+        })
+        .collect();
+    bar.finish_and_clear();
+
+    let mut runs = Vec::new();
+    let mut best: Vec<Option<(f64, Vec<f64>)>> = vec![None; n_components];
+    let mut failures = 0;
+    for (k, restart, out) in results {
+        match out {
+            Ok(o) if o.log_marginal_likelihood.is_finite() && !o.outcome.starts_with("exit") => {
+                let lml = o.log_marginal_likelihood;
+                if best[k].as_ref().is_none_or(|(b, _)| lml > *b) {
+                    best[k] = Some((lml, o.log_params));
+                }
+                runs.push(OptimizerRun { component: k, restart, log_marginal_likelihood: lml, iterations: o.iterations, evaluations: o.evaluations, outcome: o.outcome });
+            }
+            Ok(o) => {
+                failures += 1;
+                let outcome = format!("failed: {} (log L {})", o.outcome, o.log_marginal_likelihood);
+                runs.push(OptimizerRun { component: k, restart, log_marginal_likelihood: f64::NAN, iterations: o.iterations, evaluations: o.evaluations, outcome });
+            }
+            Err(e) => {
+                failures += 1;
+                runs.push(OptimizerRun { component: k, restart, log_marginal_likelihood: f64::NAN, iterations: 0, evaluations: 0, outcome: format!("failed: {e}") });
+            }
+        }
+    }
+    if failures > 0 {
+        eprintln!("warning: {failures} of {} optimizer runs failed (see the emulator report); the best successful run is used per component", runs.len());
+    }
+    let mut hypers = Vec::with_capacity(n_components);
+    let mut lmls = Vec::with_capacity(n_components);
+    for (k, b) in best.into_iter().enumerate() {
+        let (lml, p) = b.ok_or_else(|| anyhow!("every optimizer run failed for principal component {k}"))?;
+        hypers.push(ArdHyper { log_params: p });
+        lmls.push(lml);
+    }
+    let parts = EmulatorParts {
+        parameter_names: table.parameter_names.clone(),
+        design_ids: table.design_ids.clone(),
+        train_inputs: table.inputs.clone(),
+        train_values: table.values.clone(),
+        input_lo: lo,
+        input_hi: hi,
+        kernel,
+        outputs: table.outputs.clone(),
+        log_transform,
+        output_mean: mean,
+        output_std: std,
+        singular_values: sv.clone(),
+        basis,
+        n_components,
+        scores,
+        hypers,
+    };
+    let emulator = Emulator::from_parts(parts)?;
+    let report = TrainingReport {
+        n_points: n,
+        n_outputs: m,
+        n_components,
+        explained_variance: sv[..n_components].iter().map(|s| s * s / total).collect(),
+        kernel,
+        restarts: settings.restarts,
+        runs,
+        failures,
+        log_marginal_likelihood: lmls,
+        training_seconds: started.elapsed().as_secs_f64(),
+    };
+    Ok((emulator, report))
+}

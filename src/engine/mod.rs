@@ -1,0 +1,15 @@
+//! The calibration engine. It knows no particular system: a model reaches it
+//! through [`model::ModelFamily`] and [`model::Simulator`].
+//!
+//! Inside the engine, from the bottom up: `gp`, `model` → `emulator`,
+//! `design`, `ingest` → `calibrate` → `compare`, `diagnose` → `report`.
+
+pub mod calibrate;
+pub mod compare;
+pub mod design;
+pub mod diagnose;
+pub mod emulator;
+pub mod gp;
+pub mod ingest;
+pub mod model;
+pub mod report;

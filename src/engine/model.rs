@@ -1,0 +1,145 @@
+//! How a model reaches the engine: a [`Simulator`] computes η(x, θ), and a
+//! [`ModelFamily`] (registered by name in a [`Registry`]) builds simulators
+//! from a config and says what else the engine needs to know of the system:
+//! units, candidate corrections for `diagnose`, the true process of mock data.
+//!
+//! The engine calls only these traits; the families live in `crate::systems`.
+
+use crate::base::config::{Config, ParamSpec};
+use anyhow::{anyhow, bail, Result};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// A deterministic model `η(x, θ)` for a set of named observables.
+///
+/// `predict` writes into a caller buffer so that a likelihood evaluation does
+/// not allocate.
+pub trait Simulator: Send + Sync {
+    /// Names of the calibration parameters θ, in order.
+    fn parameter_names(&self) -> Vec<String>;
+    /// Names of the observables this model predicts.
+    fn observable_names(&self) -> Vec<String>;
+    /// `η(x_i, θ)` for observable `observable` (an index into `observable_names`).
+    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]);
+
+    /// Rejects measurement points the model cannot predict (an emulator knows only its bins).
+    fn check_inputs(&self, _observable: usize, _x: &[f64]) -> anyhow::Result<()> {
+        Ok(())
+    }
+    /// Whether `predict` works at any x (false for emulators: no prediction grid).
+    fn predicts_any_x(&self) -> bool {
+        true
+    }
+    /// Whether the model carries its own predictive covariance (emulators).
+    fn has_model_covariance(&self) -> bool {
+        false
+    }
+    /// Adds `inv_scale2 ×` the model's predictive covariance at (x, θ) to the
+    /// lower triangle of `lower` (column-major n × n).
+    fn add_model_covariance(&self, _observable: usize, _x: &[f64], _theta: &[f64], _inv_scale2: f64, _lower: &mut [f64]) {}
+}
+
+/// Units of the discrepancy input x, of each observable and of each parameter,
+/// for tables and plots. An empty string means "no unit known".
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Units {
+    pub x: String,
+    pub observables: BTreeMap<String, String>,
+    pub parameters: BTreeMap<String, String>,
+}
+
+impl Units {
+    pub fn observable(&self, name: &str) -> &str {
+        self.observables.get(name).map(String::as_str).unwrap_or("")
+    }
+
+    pub fn parameter(&self, name: &str) -> &str {
+        self.parameters.get(name).map(String::as_str).unwrap_or("")
+    }
+
+    /// These units, with what they leave empty taken from `other`.
+    pub fn or(mut self, other: &Units) -> Units {
+        if self.x.is_empty() {
+            self.x = other.x.clone();
+        }
+        for (mine, theirs) in [(&mut self.observables, &other.observables), (&mut self.parameters, &other.parameters)] {
+            for (k, v) in theirs {
+                if mine.get(k).is_none_or(|u| u.is_empty()) && !v.is_empty() {
+                    mine.insert(k.clone(), v.clone());
+                }
+            }
+        }
+        self
+    }
+}
+
+/// One candidate correction as `diagnose` sees it: a model that adds named
+/// physics (and possibly parameters) to the base model.
+#[derive(Clone)]
+pub struct CandidateModel {
+    pub name: String,
+    /// What physics the candidate adds, in a phrase.
+    pub description: String,
+    /// Parameters the candidate adds to θ, with their uniform priors.
+    pub extra_parameters: Vec<(String, ParamSpec)>,
+    pub simulator: Arc<dyn Simulator>,
+}
+
+/// A kind of model, named by `kind` in a config's `[model]` (and `[truth]`)
+/// table. Families hold no state: every method reads what it needs from the
+/// config, so one registered value serves every analysis.
+pub trait ModelFamily: Send + Sync {
+    /// The name configs use: `[model] kind = "<kind>"`.
+    fn kind(&self) -> &'static str;
+
+    /// The model to calibrate, from the config's `[model]` table. Its
+    /// parameters must be the config's `[parameters]`.
+    fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>>;
+
+    /// Units of x, of the observables and of the parameters.
+    fn units(&self, _config: &Config) -> Units {
+        Units::default()
+    }
+
+    /// The candidate corrections `diagnose` weighs: the family's own library,
+    /// or what the config declares in `[[candidates]]`.
+    fn candidates(&self, _config: &Config) -> Result<Vec<CandidateModel>> {
+        Ok(Vec::new())
+    }
+
+    /// The process that made mock data, from a `[truth]` table of this kind: a
+    /// simulator over the config's θ names, evaluated at their `truth` values.
+    fn true_process(&self, config: &Config, _truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
+        bail!("{}: [truth]: model family '{}' has no true process to draw mock data from", config.path.display(), self.kind())
+    }
+}
+
+/// The model families a program knows, by name.
+#[derive(Clone, Default)]
+pub struct Registry {
+    families: Vec<Arc<dyn ModelFamily>>,
+}
+
+impl Registry {
+    pub fn new() -> Self {
+        Registry::default()
+    }
+
+    /// Adds a family; a later family of the same kind replaces an earlier one.
+    pub fn register(&mut self, family: Arc<dyn ModelFamily>) -> &mut Self {
+        self.families.retain(|f| f.kind() != family.kind());
+        self.families.push(family);
+        self
+    }
+
+    pub fn kinds(&self) -> Vec<&'static str> {
+        self.families.iter().map(|f| f.kind()).collect()
+    }
+
+    /// The family of `kind`; `table` names where the kind was given, for the error.
+    pub fn get(&self, kind: &str, config: &Config, table: &str) -> Result<Arc<dyn ModelFamily>> {
+        self.families.iter().find(|f| f.kind() == kind).cloned().ok_or_else(|| {
+            anyhow!("{}: [{table}] kind = {kind:?}: unknown model family (known: {})", config.path.display(), self.kinds().join(", "))
+        })
+    }
+}
