@@ -6,6 +6,7 @@ mod closed_form;
 mod common;
 mod diagnose;
 mod emulator;
+mod family;
 mod heavy_ion;
 mod ingest;
 mod pipeline;

@@ -230,10 +230,48 @@ pub fn read_training_table(path: &Path, parameter_names: &[String]) -> Result<Tr
     read_training_table_selected(path, parameter_names, &[])
 }
 
+/// Training values as they are read: cells keyed by (design point, output),
+/// both numbered in order of first appearance.
+#[derive(Default)]
+struct Cells {
+    point_order: Vec<i64>,
+    point_row: HashMap<i64, usize>,
+    outputs: Vec<OutputKey>,
+    /// Value and the row it came from.
+    cells: BTreeMap<(usize, usize), (f64, usize)>,
+}
+
+impl Cells {
+    fn point(&mut self, id: i64) -> usize {
+        *self.point_row.entry(id).or_insert_with(|| {
+            self.point_order.push(id);
+            self.point_order.len() - 1
+        })
+    }
+
+    fn output(&mut self, key: OutputKey) -> usize {
+        match self.outputs.iter().position(|o| *o == key) {
+            Some(k) => k,
+            None => {
+                self.outputs.push(key);
+                self.outputs.len() - 1
+            }
+        }
+    }
+
+    /// Records one value; a second value for the same cell is an error naming both rows.
+    fn add(&mut self, raw: &RawTable, path: &Path, id: i64, key: OutputKey, value: f64, row: usize) -> Result<()> {
+        let (point, out) = (self.point(id), self.output(key));
+        if let Some((_, first)) = self.cells.insert((point, out), (value, row)) {
+            bail!("{}: {}: design point {id} has a second value for {} (first at {})", path.display(), raw.location(row), self.outputs[out], raw.location(first));
+        }
+        Ok(())
+    }
+}
+
 /// As [`read_training_table`], keeping only the named observables (all if
 /// `observables` is empty); each named one must be in the table.
 pub fn read_training_table_selected(path: &Path, parameter_names: &[String], observables: &[String]) -> Result<TrainingTable> {
-    let keep = |o: &str| observables.is_empty() || observables.iter().any(|k| k == o);
     let raw = RawTable::read(path)?;
     let file = path.display();
     if raw.height() == 0 {
@@ -252,90 +290,80 @@ pub fn read_training_table_selected(path: &Path, parameter_names: &[String], obs
         check_finite(path, &raw, name, &v)?;
         params.push(v);
     }
+    let keep = |o: &str| observables.is_empty() || observables.iter().any(|k| k == o);
+    let cells = if raw.has("observable") { read_long(&raw, path, &ids, &keep)? } else { read_wide(&raw, path, &ids, parameter_names, &keep)? };
+    let inputs = point_inputs(&raw, path, &ids, &cells, parameter_names, &params)?;
+    let (outputs, values) = ordered_values(path, &cells, observables)?;
+    Ok(TrainingTable { path: path.to_path_buf(), parameter_names: parameter_names.to_vec(), design_ids: cells.point_order, inputs, outputs, values })
+}
 
-    // Cells keyed by (design point, output).
-    let mut point_order: Vec<i64> = Vec::new();
-    let mut point_row: HashMap<i64, usize> = HashMap::new();
-    let mut outputs: Vec<OutputKey> = Vec::new();
-    let mut cells: BTreeMap<(usize, usize), (f64, usize)> = BTreeMap::new();
-    let output_index = |key: OutputKey, outputs: &mut Vec<OutputKey>| -> usize {
-        match outputs.iter().position(|o| *o == key) {
-            Some(k) => k,
-            None => {
-                outputs.push(key);
-                outputs.len() - 1
-            }
+/// A long table: one row per (design point, observable, x).
+fn read_long(raw: &RawTable, path: &Path, ids: &[i64], keep: &dyn Fn(&str) -> bool) -> Result<Cells> {
+    let obs = raw.strings(path, "observable")?;
+    let xs = raw.numbers(path, "x")?;
+    let values = raw.numbers(path, "value")?;
+    check_finite(path, raw, "x", &xs)?;
+    check_finite(path, raw, "value", &values)?;
+    let mut cells = Cells::default();
+    for i in 0..raw.height() {
+        if obs[i].trim().is_empty() {
+            bail!("{}: {}, field 'observable': empty observable name", path.display(), raw.location(i));
         }
-    };
-    let mut add_cell = |point: usize, out: usize, value: f64, row: usize, outputs: &[OutputKey]| -> Result<()> {
-        if let Some((_, first)) = cells.insert((point, out), (value, row)) {
-            bail!("{file}: {}: design point {} has a second value for {} (first at {})", raw.location(row), ids[row], outputs[out], raw.location(first));
-        }
-        Ok(())
-    };
-
-    if raw.has("observable") {
-        let obs = raw.strings(path, "observable")?;
-        let xs = raw.numbers(path, "x")?;
-        let values = raw.numbers(path, "value")?;
-        check_finite(path, &raw, "x", &xs)?;
-        check_finite(path, &raw, "value", &values)?;
-        for i in 0..raw.height() {
-            if obs[i].trim().is_empty() {
-                bail!("{file}: {}, field 'observable': empty observable name", raw.location(i));
-            }
-            if !keep(&obs[i]) {
-                continue;
-            }
-            let point = *point_row.entry(ids[i]).or_insert_with(|| {
-                point_order.push(ids[i]);
-                point_order.len() - 1
-            });
-            let out = output_index(OutputKey { observable: obs[i].clone(), x: xs[i] }, &mut outputs);
-            add_cell(point, out, values[i], i, &outputs)?;
-        }
-    } else {
-        let reserved: Vec<&str> = std::iter::once("design_id").chain(parameter_names.iter().map(String::as_str)).collect();
-        let out_cols: Vec<String> = raw.columns().into_iter().filter(|c| !reserved.contains(&c.as_str())).collect();
-        if out_cols.is_empty() {
-            bail!("{file}: no output columns (a long table needs 'observable, x, value'; a wide one, columns named like 'ch_v2[0.3]')");
-        }
-        for c in &out_cols {
-            let key = parse_wide_column(c).ok_or_else(|| anyhow!("{file}: column '{c}': expected 'observable[x]' with a numeric x"))?;
-            if !keep(&key.observable) {
-                continue;
-            }
-            let values = raw.numbers(path, c)?;
-            check_finite(path, &raw, c, &values)?;
-            let out = output_index(key, &mut outputs);
-            for i in 0..raw.height() {
-                let point = *point_row.entry(ids[i]).or_insert_with(|| {
-                    point_order.push(ids[i]);
-                    point_order.len() - 1
-                });
-                add_cell(point, out, values[i], i, &outputs)?;
-            }
+        if keep(&obs[i]) {
+            cells.add(raw, path, ids[i], OutputKey { observable: obs[i].clone(), x: xs[i] }, values[i], i)?;
         }
     }
+    Ok(cells)
+}
 
-    // Parameters must agree on every row of a point.
+/// A wide table: one row per design point, one column `observable[x]` per output.
+fn read_wide(raw: &RawTable, path: &Path, ids: &[i64], parameter_names: &[String], keep: &dyn Fn(&str) -> bool) -> Result<Cells> {
+    let file = path.display();
+    let reserved: Vec<&str> = std::iter::once("design_id").chain(parameter_names.iter().map(String::as_str)).collect();
+    let out_cols: Vec<String> = raw.columns().into_iter().filter(|c| !reserved.contains(&c.as_str())).collect();
+    if out_cols.is_empty() {
+        bail!("{file}: no output columns (a long table needs 'observable, x, value'; a wide one, columns named like 'ch_v2[0.3]')");
+    }
+    let mut cells = Cells::default();
+    for c in &out_cols {
+        let key = parse_wide_column(c).ok_or_else(|| anyhow!("{file}: column '{c}': expected 'observable[x]' with a numeric x"))?;
+        if !keep(&key.observable) {
+            continue;
+        }
+        let values = raw.numbers(path, c)?;
+        check_finite(path, raw, c, &values)?;
+        for i in 0..raw.height() {
+            cells.add(raw, path, ids[i], key.clone(), values[i], i)?;
+        }
+    }
+    Ok(cells)
+}
+
+/// Each point's parameters, which must agree on every row of the point.
+fn point_inputs(raw: &RawTable, path: &Path, ids: &[i64], cells: &Cells, parameter_names: &[String], params: &[Vec<f64>]) -> Result<Vec<f64>> {
     let d = parameter_names.len();
-    let mut inputs = vec![f64::NAN; point_order.len() * d];
+    let mut inputs = vec![f64::NAN; cells.point_order.len() * d];
     for i in 0..raw.height() {
         // A point whose rows were all of unselected observables is not trained on.
-        let Some(&p) = point_row.get(&ids[i]) else { continue };
+        let Some(&p) = cells.point_row.get(&ids[i]) else { continue };
         for k in 0..d {
             let v = params[k][i];
             let slot = &mut inputs[p * d + k];
             if slot.is_nan() {
                 *slot = v;
             } else if *slot != v {
-                bail!("{file}: {}, field '{}': design point {} has {} here but {} on an earlier row", raw.location(i), parameter_names[k], ids[i], v, slot);
+                bail!("{}: {}, field '{}': design point {} has {} here but {} on an earlier row", path.display(), raw.location(i), parameter_names[k], ids[i], v, slot);
             }
         }
     }
+    Ok(inputs)
+}
 
-    // Sort outputs by observable (first appearance) then x, so bins are in order.
+/// Outputs sorted by observable (first appearance) then x, so bins are in
+/// order, and the `points × outputs` values; every point needs every output.
+fn ordered_values(path: &Path, cells: &Cells, observables: &[String]) -> Result<(Vec<OutputKey>, Vec<f64>)> {
+    let file = path.display();
+    let outputs = &cells.outputs;
     let obs_order: Vec<String> = outputs.iter().fold(Vec::new(), |mut acc, o| {
         if !acc.contains(&o.observable) {
             acc.push(o.observable.clone());
@@ -351,29 +379,21 @@ pub fn read_training_table_selected(path: &Path, parameter_names: &[String], obs
         let ob = obs_order.iter().position(|o| *o == outputs[b].observable);
         oa.cmp(&ob).then(outputs[a].x.total_cmp(&outputs[b].x))
     });
-    let m = outputs.len();
-    let n = point_order.len();
+    let (n, m) = (cells.point_order.len(), outputs.len());
     let mut values = vec![0.0; n * m];
     for p in 0..n {
         for (new_k, &old_k) in perm.iter().enumerate() {
-            match cells.get(&(p, old_k)) {
+            match cells.cells.get(&(p, old_k)) {
                 Some((v, _)) => values[p * m + new_k] = *v,
                 None => bail!(
                     "{file}: design point {} has no value for {} (every design point needs every output; drop or rerun failed points before training)",
-                    point_order[p],
+                    cells.point_order[p],
                     outputs[old_k]
                 ),
             }
         }
     }
-    Ok(TrainingTable {
-        path: path.to_path_buf(),
-        parameter_names: parameter_names.to_vec(),
-        design_ids: point_order,
-        inputs,
-        outputs: perm.iter().map(|&k| outputs[k].clone()).collect(),
-        values,
-    })
+    Ok((perm.iter().map(|&k| outputs[k].clone()).collect(), values))
 }
 
 /// Checks a training table against the design it was run from (`design.parquet`

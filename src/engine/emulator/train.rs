@@ -249,20 +249,12 @@ fn default_start(d: usize) -> Vec<f64> {
     v
 }
 
-/// Trains the emulator. Deterministic for a given seed (restarts run in
-/// parallel but each has its own seeded start).
-pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> Result<(Emulator, TrainingReport)> {
-    let started = std::time::Instant::now();
-    let file = table.path.display();
-    let kernel = settings.kernel()?;
-    let (n, m, d) = (table.n_points(), table.n_outputs(), table.parameter_names.len());
-    if n < 3 {
-        bail!("{file}: {n} design point(s); an emulator needs at least 3");
-    }
-    // Input box from the training design.
+/// The design's input box; every parameter must vary over it.
+fn input_box(table: &TrainingTable) -> Result<(Vec<f64>, Vec<f64>)> {
+    let d = table.parameter_names.len();
     let mut lo = vec![f64::INFINITY; d];
     let mut hi = vec![f64::NEG_INFINITY; d];
-    for i in 0..n {
+    for i in 0..table.n_points() {
         for (p, &v) in table.input(i).iter().enumerate() {
             lo[p] = lo[p].min(v);
             hi[p] = hi[p].max(v);
@@ -270,10 +262,24 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
     }
     for p in 0..d {
         if lo[p] >= hi[p] {
-            bail!("{file}: parameter '{}' is constant ({}) over the design; drop it from [emulator] parameters", table.parameter_names[p], lo[p]);
+            bail!("{}: parameter '{}' is constant ({}) over the design; drop it from [emulator] parameters", table.path.display(), table.parameter_names[p], lo[p]);
         }
     }
-    // Transform and standardize each output.
+    Ok((lo, hi))
+}
+
+/// Outputs transformed (log for `log_observables`) and standardized per
+/// output: row-major `n × m`, with each output's transform, mean and sd.
+struct Standardized {
+    z: Vec<f64>,
+    log_transform: Vec<bool>,
+    mean: Vec<f64>,
+    std: Vec<f64>,
+}
+
+fn standardize(table: &TrainingTable, settings: &EmulatorSettings) -> Result<Standardized> {
+    let file = table.path.display();
+    let (n, m) = (table.n_points(), table.n_outputs());
     let log_transform: Vec<bool> = table.outputs.iter().map(|o| settings.log_observables.contains(&o.observable)).collect();
     let mut z = vec![0.0; n * m];
     let (mut mean, mut std) = (vec![0.0; m], vec![0.0; m]);
@@ -298,7 +304,21 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
             z[i * m + j] = (z[i * m + j] - mean[j]) / std[j];
         }
     }
-    // PCA by thin SVD.
+    Ok(Standardized { z, log_transform, mean, std })
+}
+
+/// Principal components of the standardized outputs (thin SVD).
+struct Pca {
+    singular_values: Vec<f64>,
+    /// Every component's loadings, `component × output`.
+    basis: Vec<f64>,
+    n_components: usize,
+    /// Whitened scores √n U_k of the kept components, `component × point`.
+    scores: Vec<f64>,
+    total_variance: f64,
+}
+
+fn pca(z: &[f64], n: usize, m: usize, settings: &EmulatorSettings) -> Result<Pca> {
     let zmat = faer::Mat::<f64>::from_fn(n, m, |i, j| z[i * m + j]);
     let svd = zmat.thin_svd().map_err(|e| anyhow!("SVD of the standardized outputs failed: {e:?}"))?;
     let r = n.min(m);
@@ -330,22 +350,29 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
             basis[k * m + j] = svd.V()[(j, k)];
         }
     }
-    // Whitened scores √n U_k; unit variance by construction.
+    // Unit variance by construction.
     let mut scores = vec![0.0; n_components * n];
     for k in 0..n_components {
         for i in 0..n {
             scores[k * n + i] = svd.U()[(i, k)] * (n as f64).sqrt();
         }
     }
-    let mut unit = vec![0.0; n * d];
-    for i in 0..n {
-        for p in 0..d {
-            unit[i * d + p] = (table.input(i)[p] - lo[p]) / (hi[p] - lo[p]);
-        }
-    }
+    Ok(Pca { singular_values: sv, basis, n_components, scores, total_variance: total })
+}
 
+/// Each component's GP hyperparameters: the best of `restarts` optimizer
+/// runs (the first from a fixed default start), with every run's record.
+struct Fitted {
+    hypers: Vec<ArdHyper>,
+    log_marginal_likelihood: Vec<f64>,
+    runs: Vec<OptimizerRun>,
+    failures: usize,
+}
+
+fn fit_components(kernel: ArdKernel, unit: &[f64], pca: &Pca, n: usize, settings: &EmulatorSettings, seed: u64) -> Result<Fitted> {
+    let d = unit.len() / n;
     // Every (component, restart) is independent work.
-    let jobs: Vec<(usize, usize)> = (0..n_components).flat_map(|k| (0..settings.restarts).map(move |r| (k, r))).collect();
+    let jobs: Vec<(usize, usize)> = (0..pca.n_components).flat_map(|k| (0..settings.restarts).map(move |r| (k, r))).collect();
     let bar = crate::base::progress::bar(jobs.len() as u64, "training GP emulators");
     let results: Vec<(usize, usize, Result<Optimum>)> = jobs
         .par_iter()
@@ -356,7 +383,7 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
                 let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ ((k as u64) << 32) ^ restart as u64);
                 random_start(d, &mut rng)
             };
-            let out = optimize(kernel, &unit, &scores[k * n..(k + 1) * n], start, settings.max_iters);
+            let out = optimize(kernel, unit, &pca.scores[k * n..(k + 1) * n], start, settings.max_iters);
             bar.inc(1);
             (k, restart, out)
         })
@@ -364,7 +391,7 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
     bar.finish_and_clear();
 
     let mut runs = Vec::new();
-    let mut best: Vec<Option<(f64, Vec<f64>)>> = vec![None; n_components];
+    let mut best: Vec<Option<(f64, Vec<f64>)>> = vec![None; pca.n_components];
     let mut failures = 0;
     for (k, restart, out) in results {
         match out {
@@ -389,13 +416,48 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
     if failures > 0 {
         eprintln!("warning: {failures} of {} optimizer runs failed (see the emulator report); the best successful run is used per component", runs.len());
     }
-    let mut hypers = Vec::with_capacity(n_components);
-    let mut lmls = Vec::with_capacity(n_components);
+    let mut hypers = Vec::with_capacity(pca.n_components);
+    let mut lmls = Vec::with_capacity(pca.n_components);
     for (k, b) in best.into_iter().enumerate() {
         let (lml, p) = b.ok_or_else(|| anyhow!("every optimizer run failed for principal component {k}"))?;
         hypers.push(ArdHyper { log_params: p });
         lmls.push(lml);
     }
+    Ok(Fitted { hypers, log_marginal_likelihood: lmls, runs, failures })
+}
+
+/// Trains the emulator. Deterministic for a given seed (restarts run in
+/// parallel but each has its own seeded start).
+pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> Result<(Emulator, TrainingReport)> {
+    let started = std::time::Instant::now();
+    let kernel = settings.kernel()?;
+    let (n, m, d) = (table.n_points(), table.n_outputs(), table.parameter_names.len());
+    if n < 3 {
+        bail!("{}: {n} design point(s); an emulator needs at least 3", table.path.display());
+    }
+    let (lo, hi) = input_box(table)?;
+    let st = standardize(table, settings)?;
+    let pca = pca(&st.z, n, m, settings)?;
+    let mut unit = vec![0.0; n * d];
+    for i in 0..n {
+        for p in 0..d {
+            unit[i * d + p] = (table.input(i)[p] - lo[p]) / (hi[p] - lo[p]);
+        }
+    }
+    let fitted = fit_components(kernel, &unit, &pca, n, settings, seed)?;
+    let n_components = pca.n_components;
+    let report = TrainingReport {
+        n_points: n,
+        n_outputs: m,
+        n_components,
+        explained_variance: pca.singular_values[..n_components].iter().map(|s| s * s / pca.total_variance).collect(),
+        kernel,
+        restarts: settings.restarts,
+        runs: fitted.runs,
+        failures: fitted.failures,
+        log_marginal_likelihood: fitted.log_marginal_likelihood,
+        training_seconds: 0.0,
+    };
     let parts = EmulatorParts {
         parameter_names: table.parameter_names.clone(),
         design_ids: table.design_ids.clone(),
@@ -405,27 +467,15 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
         input_hi: hi,
         kernel,
         outputs: table.outputs.clone(),
-        log_transform,
-        output_mean: mean,
-        output_std: std,
-        singular_values: sv.clone(),
-        basis,
+        log_transform: st.log_transform,
+        output_mean: st.mean,
+        output_std: st.std,
+        singular_values: pca.singular_values,
+        basis: pca.basis,
         n_components,
-        scores,
-        hypers,
+        scores: pca.scores,
+        hypers: fitted.hypers,
     };
     let emulator = Emulator::from_parts(parts)?;
-    let report = TrainingReport {
-        n_points: n,
-        n_outputs: m,
-        n_components,
-        explained_variance: sv[..n_components].iter().map(|s| s * s / total).collect(),
-        kernel,
-        restarts: settings.restarts,
-        runs,
-        failures,
-        log_marginal_likelihood: lmls,
-        training_seconds: started.elapsed().as_secs_f64(),
-    };
-    Ok((emulator, report))
+    Ok((emulator, TrainingReport { training_seconds: started.elapsed().as_secs_f64(), ..report }))
 }
