@@ -9,6 +9,7 @@ mod emulator;
 mod family;
 mod heavy_ion;
 mod ingest;
+mod layers;
 mod pipeline;
 mod report;
 mod sbc;

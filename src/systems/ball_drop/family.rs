@@ -49,7 +49,7 @@ impl ModelFamily for BallDropFamily {
     }
 
     fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>> {
-        Ok(Arc::new(BallDropModel { h0: h0(config)? }))
+        Ok(Arc::new(BallDropModel { h0: h0(config)?, forces: None }))
     }
 
     fn units(&self, _config: &Config) -> Units {
@@ -77,14 +77,17 @@ impl ModelFamily for BallDropFamily {
     fn true_process(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
         let t: TruthTable = config.decode_family_table(truth, "truth")?;
         let forces = ExtraForces { quadratic_drag: t.quadratic_drag, linear_drag: t.linear_drag, ..ExtraForces::NONE };
-        Ok(Arc::new(BallDropTruth { h0: h0(config)?, forces }))
+        Ok(Arc::new(BallDropModel { h0: h0(config)?, forces: Some(forces) }))
     }
 }
 
-/// The drag-free ball-drop model with parameters (g, v0) and known h0.
+/// The ball drop with parameters (g, v0) and known h0: drag-free in closed
+/// form (the model), or with extra forces integrated finely from t = 0 to
+/// each time, NaN before the drop (the true process).
 #[derive(Clone, Debug)]
 pub struct BallDropModel {
     pub h0: f64,
+    pub forces: Option<ExtraForces>,
 }
 
 impl Simulator for BallDropModel {
@@ -96,8 +99,12 @@ impl Simulator for BallDropModel {
     }
     fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
         let (g, v0) = (theta[0], theta[1]);
-        for (o, &t) in out.iter_mut().zip(x) {
-            *o = model_value(observable, self.h0, g, v0, t);
+        match &self.forces {
+            None => out.iter_mut().zip(x).for_each(|(o, &t)| *o = model_value(observable, self.h0, g, v0, t)),
+            Some(forces) => {
+                let setup = BallDropSetup { h0: self.h0, g, v0 };
+                out.iter_mut().zip(x).for_each(|(o, &t)| *o = if t >= 0.0 { truth_state(&setup, forces, t)[observable] } else { f64::NAN });
+            }
         }
     }
 }
@@ -132,28 +139,6 @@ impl Simulator for AugmentedBallDrop {
         integrate(&setup, &forces, x, MODEL_DT, states);
         for (o, s) in out.iter_mut().zip(states.iter()) {
             *o = s[observable];
-        }
-    }
-}
-
-/// The true process: the ball with extra forces, integrated finely from t = 0
-/// to each time (NaN before the drop).
-struct BallDropTruth {
-    h0: f64,
-    forces: ExtraForces,
-}
-
-impl Simulator for BallDropTruth {
-    fn parameter_names(&self) -> Vec<String> {
-        vec!["g".into(), "v0".into()]
-    }
-    fn observable_names(&self) -> Vec<String> {
-        observable_names()
-    }
-    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
-        let setup = BallDropSetup { h0: self.h0, g: theta[0], v0: theta[1] };
-        for (o, &t) in out.iter_mut().zip(x) {
-            *o = if t >= 0.0 { truth_state(&setup, &self.forces, t)[observable] } else { f64::NAN };
         }
     }
 }

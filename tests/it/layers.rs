@@ -1,0 +1,103 @@
+//! The layering of ARCHITECTURE.md, checked on the source: every `crate::`
+//! path a file names must belong to its own unit or to a unit below it.
+//! (Units of one rank, such as `compare` and `diagnose`, may not use each
+//! other.) This keeps import cycles between units and upward imports out.
+
+use std::path::{Path, PathBuf};
+
+/// Units from the bottom up, with their rank.
+const UNITS: [(&str, u32); 15] = [
+    ("base", 0),
+    ("engine::gp", 1),
+    ("engine::model", 2),
+    ("engine::design", 3),
+    ("engine::ingest", 3),
+    ("engine::emulator", 3),
+    ("engine::calibrate", 4),
+    ("engine::compare", 5),
+    ("engine::diagnose", 5),
+    ("engine::report", 6),
+    ("systems::ball_drop", 7),
+    ("systems::heavy_ion", 7),
+    ("systems", 8),
+    ("app", 9),
+    ("engine", 10),
+];
+
+/// The unit of a module path such as `engine::calibrate::smc` (longest match).
+fn unit_of(path: &str) -> Option<(&'static str, u32)> {
+    UNITS.iter().filter(|(u, _)| path == *u || path.starts_with(&format!("{u}::"))).max_by_key(|(u, _)| u.len()).copied()
+}
+
+/// The module path of a source file: `src/engine/calibrate/smc.rs` → `engine::calibrate::smc`.
+fn module_of(file: &Path, src: &Path) -> String {
+    let rel = file.strip_prefix(src).unwrap().with_extension("");
+    let parts: Vec<String> = rel.iter().map(|p| p.to_string_lossy().to_string()).filter(|p| p != "mod").collect();
+    parts.join("::")
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|e| e == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// Every `crate::a::b` path on a line, with grouped imports
+/// (`crate::engine::{compare, diagnose}`) expanded one level.
+fn crate_paths(line: &str) -> Vec<String> {
+    let ident = |c: char| c.is_alphanumeric() || c == '_' || c == ':';
+    let mut out = Vec::new();
+    for piece in line.split("crate::").skip(1) {
+        let head: String = piece.chars().take_while(|c| ident(*c)).collect();
+        let rest = &piece[head.len()..];
+        let head = head.trim_end_matches(':').to_string();
+        match rest.strip_prefix('{') {
+            Some(group) => {
+                let inner = group.split('}').next().unwrap_or("");
+                for item in inner.split(',') {
+                    let name: String = item.trim().chars().take_while(|c| ident(*c)).collect();
+                    let name = name.trim_end_matches(':');
+                    out.push(if name.is_empty() || name == "self" { head.clone() } else { format!("{head}::{name}") });
+                }
+            }
+            None => out.push(head),
+        }
+    }
+    out
+}
+
+#[test]
+fn no_file_imports_from_a_layer_above_or_a_sibling_unit() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut violations = Vec::new();
+    let mut checked = 0;
+    for file in &files {
+        let module = module_of(file, &src);
+        // The crate root and the binary sit above every layer.
+        if module == "lib" || module == "main" {
+            continue;
+        }
+        let (unit, rank) = unit_of(&module).unwrap_or_else(|| panic!("{}: module {module} belongs to no unit of ARCHITECTURE.md", file.display()));
+        let text = std::fs::read_to_string(file).unwrap();
+        // Comments may name any module.
+        for (line_no, line) in text.lines().enumerate().filter(|(_, l)| !l.trim_start().starts_with("//")) {
+            for path in crate_paths(line) {
+                let Some((target, target_rank)) = unit_of(&path) else { continue };
+                checked += 1;
+                let allowed = target == unit || target_rank < rank;
+                if !allowed {
+                    violations.push(format!("{}:{}: {unit} (rank {rank}) uses crate::{path} ({target}, rank {target_rank})", file.display(), line_no + 1));
+                }
+            }
+        }
+    }
+    assert!(checked > 100, "only {checked} crate paths found: is the source where the test looks?");
+    assert!(violations.is_empty(), "imports against the layering:\n{}", violations.join("\n"));
+}
