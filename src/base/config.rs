@@ -81,6 +81,9 @@ pub struct DiscrepancyConfig {
     pub kernel: String,
     /// Uniform prior bounds per hyperparameter name (cbar, ell, r, s).
     pub bounds: BTreeMap<String, [f64; 2]>,
+    /// Per observable, how x becomes the kernel's input (default: x itself).
+    #[serde(default)]
+    pub inputs: BTreeMap<String, KernelInput>,
 }
 
 impl Default for DiscrepancyConfig {
@@ -89,16 +92,46 @@ impl Default for DiscrepancyConfig {
         DiscrepancyConfig {
             kernel: "II".into(),
             bounds: [("cbar", b), ("ell", b), ("r", b), ("s", b)].into_iter().map(|(k, v)| (k.to_string(), v)).collect(),
+            inputs: BTreeMap::new(),
         }
+    }
+}
+
+/// The discrepancy kernel's input for one observable, `(x + shift) / scale`.
+/// The `(x·x')^r` factor needs it ≥ 0, so signed inputs (rapidity, a centred
+/// variable) are shifted; the paper's convention, x itself, is the default.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct KernelInput {
+    #[serde(default)]
+    pub shift: f64,
+    #[serde(default = "one")]
+    pub scale: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl Default for KernelInput {
+    fn default() -> Self {
+        KernelInput { shift: 0.0, scale: 1.0 }
+    }
+}
+
+impl KernelInput {
+    pub fn apply(&self, x: f64) -> f64 {
+        (x + self.shift) / self.scale
     }
 }
 
 #[derive(Clone, Debug, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PredictionConfig {
-    /// Grid for prediction bands; by default it runs from 0 to 1.5 × the largest x measured,
-    /// to show extrapolation as the paper does.
-    pub x_min: f64,
+    /// Grid for prediction bands; by default it runs from 0 (or the smallest
+    /// x measured, when that is negative) to 1.5 × the largest x measured, to
+    /// show extrapolation as the paper does.
+    pub x_min: Option<f64>,
     pub x_max: Option<f64>,
     pub points: usize,
     /// Posterior draws used for the bands.
@@ -107,7 +140,7 @@ pub struct PredictionConfig {
 
 impl Default for PredictionConfig {
     fn default() -> Self {
-        PredictionConfig { x_min: 0.0, x_max: None, points: 41, draws: 1000 }
+        PredictionConfig { x_min: None, x_max: None, points: 41, draws: 1000 }
     }
 }
 
@@ -131,6 +164,16 @@ impl Config {
             if !(b[0].is_finite() && b[1].is_finite() && b[0] < b[1]) {
                 bail!("{file}: [discrepancy.bounds] {name}: bounds must satisfy min < max, got [{}, {}]", b[0], b[1]);
             }
+        }
+        for (name, t) in &self.discrepancy.inputs {
+            if !(t.shift.is_finite() && t.scale.is_finite() && t.scale > 0.0) {
+                bail!("{file}: [discrepancy.inputs.{name}]: need a finite shift and a positive scale, got shift = {}, scale = {}", t.shift, t.scale);
+            }
+        }
+        let p = &self.predictions;
+        let x_min = p.x_min.unwrap_or(f64::NEG_INFINITY);
+        if p.points < 2 || p.draws == 0 || p.x_min.is_some_and(|m| !m.is_finite()) || p.x_max.is_some_and(|m| !(m.is_finite() && m > x_min)) {
+            bail!("{file}: [predictions]: need points >= 2, draws >= 1 and finite x_min < x_max, got points = {}, draws = {}, x_min = {:?}, x_max = {:?}", p.points, p.draws, p.x_min, p.x_max);
         }
         self.model_kind()?;
         Ok(())

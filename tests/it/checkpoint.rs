@@ -27,7 +27,7 @@ fn stop_every_step(dir: &Path, key: &str) -> Checkpointing {
 fn resumed_smc_equals_uninterrupted_smc_bit_for_bit() {
     let p = problem();
     let smc = Smc::new(p.analysis.sampler.smc.clone());
-    let whole = smc.run(&p.prior, &p.likelihood, 5, &Silent);
+    let whole = smc.run(&p.prior, &p.likelihood, 5, &Silent).unwrap();
     let dir = std::env::temp_dir().join(format!("mdpipe-checkpoint-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let mut stops = 0;

@@ -56,7 +56,7 @@ fn smc_matches_closed_form_posterior_and_evidence() {
     let lik = linear_likelihood(&measurements(&x, &y, &err), Some(kernel));
     let exact = analytic_linear(&x, &y, &md_covariance(&lik, kernel, &HYPER));
     let prior = pinned_prior(THETA_BOX, &HYPER, lik.parameter_names());
-    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() }).run(&prior, &lik, 3, &Silent);
+    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() }).run(&prior, &lik, 3, &Silent).unwrap();
     check_theta(&out.chains, &exact, "SMC");
     let log_z_exact = exact.log_integral - (40.0f64 * 40.0).ln();
     assert!(out.log_evidence_err > 0.0 && out.log_evidence_err < 0.5);
@@ -102,7 +102,7 @@ fn smc_evidence_error_is_calibrated() {
     let runs = 16;
     let mut z2 = 0.0;
     for seed in 0..runs {
-        let out = Smc::new(SmcSettings { particles: 300, replicates: 1, ..Default::default() }).run(&prior, &lik, 100 + seed, &Silent);
+        let out = Smc::new(SmcSettings { particles: 300, replicates: 1, ..Default::default() }).run(&prior, &lik, 100 + seed, &Silent).unwrap();
         let z = (out.log_evidence - log_z_exact) / out.log_evidence_err;
         z2 += z * z / runs as f64;
     }

@@ -7,6 +7,7 @@ mod common;
 mod diagnose;
 mod emulator;
 mod family;
+mod guard;
 mod heavy_ion;
 mod ingest;
 mod layers;

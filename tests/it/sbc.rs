@@ -52,7 +52,7 @@ fn credible_intervals_have_nominal_coverage() {
             block.mean = 0.0;
             block.scale = 1.0;
             let lik = MdLikelihood::new(Arc::new(LinearModel), vec![block], Some(kernel));
-            let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() }).run(&prior, &lik, 77 + k as u64, &mdpipe::progress::Silent);
+            let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() }).run(&prior, &lik, 77 + k as u64, &mdpipe::progress::Silent).unwrap();
             let mut covered = [[false; 2]; 5];
             for p in 0..5 {
                 let mut d = out.chains.param(p);

@@ -3,10 +3,10 @@
 //! kernel, sampler settings, units, the true process), built once.
 
 use super::settings::SamplerConfig;
-use crate::base::config::{Config, ParamSpec, PredictionConfig};
+use crate::base::config::{Config, KernelInput, ParamSpec, PredictionConfig};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::{CandidateModel, ModelFamily, Registry, Simulator, Units};
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -27,6 +27,8 @@ pub struct Analysis {
     pub kernel: Option<DiscrepancyKernel>,
     /// Uniform prior bounds per discrepancy hyperparameter name.
     pub hyper_bounds: BTreeMap<String, [f64; 2]>,
+    /// Per observable, the discrepancy kernel's input `(x + shift) / scale`.
+    pub kernel_inputs: BTreeMap<String, KernelInput>,
     pub sampler: SamplerConfig,
     pub predictions: PredictionConfig,
     /// Measurements file.
@@ -55,6 +57,12 @@ impl Analysis {
         }
         let kernel = DiscrepancyKernel::parse(&config.discrepancy.kernel)
             .ok_or_else(|| anyhow!("{file}: discrepancy.kernel: unknown kernel {:?} (use none, I or II)", config.discrepancy.kernel))?;
+        let observables = simulator.observable_names();
+        if let Some(name) = config.discrepancy.inputs.keys().find(|n| !observables.contains(n)) {
+            bail!("{file}: [discrepancy.inputs.{name}]: the model has no observable '{name}' (it has: {})", observables.join(", "));
+        }
+        let sampler: SamplerConfig = config.decode(&config.sampler, "sampler")?;
+        sampler.validate().map_err(|e| anyhow!("{file}: [sampler]: {e}"))?;
         Ok(Analysis {
             name: config.name.clone(),
             config_hash: config.hash.clone(),
@@ -66,7 +74,8 @@ impl Analysis {
             parameters: config.parameters.clone(),
             kernel,
             hyper_bounds: config.discrepancy.bounds.clone(),
-            sampler: config.decode(&config.sampler, "sampler")?,
+            kernel_inputs: config.discrepancy.inputs.clone(),
+            sampler,
             predictions: config.predictions.clone(),
             data: config.resolve(&config.data.measurements),
             observables: config.data.observables.clone(),

@@ -13,6 +13,7 @@
 //! units and evidences are comparable with any other analysis of the same data.
 
 use crate::base::artifacts::Measurement;
+use crate::base::config::KernelInput;
 use crate::engine::gp::{gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyGram, DiscrepancyKernel};
 use crate::engine::model::Simulator;
 use anyhow::{bail, Result};
@@ -32,6 +33,9 @@ pub struct ObservableBlock {
     /// Standardization: `y_std = (y - mean) / scale`.
     pub mean: f64,
     pub scale: f64,
+    /// How x becomes the discrepancy kernel's input, and those inputs.
+    pub input: KernelInput,
+    pub kernel_x: Vec<f64>,
     pub gram: DiscrepancyGram,
 }
 
@@ -53,6 +57,8 @@ impl ObservableBlock {
         Ok(ObservableBlock {
             name: name.to_string(),
             model_index,
+            input: KernelInput::default(),
+            kernel_x: x.clone(),
             gram: DiscrepancyGram::new(&x),
             x,
             y,
@@ -60,6 +66,15 @@ impl ObservableBlock {
             mean,
             scale,
         })
+    }
+
+    /// The block with the kernel's inputs `input.apply(x)` (the paper's x
+    /// itself by default).
+    pub fn with_kernel_input(mut self, input: KernelInput) -> Self {
+        self.kernel_x = self.x.iter().map(|&x| input.apply(x)).collect();
+        self.gram = DiscrepancyGram::new(&self.kernel_x);
+        self.input = input;
+        self
     }
 
     pub fn len(&self) -> usize {

@@ -9,6 +9,7 @@ pub mod analysis;
 pub mod checkpoint;
 pub mod diagnostics;
 pub mod ensemble;
+pub mod guard;
 pub mod likelihood;
 pub mod prior;
 pub mod settings;
@@ -140,7 +141,13 @@ impl Problem {
             (Some(o), _) | (None, Some(o)) => o.clone(),
             (None, None) => simulator.observable_names().into_iter().filter(|o| measurements.iter().any(|m| &m.observable == o)).collect(),
         };
-        let blocks = observable_blocks(&simulator, &selected, &measurements, &data_path)?;
+        let blocks = observable_blocks(&simulator, &selected, &measurements, &data_path)?
+            .into_iter()
+            .map(|b| {
+                let input = analysis.kernel_inputs.get(&b.name).copied().unwrap_or_default();
+                b.with_kernel_input(input)
+            })
+            .collect();
         let likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
         let prior = prior_of(analysis, &likelihood)?;
         let sampler = overrides.sampler.unwrap_or(analysis.sampler.kind);
@@ -260,6 +267,7 @@ struct Sampled {
 pub fn run_checkpointed(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: Option<&checkpoint::Checkpointing>) -> Result<Calibration> {
     let start = std::time::Instant::now();
     let jitter_before = crate::engine::gp::jitter_events();
+    guard::check(problem, seed)?;
     let label = format!("{} kernel={} obs={}", problem.analysis.name, DiscrepancyKernel::label(problem.likelihood.kernel), problem.observables().join("+"));
     let sampled = match problem.sampler {
         SamplerKind::Smc => run_smc(problem, seed, observer, checkpoint, &label)?,

@@ -125,11 +125,9 @@ impl Smc {
         Smc { settings }
     }
 
-    pub fn run(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, observer: &dyn Observer) -> SmcOutput {
-        match self.run_checkpointed(prior, likelihood, seed, observer, None) {
-            Ok(out) => out,
-            Err(stopped) => unreachable!("no time limit without checkpointing: {stopped}"),
-        }
+    /// Runs every replicate; an error when tempering cannot go on.
+    pub fn run(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, observer: &dyn Observer) -> Result<SmcOutput, Stopped> {
+        self.run_checkpointed(prior, likelihood, seed, observer, None)
     }
 
     /// As `run`, saving each replicate's state after tempering steps and
@@ -138,18 +136,23 @@ impl Smc {
     pub fn run_checkpointed(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, observer: &dyn Observer, ck: Option<&Checkpointing>) -> Result<SmcOutput, Stopped> {
         let k = self.settings.replicates.max(1);
         let kernel = Kernel::new(&self.settings, prior, likelihood);
-        let results: Vec<Option<ReplicateOutput>> = (0..k)
+        let started = std::time::Instant::now();
+        let results: Vec<ReplicateEnd> = (0..k)
             .into_par_iter()
             .map(|r| {
                 let rseed = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(r as u64 * 0xD1B5_4A32_D192_ED03 + 1);
                 kernel.run_replicate(rseed, observer, ck.map(|c| (c, r)))
             })
             .collect();
-        if results.iter().any(Option::is_none) {
-            let c = ck.expect("only a checkpointed run stops early");
-            return Err(Stopped { dir: c.dir.clone(), seconds: c.started.elapsed().as_secs_f64() });
+        let stopped = |reason| Stopped { dir: ck.map(|c| c.dir.clone()).unwrap_or_default(), seconds: started.elapsed().as_secs_f64(), reason };
+        let mut replicates = Vec::with_capacity(k);
+        for (r, end) in results.into_iter().enumerate() {
+            match end {
+                ReplicateEnd::Done(out) => replicates.push(out),
+                ReplicateEnd::Stuck(why) => return Err(stopped(Some(format!("replicate {r}: {why}")))),
+                ReplicateEnd::OutOfTime => return Err(stopped(None)),
+            }
         }
-        let replicates: Vec<ReplicateOutput> = results.into_iter().flatten().collect();
         // Pooled estimate Ẑ = mean_k Ẑ_k; its relative variance is Σ_k v_k / K²
         // (replicates are independent and each Ẑ_k ≈ Z).
         let logs: Vec<f64> = replicates.iter().map(|r| r.log_evidence).collect();
@@ -478,6 +481,17 @@ fn initial_cloud(prior: &UniformPrior, likelihood: &dyn LogLikelihood, rngs: &mu
     Cloud { dim, x, loglik, logprior, terms, n_terms }
 }
 
+/// Tempering steps after which a replicate that has not reached β = 1 stops
+/// (typical runs take 10–60).
+pub const MAX_TEMPERING_STEPS: usize = 1000;
+
+/// How a replicate ended.
+enum ReplicateEnd {
+    Done(ReplicateOutput),
+    OutOfTime,
+    Stuck(String),
+}
+
 /// One replicate's whole state between tempering steps (after BlackJAX's
 /// tempered SMC state): everything a checkpoint must store to resume it.
 #[derive(Clone, serde::Serialize, serde::Deserialize)]
@@ -540,39 +554,44 @@ impl<'a> Kernel<'a> {
         }
     }
 
-    /// One replicate from the prior (or from its saved state); `None` when it
-    /// stopped at the checkpoint's time limit, its state saved.
-    fn run_replicate(&self, seed: u64, observer: &dyn Observer, ck: Option<(&Checkpointing, usize)>) -> Option<ReplicateOutput> {
+    /// One replicate from the prior (or from its saved state), to its end or
+    /// until it stops (time limit, no progress) with its state saved.
+    fn run_replicate(&self, seed: u64, observer: &dyn Observer, ck: Option<(&Checkpointing, usize)>) -> ReplicateEnd {
         let (state_name, done_name) = (ck.map(|(_, r)| format!("replicate_{r}")), ck.map(|(_, r)| format!("replicate_{r}.done")));
         if let (Some((c, _)), Some(name)) = (ck, &done_name) {
             if let Some(done) = c.load::<ReplicateOutput>(name) {
                 observer.advance(1000);
-                return Some(done);
+                return ReplicateEnd::Done(done);
             }
         }
         let saved = ck.zip(state_name.as_ref()).and_then(|((c, _), name)| c.load::<ReplicateState>(name));
         let mut state = saved.unwrap_or_else(|| self.init(seed));
         let mut last_save = std::time::Instant::now();
         let weights = loop {
-            if let Some(w) = self.step(&mut state, observer) {
-                break w;
-            }
+            let stuck = match self.step(&mut state, observer) {
+                Ok(Some(w)) => break w,
+                Ok(None) => None,
+                Err(why) => Some(why),
+            };
             if let (Some((c, _)), Some(name)) = (ck, &state_name) {
                 let out_of_time = c.out_of_time();
-                if out_of_time || last_save.elapsed() >= c.min_interval {
+                if out_of_time || stuck.is_some() || last_save.elapsed() >= c.min_interval {
                     c.save(name, &state);
                     last_save = std::time::Instant::now();
                 }
-                if out_of_time {
-                    return None;
+                if out_of_time && stuck.is_none() {
+                    return ReplicateEnd::OutOfTime;
                 }
+            }
+            if let Some(why) = stuck {
+                return ReplicateEnd::Stuck(why);
             }
         };
         let out = self.finish(state, &weights);
         if let (Some((c, _)), Some(name)) = (ck, &done_name) {
             c.save(name, &out);
         }
-        Some(out)
+        ReplicateEnd::Done(out)
     }
 
     /// The particles drawn from the prior, at β = 0.
@@ -604,8 +623,17 @@ impl<'a> Kernel<'a> {
     }
 
     /// One tempering step: reweight to the next β, and, unless that is 1,
-    /// resample and move. Returns the final weights once β reaches 1.
-    fn step(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Option<Vec<f64>> {
+    /// resample and move. Returns the final weights once β reaches 1, and an
+    /// error when tempering cannot go on: no particle has a finite likelihood
+    /// (the weights are undefined), or β has not reached 1 in
+    /// [`MAX_TEMPERING_STEPS`] steps.
+    fn step(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<Option<Vec<f64>>, String> {
+        if !st.cloud.loglik.iter().any(|l| l.is_finite()) {
+            return Err(format!("tempering made no progress at β = {:.3e}: no particle has a finite likelihood", st.beta));
+        }
+        if st.stages >= MAX_TEMPERING_STEPS {
+            return Err(format!("tempering made no progress: β = {:.3e} after {} steps; the likelihood is too sharp or nearly nowhere finite under this prior", st.beta, st.stages));
+        }
         let n = self.n;
         let delta = next_increment(&st.cloud.loglik, st.beta, self.target_ess);
         let next = if 1.0 - (st.beta + delta) < 1e-12 { 1.0 } else { st.beta + delta };
@@ -616,7 +644,7 @@ impl<'a> Kernel<'a> {
         let w: Vec<f64> = logw.iter().map(|l| (l - lse).exp()).collect();
         observer.advance(((next * 1000.0) as u64).saturating_sub((st.beta * 1000.0) as u64));
         if next >= 1.0 {
-            return Some(w);
+            return Ok(Some(w));
         }
         let ancestors = multinomial_ancestors(&w, &mut st.master);
         st.cloud.resample(&ancestors);
@@ -632,7 +660,7 @@ impl<'a> Kernel<'a> {
         st.last_acceptance = (0..st.groups.len()).map(|gi| counts.acceptance(gi)).fold(f64::INFINITY, f64::min);
         st.steps.push(SmcStep { beta: next, mcmc_steps: steps, acceptance: counts.acceptance(0), group_acceptance: (0..st.groups.len()).map(|gi| counts.acceptance(gi)).collect() });
         st.beta = next;
-        None
+        Ok(None)
     }
 
     /// At β = 1: the evidence's error, then equal-weight draws, moved to

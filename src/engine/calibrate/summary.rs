@@ -287,10 +287,11 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
     let mut rows = Vec::new();
     for (b, block) in lik.blocks.iter().enumerate() {
         let x_max = cfg.x_max.unwrap_or(1.5 * block.x.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+        let x_min = cfg.x_min.unwrap_or(block.x.iter().cloned().fold(0.0, f64::min));
         let npts = cfg.points.max(2);
         // An emulator knows only its training bins: no grid then.
         let mut xs: Vec<(f64, &'static str)> = if problem.simulator.predicts_any_x() {
-            (0..npts).map(|i| (cfg.x_min + (x_max - cfg.x_min) * i as f64 / (npts - 1) as f64, "grid")).collect()
+            (0..npts).map(|i| (x_min + (x_max - x_min) * i as f64 / (npts - 1) as f64, "grid")).collect()
         } else {
             Vec::new()
         };
@@ -349,7 +350,7 @@ fn conditional_delta(
     let mut eta = vec![0.0; n];
     problem.simulator.predict(block.model_index, &block.x, theta, &mut eta);
     let mut ws = CholeskyWorkspace::new(n);
-    discrepancy_cross_cov(kernel, hyper, &block.x, &block.x, &mut ws.factor);
+    discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &block.kernel_x, &mut ws.factor);
     if problem.simulator.has_model_covariance() {
         problem.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), &mut ws.factor);
     }
@@ -366,11 +367,12 @@ fn conditional_delta(
     let mut draw = vec![0.0; m];
     let mut mean = vec![0.0; m];
     for q in 0..m {
-        discrepancy_cross_cov(kernel, hyper, &block.x, &xq[q..q + 1], &mut kq);
+        let kx = block.input.apply(xq[q]);
+        discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &[kx], &mut kq);
         let mu: f64 = kq.iter().zip(&alpha).map(|(a, b)| a * b).sum();
         ws.solve_lower_in_place(&mut kq);
         let prior_var = {
-            let p = pow_r(xq[q], hyper[2]);
+            let p = pow_r(kx, hyper[2]);
             let s2 = if kernel == DiscrepancyKernel::KernelI { hyper[3] * hyper[3] } else { 0.0 };
             s2 + hyper[0] * hyper[0] * p * p
         };

@@ -29,6 +29,9 @@ struct TruthTable {
     /// b in `-b v`, 1/s.
     #[serde(default)]
     linear_drag: f64,
+    /// Initial height, m; by default the ball-drop model's (or 60 m when the
+    /// model is of another kind, e.g. an emulator of the ball drop).
+    h0: Option<f64>,
 }
 
 fn default_h0() -> f64 {
@@ -77,7 +80,12 @@ impl ModelFamily for BallDropFamily {
     fn true_process(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
         let t: TruthTable = config.decode_family_table(truth, "truth")?;
         let forces = ExtraForces { quadratic_drag: t.quadratic_drag, linear_drag: t.linear_drag, ..ExtraForces::NONE };
-        Ok(Arc::new(BallDropModel { h0: h0(config)?, forces: Some(forces) }))
+        let h0 = match t.h0 {
+            Some(h) => h,
+            None if config.model_kind()? == self.kind() => h0(config)?,
+            None => default_h0(),
+        };
+        Ok(Arc::new(BallDropModel { h0, forces: Some(forces) }))
     }
 }
 
