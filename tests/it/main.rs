@@ -12,5 +12,6 @@ mod heavy_ion;
 mod ingest;
 mod layers;
 mod pipeline;
+mod readers;
 mod report;
 mod sbc;

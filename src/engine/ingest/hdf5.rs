@@ -25,6 +25,10 @@ fn attr_text(value: &AttrValue) -> Option<String> {
     Some(s.trim_end_matches(['\0', '\n', '\r']).to_string())
 }
 
+/// At most this many values in one dataset (800 MB as f64): an iEBE-MUSIC
+/// event file holds a few hundred.
+const MAX_VALUES: usize = 100_000_000;
+
 fn read_group(file: &hdf5_pure::File, path: &Path, label: &str) -> Result<Event> {
     let group = file.group(label).map_err(|e| anyhow!("{}:/{label}: cannot open group: {e}", path.display()))?;
     let mut files = Vec::new();
@@ -38,6 +42,13 @@ fn read_group(file: &hdf5_pure::File, path: &Path, label: &str) -> Result<Event>
             [r] => (*r as usize, 1),
             _ => return Err(anyhow!("{origin}: expected a 2-D table, found shape {shape:?}")),
         };
+        // A damaged shape must not make the decoder allocate without bound:
+        // deflate expands at most ~1032×, so no dataset holds more values than that.
+        let file_bytes = std::fs::metadata(path).map(|m| m.len() as usize).unwrap_or(0);
+        let most = (1100 * file_bytes / 4).min(MAX_VALUES);
+        if rows.checked_mul(columns).is_none_or(|n| n > most) {
+            return Err(anyhow!("{origin}: shape {rows}×{columns} is impossible for a file of {file_bytes} bytes (damaged file?)"));
+        }
         let values = ds.read_f64().map_err(|e| anyhow!("{origin}: cannot read data: {e}"))?;
         if values.len() != rows * columns {
             return Err(anyhow!("{origin}: {} values for shape {rows}×{columns}", values.len()));
@@ -53,6 +64,10 @@ fn read_group(file: &hdf5_pure::File, path: &Path, label: &str) -> Result<Event>
 /// returned separately (reported and skipped by the caller); a file that cannot
 /// be opened is an error.
 pub fn read_events(path: &Path) -> Result<(Vec<Event>, Vec<UnreadableEvent>)> {
+    crate::base::artifacts::without_panics(path, "HDF5", || read_events_unguarded(path))?
+}
+
+fn read_events_unguarded(path: &Path) -> Result<(Vec<Event>, Vec<UnreadableEvent>)> {
     let file = hdf5_pure::File::open(path).map_err(|e| anyhow!("{}: not a readable HDF5 file: {e}", path.display()))?;
     let mut labels = file.root().groups().map_err(|e| anyhow!("{}: cannot list event groups: {e}", path.display()))?;
     labels.sort();

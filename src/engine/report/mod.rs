@@ -90,6 +90,15 @@ pub(crate) use p;
 pub mod emulator;
 pub mod png;
 
+/// An axis label, "name [units]", or the name alone when no unit is known.
+pub fn axis(name: &str, units: &str) -> String {
+    if units.is_empty() {
+        name.to_string()
+    } else {
+        format!("{name} [{units}]")
+    }
+}
+
 pub fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (lo, hi) = values.filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |a, v| (a.0.min(v), a.1.max(v)));
     if !lo.is_finite() {
@@ -133,11 +142,11 @@ pub fn corner_plot(runs: &[&RunArtifacts], params: &[String], truth: &std::colle
                         continue;
                     }
                     let (xr, yr) = (ranges[j], ranges[i]);
-                    let xlabel = format!("{} [{}]", params[j], units(&params[j]));
+                    let xlabel = axis(&params[j], &units(&params[j]));
                     if i == j {
                         corner_marginal(area, runs, &params[i], xr, truth, &xlabel, i == 0)?;
                     } else {
-                        let ylabel = format!("{} [{}]", params[i], units(&params[i]));
+                        let ylabel = axis(&params[i], &units(&params[i]));
                         let mut chart = p!(ChartBuilder::on(area).margin(6).x_label_area_size(34).y_label_area_size(40).build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
                         p!(chart.configure_mesh().x_desc(xlabel.as_str()).y_desc(ylabel.as_str()).x_labels(5).y_labels(5).draw());
                         for r in runs {
@@ -231,7 +240,7 @@ pub fn prediction_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_un
     svg(
         |root| {
             let mut chart = p!(ChartBuilder::on(root).caption(title, ("sans-serif", 16)).margin(8).x_label_area_size(40).y_label_area_size(56).build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
-            let (xd, yd) = (format!("x [{x_units}]"), format!("{observable} [{y_units}]"));
+            let (xd, yd) = (axis("x", x_units), axis(observable, y_units));
             p!(chart.configure_mesh().x_desc(xd.as_str()).y_desc(yd.as_str()).draw());
             let band = |lo: &[f64], hi: &[f64]| -> Vec<(f64, f64)> { x.iter().zip(lo).map(|(a, b)| (*a, *b)).chain(x.iter().zip(hi).rev().map(|(a, b)| (*a, *b))).collect() };
             let grey = RGBColor(150, 150, 150);
@@ -275,8 +284,8 @@ pub fn delta_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: 
         |root| {
             let title = format!("discrepancy δ(x): {observable}");
             let mut chart = p!(ChartBuilder::on(root).caption(title.as_str(), ("sans-serif", 16)).margin(8).x_label_area_size(40).y_label_area_size(56).build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
-            let yd = format!("δ [{y_units}]");
-            let xd = format!("x [{x_units}]");
+            let yd = axis("δ", y_units);
+            let xd = axis("x", x_units);
             p!(chart.configure_mesh().x_desc(xd.as_str()).y_desc(yd.as_str()).draw());
             let poly: Vec<(f64, f64)> = x.iter().cloned().zip(q[0].iter().cloned()).chain(x.iter().cloned().zip(q[2].iter().cloned()).rev()).collect();
             p!(chart
@@ -310,7 +319,7 @@ pub fn mismatch_map(d: &Diagnosis, x_units: &str) -> Result<String> {
                 .y_label_area_size(110)
                 .build_cartesian_2d(xr.0..xr.1, 0.0..n as f64));
             let names: Vec<String> = rows.iter().map(|m| m.observable.clone()).collect();
-            let xd = format!("x [{x_units}]");
+            let xd = axis("x", x_units);
             p!(chart
                 .configure_mesh()
                 .disable_mesh()

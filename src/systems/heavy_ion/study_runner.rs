@@ -34,7 +34,7 @@ use crate::engine::calibrate::{self, Analysis, Overrides, Problem};
 use crate::engine::compare;
 use crate::engine::emulator::{EmulatorFamily, EmulatorSettings};
 use crate::engine::gp::DiscrepancyKernel;
-use crate::engine::model::Registry;
+use crate::engine::model::{ModelFamily, Registry};
 use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
 use std::sync::Arc;
 use anyhow::{anyhow, bail, Context, Result};
@@ -451,7 +451,10 @@ impl Runner<'_> {
     fn analysis(&self, config: &Config) -> Result<Analysis> {
         let mut families = Registry::new();
         families.register(Arc::new(EmulatorFamily)).register(Arc::new(HeavyIonFamily));
-        Analysis::resolve(config, &families)
+        let mut analysis = Analysis::resolve(config, &families)?;
+        // The emulator knows no units; the stand-in's come first, as in its figures.
+        analysis.units = HeavyIonFamily.units(config).or(&analysis.units);
+        Ok(analysis)
     }
 
     fn calibrate(&mut self) -> Result<()> {
