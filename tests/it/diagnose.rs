@@ -138,6 +138,15 @@ fn confusion_matrix_meets_targets(system: &str, labels: &[&str], rows: &[(&str, 
     }
     let nulls: Vec<_> = rows.iter().filter(|r| r.0 == "none").collect();
     let false_alarms = nulls.iter().filter(|r| r.1 != "none").count();
+    let rate = |what: &str, k: usize, n: usize| {
+        let (lo, hi) = clopper_pearson(k, n);
+        println!("{system}: {what}: {k} of {n} = {:.0}%, 95% interval [{:.0}%, {:.0}%] (Clopper–Pearson)", 100.0 * k as f64 / n.max(1) as f64, 100.0 * lo, 100.0 * hi);
+    };
+    rate("false alarms on null data", false_alarms, nulls.len());
+    let strong: Vec<_> = rows.iter().filter(|r| r.0 != "none" && r.0 != "unexplained" && r.2 >= 3.0).collect();
+    rate("in-library effects of 3σ or more named right", strong.iter().filter(|r| r.0 == r.1).count(), strong.len());
+    let outside: Vec<_> = rows.iter().filter(|r| r.0 == "unexplained").collect();
+    rate("out-of-library effects given a candidate's name", outside.iter().filter(|r| r.1 != "unexplained" && r.1 != "none").count(), outside.len());
     assert!(false_alarms as f64 <= 0.05 * nulls.len() as f64, "{false_alarms} false alarms in {} null data sets", nulls.len());
     let moderate: Vec<_> = rows.iter().filter(|r| r.0 != "none" && r.0 != "unexplained" && r.2 >= 3.0).collect();
     let correct = moderate.iter().filter(|r| r.0 == r.1).count();
@@ -147,6 +156,33 @@ fn confusion_matrix_meets_targets(system: &str, labels: &[&str], rows: &[(&str, 
         assert!(r.1 == "unexplained" || (r.1 == "none" && r.2 < 3.0), "out-of-library effect ({:.1}σ) called {}", r.2, r.1);
     }
 }
+
+/// Exact (Clopper–Pearson) 95% interval of a binomial rate k/n.
+fn clopper_pearson(k: usize, n: usize) -> (f64, f64) {
+    use statrs::distribution::{Beta, ContinuousCDF};
+    let lo = if k == 0 { 0.0 } else { Beta::new(k as f64, (n - k + 1) as f64).unwrap().inverse_cdf(0.025) };
+    let hi = if k >= n { 1.0 } else { Beta::new((k + 1) as f64, (n - k) as f64).unwrap().inverse_cdf(0.975) };
+    (lo, hi)
+}
+
+#[test]
+fn clopper_pearson_matches_closed_forms() {
+    // k = 0: the upper end solves (1 − p)^n = 0.025; k = n: the lower end solves p^n = 0.025.
+    for n in [5usize, 20, 60] {
+        let (lo, hi) = clopper_pearson(0, n);
+        assert_eq!(lo, 0.0);
+        assert!((hi - (1.0 - 0.025f64.powf(1.0 / n as f64))).abs() < 1e-6, "n = {n}: {hi}");
+        let (lo, hi) = clopper_pearson(n, n);
+        assert!((lo - 0.025f64.powf(1.0 / n as f64)).abs() < 1e-6 && hi == 1.0);
+    }
+    // Tabulated: 10 of 20 gives [0.272, 0.728] (Clopper & Pearson 1934; R's binom.test).
+    let (lo, hi) = clopper_pearson(10, 20);
+    assert!((lo - 0.2720).abs() < 1e-3 && (hi - 0.7280).abs() < 1e-3, "[{lo}, {hi}]");
+}
+
+/// Null data sets added after the 25 mixed ones, so that the false-alarm
+/// rate rests on 20 nulls in each blind test.
+const EXTRA_NULLS: usize = 15;
 
 /// The concealed effect of a blind data set, and the verdict it deserves.
 fn blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> (ExtraForces, &'static str) {
@@ -173,8 +209,9 @@ fn blind_test_confusion_matrix() {
     std::fs::create_dir_all(&dir).unwrap();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(2026);
     let mut rows = Vec::new();
-    for k in 0..25 {
-        let (forces, expected) = blind_effect(k, &mut rng);
+    for k in 0..25 + EXTRA_NULLS {
+        // Past the 25 mixed data sets, nulls only (the same draws, so the first 25 are unchanged).
+        let (forces, expected) = blind_effect(if k < 25 { k } else { 0 }, &mut rng);
         let opts = MockOptions { forces, ..MockOptions::default() };
         let data = ball_drop::mock_measurements(&opts, &mut rng);
         let path = dir.join(format!("blind_{k}.csv"));
@@ -303,7 +340,8 @@ fn heavy_ion_blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> HeavyIonBli
 }
 
 /// The heavy-ion blind test: 25 seeded data sets (5 each: no effect, the three
-/// library candidates at weak to strong size, an out-of-library hard tail),
+/// library candidates at weak to strong size, an out-of-library hard tail)
+/// and 15 more null ones,
 /// smooth stand-in values with the real iEBE-MUSIC table's errors and
 /// Gaussian noise, diagnosed against emulators of the stand-in. Prints the
 /// confusion matrix; asserts the targets.
@@ -331,8 +369,8 @@ fn heavy_ion_blind_test_confusion_matrix() {
     let settings = DiagnoseSettings { repair: false, ..Default::default() };
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(2027);
     let mut rows = Vec::new();
-    for k in 0..25 {
-        let b = heavy_ion_blind_effect(k, &mut rng);
+    for k in 0..25 + EXTRA_NULLS {
+        let b = heavy_ion_blind_effect(if k < 25 { k } else { 0 }, &mut rng);
         let truth = SmoothTables::new(&b.params, b.delta_f).expected(&edges);
         let mut data = Vec::new();
         let mut clean = Vec::new();
