@@ -45,7 +45,7 @@ fn why_not_finite(problem: &Problem, b: usize, draw: &[f64]) -> String {
     if lik.kernel.is_some() && min_input < 0.0 {
         let x = block.x[block.kernel_x.iter().position(|&k| k == min_input).unwrap_or(0)];
         return format!(
-            "{file}: observable '{name}': the discrepancy kernel's (x·x')^r factor needs x ≥ 0, but x = {x} gives the kernel input {min_input}; give [discrepancy.inputs.{name}] a shift (and scale) so that (x + shift)/scale ≥ 0, e.g. shift = {}, or rescale x",
+            "{file}: observable '{name}': the discrepancy kernel's (x·x')^r factor needs x ≥ 0, but x = {x:e} gives the kernel input {min_input:e}; give [discrepancy.inputs.{name}] a shift (and scale) so that (x + shift)/scale ≥ 0, e.g. shift = {}, or rescale x",
             -block.x.iter().cloned().fold(f64::INFINITY, f64::min)
         );
     }
@@ -54,12 +54,17 @@ fn why_not_finite(problem: &Problem, b: usize, draw: &[f64]) -> String {
     lik.simulator.predict(block.model_index, &block.x, theta, &mut eta);
     if let Some(i) = eta.iter().position(|v| !v.is_finite()) {
         return format!(
-            "{file}: observable '{name}': the model's prediction is not finite at any of {DRAWS} prior draws tried (e.g. {} at x = {} for {} = {:?}); check the model, or narrow the prior to where it is defined",
+            "{file}: observable '{name}': the model's prediction is not finite at any of {DRAWS} prior draws tried (e.g. {} at x = {:e} for {} = {:?}); check the model, or narrow the prior to where it is defined",
             eta[i],
             block.x[i],
             lik.simulator.parameter_names().join(", "),
             theta
         );
+    }
+    if lik.kernel.is_none() && !lik.simulator.has_model_covariance() {
+        // A diagonal covariance of positive errors: only (y − η)/σ can overflow.
+        let smallest = block.error.iter().cloned().fold(f64::INFINITY, f64::min);
+        return format!("{file}: observable '{name}': the residuals in units of the errors overflow at every one of {DRAWS} prior draws tried (smallest error {smallest:e}); check the errors' units");
     }
     format!("{file}: observable '{name}': the likelihood is not finite at any of {DRAWS} prior draws tried (no positive-definite covariance from the errors, the discrepancy bounds and the model's covariance); check the errors and [discrepancy.bounds]")
 }

@@ -57,6 +57,13 @@ impl ModelFamily for HeavyIonFamily {
     }
 }
 
+type StandInKey = (DeltaF, Vec<String>, Vec<f64>, Vec<f64>);
+
+thread_local! {
+    /// This thread's last stand-in evaluation: (δf, names, θ, x) and the observables.
+    static LAST: std::cell::RefCell<Option<(StandInKey, Option<Vec<(&'static str, Vec<f64>)>>)>> = const { std::cell::RefCell::new(None) };
+}
+
 /// The smooth stand-in over named parameters (`eta_s, e_sw` or the kink set).
 struct StandIn {
     names: Vec<String>,
@@ -72,11 +79,45 @@ impl Simulator for StandIn {
     }
     /// NaN where θ is no valid stand-in point (the likelihood then rejects it).
     fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
-        let named: Vec<(String, f64)> = self.names.iter().cloned().zip(theta.iter().copied()).collect();
-        out.fill(f64::NAN);
-        let Ok(params) = HeavyIonParams::from_named(&named) else { return };
-        if let Some((_, values)) = observables(&params, self.delta_f, x).into_iter().find(|(n, _)| *n == OBSERVABLES[observable]) {
-            out.copy_from_slice(&values);
+        // The stand-in computes all seven observables at once and the
+        // likelihood asks for them one by one at the same θ: keep the last.
+        LAST.with(|cell| {
+            let mut last = cell.borrow_mut();
+            let hit = last.as_ref().is_some_and(|((d, n, t, xs), _)| *d == self.delta_f && *n == self.names && t == theta && xs == x);
+            if !hit {
+                let key = (self.delta_f, self.names.clone(), theta.to_vec(), x.to_vec());
+                let named: Vec<(String, f64)> = self.names.iter().cloned().zip(theta.iter().copied()).collect();
+                let values = HeavyIonParams::from_named(&named).ok().map(|p| observables(&p, self.delta_f, x));
+                *last = Some((key, values));
+            }
+            out.fill(f64::NAN);
+            let values = last.as_ref().and_then(|(_, v)| v.as_ref());
+            if let Some((_, v)) = values.and_then(|v| v.iter().find(|(n, _)| *n == OBSERVABLES[observable])) {
+                out.copy_from_slice(v);
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stand_in_predictions_equal_the_observables_whatever_the_order_asked() {
+        let model = StandIn { names: vec!["e_sw".into(), "eta_s".into()], delta_f: DeltaF::Grad };
+        let x = [0.3, 0.9, 1.5];
+        for theta in [[0.2, 0.1], [0.3, 0.05], [0.2, 0.1]] {
+            let expected = observables(&HeavyIonParams::constant(theta[1], theta[0]), DeltaF::Grad, &x);
+            for k in [3, 0, 6, 3] {
+                let mut out = [0.0; 3];
+                model.predict(k, &x, &theta, &mut out);
+                assert_eq!(out.as_slice(), expected[k].1.as_slice(), "observable {k} at {theta:?}");
+            }
         }
+        // A θ that is no stand-in point gives NaN, not the previous θ's values.
+        let mut out = [0.0; 3];
+        model.predict(0, &x, &[-1.0, 0.1], &mut out);
+        assert!(out.iter().all(|v| v.is_nan()));
     }
 }
