@@ -31,10 +31,10 @@ pub fn calibrate(args: CalibrationArgs, kernel: Option<String>, observables: Opt
     if let Some(t) = time_limit.filter(|t| !(t.is_finite() && *t >= 0.0)) {
         bail!("--time-limit {t}: give a number of seconds, 0 or more");
     }
+    artifacts::check_writable(&args.out)?;
     let limit = time_limit.map(std::time::Duration::from_secs_f64);
     let checkpoint = calibrate::checkpoint::Checkpointing::new(&args.out.join(".checkpoint"), calibrate::checkpoint_key(&problem, args.seed), limit);
-    let cal = calibrate::run_checkpointed(&problem, args.seed, &Bars::default(), Some(&checkpoint))?;
-    calibrate::write_outputs(&args.out, &problem, &cal)?;
+    let cal = calibrate::run_and_write(&problem, args.seed, &Bars::default(), &checkpoint, &args.out)?;
     print_summary(&cal.summary);
     println!("wrote {}/{{posterior.parquet, summary.json, predictions.parquet}}", args.out.display());
     Ok(())
@@ -42,6 +42,7 @@ pub fn calibrate(args: CalibrationArgs, kernel: Option<String>, observables: Opt
 
 pub fn compare(args: CalibrationArgs, sampler: Option<String>, replicates: Option<usize>) -> Result<()> {
     let analysis = systems::load(&args.config)?;
+    artifacts::check_writable(&args.out)?;
     if let Some(n) = replicates {
         if args.data.is_some() {
             bail!("--replicates draws its own data from the config's [truth]; drop --data");
@@ -62,6 +63,7 @@ pub fn compare(args: CalibrationArgs, sampler: Option<String>, replicates: Optio
 pub fn diagnose(args: CalibrationArgs) -> Result<()> {
     let analysis = systems::load(&args.config)?;
     let overrides = parse_overrides(args.data, None, None, None)?;
+    artifacts::check_writable(&args.out)?;
     let run = diagnose::run(&analysis, &overrides, args.seed, &diagnose::DiagnoseSettings::default(), Some(&args.out), &Bars::default())?;
     diagnose::print(&run.diagnosis);
     report::write(&[args.out.clone()], &args.out.join("report.html"), "mdpipe diagnose", &systems::figures())?;
@@ -79,6 +81,8 @@ pub fn design(spec: &Path, points: usize, seed: u64, out: &Path) -> Result<()> {
 }
 
 pub fn train_emulator(config: &Path, training: &Path, design: Option<&Path>, seed: u64, out: &Path) -> Result<()> {
+    // The folder is saved beside itself and swapped in, so its parent must take files.
+    artifacts::check_writable(out.parent().unwrap_or(Path::new(".")))?;
     let (_, r) = crate::engine::emulator::train_and_save(config, training, design, out, seed)?;
     println!(
         "{} design points x {} outputs -> {} principal components ({:.2}% of the variance); {} kernel, {} restarts each, {} failed",

@@ -94,45 +94,121 @@ fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}-{}-{nanos}-{}", host.trim(), std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed)))
 }
 
+/// The files of one result, each written to a temporary sibling and all
+/// renamed into place only once every one is written. A failure part way (a
+/// full disk, a read-only folder) removes the temporary files and leaves the
+/// previous set whole: old and new artifacts are never mixed. Renames need no
+/// space, so a full disk cannot stop the commit half done.
+#[derive(Default)]
+pub struct StagedWrites {
+    /// (temporary sibling, final path), in the order written.
+    pending: Vec<(PathBuf, PathBuf)>,
+}
+
+impl StagedWrites {
+    pub fn new() -> Self {
+        StagedWrites::default()
+    }
+
+    /// Writes `path`'s content through `write` into its temporary sibling.
+    pub fn write(&mut self, path: &Path, write: impl FnOnce(&mut std::fs::File) -> Result<()>) -> Result<()> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating directory {}", dir.display()))?;
+        }
+        let tmp = temp_path(path);
+        let result: Result<()> = (|| {
+            let mut f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+            write(&mut f)?;
+            // A full disk on a network file system may only show at sync.
+            f.sync_all().with_context(|| format!("syncing {}", tmp.display()))?;
+            Ok(())
+        })();
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&tmp);
+            self.abandon();
+            return Err(e.context(format!("writing {} failed; nothing of this result was put in place, the previous artifacts are as they were", path.display())));
+        }
+        self.pending.push((tmp, path.to_path_buf()));
+        Ok(())
+    }
+
+    pub fn text(&mut self, path: &Path, text: &str) -> Result<()> {
+        use std::io::Write;
+        self.write(path, |f| Ok(f.write_all(text.as_bytes())?))
+    }
+
+    pub fn json<T: serde::Serialize>(&mut self, path: &Path, value: &T) -> Result<()> {
+        self.text(path, &serde_json::to_string_pretty(value)?)
+    }
+
+    /// A DataFrame as Parquet, with provenance in the file's key-value metadata.
+    pub fn parquet(&mut self, path: &Path, df: &mut DataFrame, provenance: Option<&Provenance>) -> Result<()> {
+        self.write(path, |f| {
+            let kv = provenance.map(|p| KeyValueMetadata::from_static(p.key_values()));
+            ParquetWriter::new(f).with_key_value_metadata(kv).finish(df)?;
+            Ok(())
+        })
+    }
+
+    /// Renames every file into place, in the order written.
+    pub fn commit(mut self) -> Result<()> {
+        for (tmp, path) in std::mem::take(&mut self.pending) {
+            std::fs::rename(&tmp, &path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+        }
+        Ok(())
+    }
+
+    fn abandon(&mut self) {
+        for (tmp, _) in self.pending.drain(..) {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+impl Drop for StagedWrites {
+    /// A result dropped before its commit (an error elsewhere) leaves no temporary files.
+    fn drop(&mut self) {
+        self.abandon();
+    }
+}
+
+/// Fails at once, before hours of work, when `dir` (or, if it does not exist
+/// yet, its nearest existing ancestor) cannot take a new file: a read-only
+/// mount, missing permissions. A full disk only shows when writing.
+pub fn check_writable(dir: &Path) -> Result<()> {
+    let existing = dir.ancestors().find(|a| a.as_os_str().is_empty() || a.is_dir()).unwrap_or(Path::new("."));
+    let existing = if existing.as_os_str().is_empty() { Path::new(".") } else { existing };
+    let probe = temp_path(&existing.join("write-probe"));
+    std::fs::File::create(&probe).map_err(|e| anyhow!("{}: the output folder is not writable ({e}); nothing was run, and what it holds is as it was", dir.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
 /// Writes through `write` into a temporary sibling, then renames it into place,
 /// so readers never see a half-written artifact.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> Result<()>) -> Result<()> {
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating directory {}", dir.display()))?;
-        }
-    }
-    let tmp = temp_path(path);
-    let result: Result<()> = (|| {
-        let mut f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-        write(&mut f)?;
-        f.sync_all().ok();
-        Ok(())
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e.context(format!("writing {}", path.display())));
-    }
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    let mut staged = StagedWrites::new();
+    staged.write(path, write)?;
+    staged.commit()
 }
 
 pub fn write_text_atomic(path: &Path, text: &str) -> Result<()> {
-    use std::io::Write;
-    write_atomic(path, |f| Ok(f.write_all(text.as_bytes())?))
+    let mut staged = StagedWrites::new();
+    staged.text(path, text)?;
+    staged.commit()
 }
 
 pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
-    let text = serde_json::to_string_pretty(value)?;
-    write_text_atomic(path, &text)
+    let mut staged = StagedWrites::new();
+    staged.json(path, value)?;
+    staged.commit()
 }
 
 /// Writes a DataFrame as Parquet with provenance in the file's key-value metadata.
 pub fn write_parquet_atomic(path: &Path, df: &mut DataFrame, provenance: Option<&Provenance>) -> Result<()> {
-    write_atomic(path, |f| {
-        let kv = provenance.map(|p| KeyValueMetadata::from_static(p.key_values()));
-        ParquetWriter::new(f).with_key_value_metadata(kv).finish(df)?;
-        Ok(())
-    })
+    let mut staged = StagedWrites::new();
+    staged.parquet(path, df, provenance)?;
+    staged.commit()
 }
 
 pub fn read_parquet(path: &Path) -> Result<DataFrame> {
@@ -293,6 +369,13 @@ pub fn read_paper_table(path: &Path) -> Result<Vec<Measurement>> {
 
 /// Writes measurements as CSV or Parquet by extension.
 pub fn write_measurements(path: &Path, data: &[Measurement], provenance: Option<&Provenance>) -> Result<()> {
+    let mut staged = StagedWrites::new();
+    stage_measurements(&mut staged, path, data, provenance)?;
+    staged.commit()
+}
+
+/// Writes measurements as CSV or Parquet by extension, as part of a staged result.
+pub fn stage_measurements(staged: &mut StagedWrites, path: &Path, data: &[Measurement], provenance: Option<&Provenance>) -> Result<()> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     if ext == "parquet" || ext == "pq" {
         let obs: Vec<&str> = data.iter().map(|m| m.observable.as_str()).collect();
@@ -305,7 +388,7 @@ pub fn write_measurements(path: &Path, data: &[Measurement], provenance: Option<
                 Column::new("error".into(), data.iter().map(|m| m.error).collect::<Vec<_>>()),
             ],
         )?;
-        write_parquet_atomic(path, &mut df, provenance)
+        staged.parquet(path, &mut df, provenance)
     } else {
         let mut text = String::new();
         if let Some(p) = provenance {
@@ -315,7 +398,7 @@ pub fn write_measurements(path: &Path, data: &[Measurement], provenance: Option<
         for m in data {
             text.push_str(&format!("{},{},{},{}\n", m.observable, m.x, m.value, m.error));
         }
-        write_text_atomic(path, &text)
+        staged.text(path, &text)
     }
 }
 

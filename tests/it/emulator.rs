@@ -253,11 +253,7 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
     mdpipe::artifacts::write_measurements(&dir.join("data.csv"), &data, None).unwrap();
     let cfg_text = format!(
         "{}\n[emulator]\nparameters = [\"g\", \"v0\"]\nkernel = \"se\"\nrestarts = 4\n",
-        std::fs::read_to_string(root.join("pipeline/ball_drop.toml"))
-            .unwrap()
-            .replacen("kind = \"ball_drop\"", "kind = \"emulator\"\nartifact = \"emu\"", 1)
-            .replace("h0 = 60.0", "")
-            .replace("measurements = \"ball_drop_data.csv\"", "measurements = \"data.csv\"")
+        emulated_ball_drop_config(&std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap()).replace("measurements = \"ball_drop_data.csv\"", "measurements = \"data.csv\"")
     );
     std::fs::write(dir.join("emulated.toml"), cfg_text).unwrap();
     emulator::train_and_save(&dir.join("emulated.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1).unwrap();
@@ -273,4 +269,35 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
         assert!((x.median - y.median).abs() < 0.1 * width, "{p}: medians {} vs {}", x.median, y.median);
         assert!(((y.q975 - y.q025) / width - 1.0).abs() < 0.15, "{p}: widths {} vs {}", width, y.q975 - y.q025);
     }
+}
+
+/// An emulator asked outside its training box returns its mean, not the
+/// model: a prior reaching there is refused before any sampling, naming the
+/// config, the table and both ranges; the training box itself is accepted.
+#[test]
+fn a_prior_outside_the_training_box_is_refused() {
+    let dir = tmpdir("box");
+    write_table(&dir.join("t.csv"), 30, 0.0, 5);
+    let config = |a_max: f64| {
+        format!(
+            "name = \"box\"\n[model]\nkind = \"emulator\"\nartifact = \"emu\"\n[data]\nmeasurements = \"m.csv\"\n[parameters.a]\nmin = 0.0\nmax = {a_max}\n[parameters.b]\nmin = 0.0\nmax = 1.0\n[parameters.c]\nmin = 0.0\nmax = 1.0\n[emulator]\nparameters = [\"a\", \"b\", \"c\"]\n"
+        )
+    };
+    std::fs::write(dir.join("c.toml"), config(1.0)).unwrap();
+    emulator::train_and_save(&dir.join("c.toml"), &dir.join("t.csv"), None, &dir.join("emu"), 1).unwrap();
+    assert!(mdpipe::systems::load(&dir.join("c.toml")).is_ok(), "the training box itself must be accepted");
+    std::fs::write(dir.join("wide.toml"), config(3.0)).unwrap();
+    let msg = format!("{:#}", mdpipe::systems::load(&dir.join("wide.toml")).err().expect("a prior three times the training box was accepted"));
+    assert!(msg.contains("wide.toml") && msg.contains("[parameters.a]") && msg.contains("trained on a in") && msg.contains("Narrow the prior"), "{msg}");
+}
+
+/// The bundled ball-drop config with its declared ODE model replaced by an
+/// emulator in `emu`, and without the [truth] and [[candidates]] that belong
+/// to the declared model.
+fn emulated_ball_drop_config(text: &str) -> String {
+    let (head, rest) = text.split_once("[model]").unwrap();
+    let data = rest.find("[data]").unwrap();
+    let body = &rest[data..];
+    let body = body.split("# The process that made the bundled data").next().unwrap();
+    format!("{head}[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\n{body}")
 }

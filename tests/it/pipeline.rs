@@ -8,7 +8,7 @@ use mdpipe::config::Config;
 use mdpipe::systems::heavy_ion::study_runner::{run, RunOptions, StageOutcome, STAGES};
 use std::path::{Path, PathBuf};
 
-fn tmpdir(tag: &str) -> PathBuf {
+pub(crate) fn tmpdir(tag: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("mdpipe-run-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
@@ -16,7 +16,7 @@ fn tmpdir(tag: &str) -> PathBuf {
 }
 
 /// A small 2-parameter study: few points, few events, few particles.
-fn write_config(dir: &Path, mock_events: usize, candidate_points: usize) -> PathBuf {
+pub(crate) fn write_config(dir: &Path, mock_events: usize, candidate_points: usize) -> PathBuf {
     let spec = Path::new(env!("CARGO_MANIFEST_DIR")).join("design/heavy_ion_2param.toml");
     let text = format!(
         r#"

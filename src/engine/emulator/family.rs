@@ -56,7 +56,10 @@ impl ModelFamily for EmulatorFamily {
 
     fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>> {
         let table: EmulatorModelTable = config.decode_family_table(&config.model, "model")?;
-        let model = EmulatedModel::load(&config.resolve(&table.artifact)).with_context(|| format!("{}: [model] artifact", config.path.display()))?;
+        let dir = config.resolve(&table.artifact);
+        let model = EmulatedModel::load(&dir).with_context(|| format!("{}: [model] artifact", config.path.display()))?;
+        let priors: Vec<(String, &str, &ParamSpec)> = config.parameters.iter().map(|(n, s)| (format!("[parameters.{n}]"), n.as_str(), s)).collect();
+        check_priors_inside_box(&model, &priors, &format!("{}: the emulator {}", config.path.display(), dir.display()))?;
         Ok(Arc::new(model))
     }
 
@@ -91,5 +94,39 @@ fn declared_candidate(config: &Config, c: &CandidateDeclaration) -> Result<Candi
     if let Some(unused) = c.parameters.keys().find(|k| !names.contains(k)) {
         bail!("{file}: [[candidates]] {}: parameter '{unused}' is not one of the variant emulator's ({})", c.name, names.join(", "));
     }
+    let own = extra.iter().map(|(n, s)| (format!("[candidates.parameters.{n}]"), n.as_str(), s));
+    let priors: Vec<(String, &str, &ParamSpec)> = config.parameters.iter().map(|(n, s)| (format!("[parameters.{n}]"), n.as_str(), s)).chain(own).collect();
+    check_priors_inside_box(&model, &priors, &format!("{file}: [[candidates]] {}: the variant emulator {}", c.name, dir.display()))?;
     Ok(CandidateModel { name: c.name.clone(), description: c.description.clone(), extra_parameters: extra, simulator: Arc::new(model) })
+}
+
+/// Refuses priors that reach well beyond the emulator's training points:
+/// there the GP falls back to its mean and the "model" is no model at all,
+/// which a sampler would explore without a word. A Latin hypercube puts its
+/// outermost point within one cell (range / points) of its box's edge, and a
+/// random design rarely leaves more than two: a prior past the outermost
+/// point by more than two cells gets a warning, and by more than a quarter
+/// of the training range (a prior box that was never designed over) is
+/// refused.
+fn check_priors_inside_box(model: &EmulatedModel, priors: &[(String, &str, &ParamSpec)], what: &str) -> Result<()> {
+    let parts = &model.emulator.parts;
+    let cell = 1.0 / parts.design_ids.len().max(1) as f64;
+    for (table, name, spec) in priors {
+        let Some(p) = parts.parameter_names.iter().position(|n| n == name) else { continue };
+        let (lo, hi) = (parts.input_lo[p], parts.input_hi[p]);
+        let excess = (lo - spec.min).max(spec.max - hi).max(0.0) / (hi - lo);
+        let said = format!(
+            "{what} was trained on {name} in [{lo}, {hi}], but {table} gives a prior of [{}, {}], {:.0}% of the range beyond the outermost training point",
+            spec.min,
+            spec.max,
+            100.0 * excess
+        );
+        if excess > 0.25 {
+            bail!("{said}: out there the emulator returns its mean, not the model. Narrow the prior to the training box, or run design points out there and retrain");
+        }
+        if excess > 2.0 * cell {
+            eprintln!("warning: {said}; the emulator extrapolates there");
+        }
+    }
+    Ok(())
 }

@@ -42,7 +42,10 @@ pub fn save(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report: &Tr
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
     let staging = parent.join(format!(".{name}.partial-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&staging);
-    write_folder(&staging, emu, settings, report, provenance)?;
+    if let Err(e) = write_folder(&staging, emu, settings, report, provenance) {
+        let _ = std::fs::remove_dir_all(&staging);
+        return Err(e.context(format!("the emulator was not saved; {} is as it was", dir.display())));
+    }
     if dir.exists() {
         let old = parent.join(format!(".{name}.old-{}", std::process::id()));
         std::fs::rename(dir, &old).with_context(|| format!("moving the previous {} aside", dir.display()))?;

@@ -191,8 +191,10 @@ pub fn run(dir: &std::path::Path, validation: Option<&std::path::Path>, folds: u
     provenance.seed = seed;
     provenance.command = format!("validate-emulator {} --folds {folds}", dir.display());
     let summary = ValidationSummary { holdout, cross_validation, folds, provenance: provenance.clone() };
-    crate::base::artifacts::write_parquet_atomic(&dir.join("validation_parity.parquet"), &mut parity_frame(&rows)?, Some(&provenance))?;
-    crate::base::artifacts::write_json_atomic(&dir.join("validation.json"), &summary)?;
+    let mut staged = crate::base::artifacts::StagedWrites::new();
+    staged.parquet(&dir.join("validation_parity.parquet"), &mut parity_frame(&rows)?, Some(&provenance))?;
+    staged.json(&dir.join("validation.json"), &summary)?;
+    staged.commit()?;
     Ok(summary)
 }
 

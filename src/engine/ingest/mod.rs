@@ -336,9 +336,11 @@ pub fn to_frame(ingested: &Ingested, design: Option<&DataFrame>) -> Result<DataF
 /// Writes the table (atomically) and `<table stem>.report.json` beside it.
 pub fn write(ingested: &Ingested, design: Option<&DataFrame>, out: &Path) -> Result<PathBuf> {
     let mut df = to_frame(ingested, design)?;
-    artifacts::write_parquet_atomic(out, &mut df, Some(&ingested.report.provenance))?;
     let report_path = out.with_extension("report.json");
-    artifacts::write_json_atomic(&report_path, &ingested.report)?;
+    let mut staged = artifacts::StagedWrites::new();
+    staged.parquet(out, &mut df, Some(&ingested.report.provenance))?;
+    staged.json(&report_path, &ingested.report)?;
+    staged.commit()?;
     Ok(report_path)
 }
 

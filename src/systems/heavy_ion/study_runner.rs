@@ -211,6 +211,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
         }
     }
     run.validate().with_context(|| format!("{}: [run]", config.path.display()))?;
+    artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
     let mut r = Runner { config, run, emulator, paths: RunPaths { out: opts.out.clone() }, opts, keys: BTreeMap::new(), outcomes: Vec::new() };
@@ -480,8 +481,7 @@ impl Runner<'_> {
                 let problem = Problem::new(&analysis, &ov)?;
                 // Killed mid-case, the case resumes from its last saved tempering step.
                 let checkpoint = calibrate::checkpoint::Checkpointing::new(&dir.join(".checkpoint"), calibrate::checkpoint_key(&problem, seed), None);
-                let cal = calibrate::run_checkpointed(&problem, seed, observer(self.opts.show_progress), Some(&checkpoint))?;
-                calibrate::write_outputs(&dir, &problem, &cal)?;
+                let cal = calibrate::run_and_write(&problem, seed, observer(self.opts.show_progress), &checkpoint, &dir)?;
                 let seconds = cal.summary.diagnostics.wall_seconds;
                 let prov = Provenance::new(self.config.hash.clone(), String::new(), seed, &format!("run {} --stage calibrate ({name})", self.config.path.display()));
                 artifacts::write_json_atomic(&stamp, &Stamp { stage: format!("calibrate/{name}"), key, seconds, provenance: prov })?;
