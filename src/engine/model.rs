@@ -34,6 +34,11 @@ pub trait Simulator: Send + Sync {
     fn has_model_covariance(&self) -> bool {
         false
     }
+    /// How many times so far the model could not be computed at some θ (an
+    /// ODE that failed to integrate): those θ got zero likelihood.
+    fn failures(&self) -> u64 {
+        0
+    }
     /// Adds `inv_scale2 ×` the model's predictive covariance at (x, θ) to the
     /// lower triangle of `lower` (column-major n × n).
     fn add_model_covariance(&self, _observable: usize, _x: &[f64], _theta: &[f64], _inv_scale2: f64, _lower: &mut [f64]) {}

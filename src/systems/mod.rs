@@ -5,6 +5,7 @@
 //! A new family is its own module here plus one line in [`registry`].
 
 pub mod ball_drop;
+pub mod declared;
 pub mod heavy_ion;
 
 use crate::base::config::Config;
@@ -18,9 +19,10 @@ use std::sync::Arc;
 /// Every built-in model family, by the `kind` configs name it with.
 pub fn registry() -> Registry {
     let mut r = Registry::new();
-    r.register(Arc::new(ball_drop::family::BallDropFamily));
     r.register(Arc::new(heavy_ion::family::HeavyIonFamily));
     r.register(Arc::new(crate::engine::emulator::EmulatorFamily));
+    r.register(Arc::new(declared::DeclaredFamily::EXPRESSION));
+    r.register(Arc::new(declared::DeclaredFamily::ODE));
     r
 }
 

@@ -143,6 +143,6 @@ fn a_family_defined_outside_the_crate_runs_the_whole_pipeline() {
 fn an_unregistered_kind_is_refused_naming_the_file_and_the_known_kinds() {
     let (dir, _) = setup("unknown");
     let msg = format!("{:#}", mdpipe::systems::load(&dir.join("line.toml")).err().expect("an unknown kind was accepted"));
-    assert!(msg.contains("line.toml") && msg.contains("[model] kind = \"line\"") && msg.contains("ball_drop"), "{msg}");
+    assert!(msg.contains("line.toml") && msg.contains("[model] kind = \"line\"") && msg.contains("ode"), "{msg}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -21,7 +21,8 @@ fn shifted_ball_drop(dir: &Path, shift: f64, extra: &str) -> PathBuf {
     let data = mdpipe::artifacts::read_measurements(&root.join("pipeline/ball_drop_data.csv")).unwrap();
     let shifted: Vec<_> = data.into_iter().map(|m| mdpipe::artifacts::Measurement::new(&m.observable, m.x + shift, m.value, m.error)).collect();
     mdpipe::artifacts::write_measurements(&dir.join("data.csv"), &shifted, None).unwrap();
-    let text = std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap().replace("ball_drop_data.csv", "data.csv").replace("particles = 2000", "particles = 500");
+    // The ODE starts where the shifted data do.
+    let text = std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap().replace("ball_drop_data.csv", "data.csv").replace("particles = 2000", "particles = 500").replace("t0 = 0.0", &format!("t0 = {shift:?}"));
     let cfg = dir.join("shifted.toml");
     std::fs::write(&cfg, format!("{text}\n{extra}")).unwrap();
     cfg

@@ -261,12 +261,24 @@ struct Sampled {
     evaluations: u64,
 }
 
-/// As `run`; with `checkpoint` the SMC sampler saves its state as it goes,
-/// resumes from a matching saved state, and clears it when done. Stopped at
-/// the checkpoint's time limit it returns a `checkpoint::Stopped` error.
+/// Calibrates with checkpoints in `checkpoint`, writes the outputs into
+/// `dir`, and only then clears the checkpoint: a failed write (a full disk)
+/// keeps the sampled state, and the same command finishes from it.
+pub fn run_and_write(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: &checkpoint::Checkpointing, dir: &Path) -> Result<Calibration> {
+    let cal = run_checkpointed(problem, seed, observer, Some(checkpoint))?;
+    write_outputs(dir, problem, &cal)?;
+    checkpoint.clear();
+    Ok(cal)
+}
+
+/// As `run`; with `checkpoint` the SMC sampler saves its state as it goes and
+/// resumes from a matching saved state (the caller clears it once the
+/// outputs are safe: [`run_and_write`]). Stopped at the checkpoint's time
+/// limit it returns a `checkpoint::Stopped` error.
 pub fn run_checkpointed(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: Option<&checkpoint::Checkpointing>) -> Result<Calibration> {
     let start = std::time::Instant::now();
     let jitter_before = crate::engine::gp::jitter_events();
+    let failures_before = problem.simulator.failures();
     guard::check(problem, seed)?;
     let label = format!("{} kernel={} obs={}", problem.analysis.name, DiscrepancyKernel::label(problem.likelihood.kernel), problem.observables().join("+"));
     let sampled = match problem.sampler {
@@ -275,7 +287,8 @@ pub fn run_checkpointed(problem: &Problem, seed: u64, observer: &dyn Observer, c
     };
     let wall = start.elapsed().as_secs_f64();
     let jitter = crate::engine::gp::jitter_events() - jitter_before;
-    let summary = summary::summarize(problem, &sampled.chains, sampled.evidence, sampled.details, sampled.evaluations, wall, jitter, seed);
+    let mut summary = summary::summarize(problem, &sampled.chains, sampled.evidence, sampled.details, sampled.evaluations, wall, jitter, seed);
+    summary.diagnostics.note_model_failures(problem.simulator.failures() - failures_before);
     let predictions = summary::predictions(problem, &sampled.chains, seed)?;
     Ok(Calibration { chains: sampled.chains, summary, predictions })
 }
@@ -286,9 +299,6 @@ fn run_smc(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: Op
     let out = smc::Smc::new(settings).run_checkpointed(&problem.prior, &problem.likelihood, seed, observer, checkpoint);
     observer.end();
     let out = out?;
-    if let Some(c) = checkpoint {
-        c.clear();
-    }
     let evaluations = out.likelihood_evaluations();
     let details = summary::SamplerDetails::from_smc(&out);
     Ok(Sampled { evidence: Some((out.log_evidence, out.log_evidence_err)), chains: out.chains, details, evaluations })
@@ -312,12 +322,14 @@ pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result
     let chain_ids: Vec<f64> = cal.chains.chains.iter().enumerate().flat_map(|(k, c)| std::iter::repeat_n(k as f64, c.len() / cal.chains.dim)).collect();
     cols.push(("chain".into(), chain_ids));
     let mut df = artifacts::f64_frame(cols)?;
-    artifacts::write_parquet_atomic(&dir.join("posterior.parquet"), &mut df, Some(prov))?;
-    artifacts::write_json_atomic(&dir.join("summary.json"), &cal.summary)?;
+    // All four or none: a full disk must not leave a new posterior beside an old summary.
+    let mut staged = artifacts::StagedWrites::new();
+    staged.parquet(&dir.join("posterior.parquet"), &mut df, Some(prov))?;
+    staged.json(&dir.join("summary.json"), &cal.summary)?;
     let mut pred = summary::predictions_frame(&cal.predictions)?;
-    artifacts::write_parquet_atomic(&dir.join("predictions.parquet"), &mut pred, Some(prov))?;
+    staged.parquet(&dir.join("predictions.parquet"), &mut pred, Some(prov))?;
     // The measurements fitted, so that reports and re-analyses need nothing else.
     let used: Vec<Measurement> = problem.measurements.iter().filter(|m| problem.observables().contains(&m.observable)).cloned().collect();
-    artifacts::write_measurements(&dir.join("measurements.parquet"), &used, Some(prov))?;
-    Ok(())
+    artifacts::stage_measurements(&mut staged, &dir.join("measurements.parquet"), &used, Some(prov))?;
+    staged.commit()
 }

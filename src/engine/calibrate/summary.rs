@@ -111,7 +111,20 @@ pub struct Diagnostics {
     pub min_ess_per_second: f64,
     /// Covariance matrices that needed jitter during this run.
     pub jitter_events: usize,
+    /// θ at which the model could not be computed (an ODE that failed to
+    /// integrate), each given zero likelihood.
+    #[serde(default)]
+    pub model_failures: u64,
     pub sampler: SamplerDetails,
+}
+
+impl Diagnostics {
+    pub fn note_model_failures(&mut self, failures: u64) {
+        self.model_failures = failures;
+        if failures > 0 {
+            self.warnings.push(format!("the model could not be computed at {failures} parameter points (given zero likelihood)"));
+        }
+    }
 }
 
 /// Goodness of fit of the model alone at the posterior median θ: the
@@ -208,6 +221,7 @@ pub fn summarize(
             likelihood_evaluations_per_second: evaluations as f64 / wall_seconds.max(1e-9),
             min_ess_per_second: min_ess / wall_seconds.max(1e-9),
             jitter_events,
+            model_failures: 0,
             sampler,
         },
         provenance: problem.provenance(seed, "calibrate"),

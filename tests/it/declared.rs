@@ -1,0 +1,223 @@
+//! Models declared in TOML (`kind = "expression"`, `kind = "ode"`), checked
+//! against independent oracles: the closed-form linear model and its
+//! Gaussian posterior, and the ball drop's own RK4 integrator (the Rust
+//! ball drop, kept as a test oracle); clear errors for bad declarations; an
+//! ODE that fails at some θ costs that θ its likelihood and is counted.
+
+use crate::common::{analytic_linear, linear_likelihood, LinearModel};
+use mdpipe::calibrate::{self, Overrides, Problem};
+use mdpipe::model::Simulator;
+use mdpipe::progress::Silent;
+use mdpipe::systems::ball_drop::{self, BallDropSetup, ExtraForces};
+use rand::{Rng, SeedableRng};
+use std::path::{Path, PathBuf};
+
+fn tmpdir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mdpipe-declared-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// A straight line declared as a formula, on 10 points with known errors.
+fn line_config(dir: &Path, formula: &str) -> PathBuf {
+    let x: Vec<f64> = (0..10).map(|i| i as f64 * 0.3).collect();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(8);
+    let mut csv = String::from("observable,x,value,error\n");
+    for &xi in &x {
+        csv.push_str(&format!("y,{xi},{},0.2\n", 1.0 + 2.0 * xi + 0.2 * rng.random::<f64>() - 0.1));
+    }
+    std::fs::write(dir.join("line.csv"), csv).unwrap();
+    let text = format!(
+        r#"name = "line"
+[model]
+kind = "expression"
+observables = {{ y = "{formula}" }}
+[data]
+measurements = "line.csv"
+[parameters.a]
+min = -10.0
+max = 10.0
+[parameters.b]
+min = -10.0
+max = 10.0
+[discrepancy]
+kernel = "none"
+bounds = {{ cbar = [0.0, 1.0], ell = [0.0, 1.0], r = [0.0, 1.0], s = [0.0, 1.0] }}
+[sampler.smc]
+particles = 2000
+replicates = 4
+"#
+    );
+    let path = dir.join("line.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn an_expression_model_is_the_closed_form_linear_model() {
+    let dir = tmpdir("line");
+    let analysis = mdpipe::systems::load(&line_config(&dir, "a + b*x")).unwrap();
+    let model = analysis.simulator.clone();
+    assert_eq!(model.parameter_names(), vec!["a", "b"]);
+    // Predictions equal the hand-written model's at random θ and x.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    for _ in 0..1000 {
+        let theta = [rng.random_range(-10.0..10.0), rng.random_range(-10.0..10.0)];
+        let x: Vec<f64> = (0..7).map(|_| rng.random_range(-5.0..5.0)).collect();
+        let (mut p, mut q) = (vec![0.0; 7], vec![0.0; 7]);
+        model.predict(0, &x, &theta, &mut p);
+        LinearModel.predict(0, &x, &theta, &mut q);
+        for (a, b) in p.iter().zip(&q) {
+            assert!((a - b).abs() <= 1e-12 * (1.0 + b.abs()), "{a} vs {b}");
+        }
+    }
+    // The posterior through the user's path (config, CSV, calibrate) is the
+    // closed-form Gaussian: SMC's Monte Carlo error on a mean is sd/sqrt(ESS),
+    // so 0.1 sd is at least 3 Monte Carlo sd once ESS exceeds 900.
+    let problem = Problem::new(&analysis, &Overrides::default()).unwrap();
+    let data = &problem.likelihood.blocks[0];
+    let cov: Vec<f64> = (0..data.len() * data.len()).map(|k| if k % (data.len() + 1) == 0 { data.error[k / (data.len() + 1)].powi(2) } else { 0.0 }).collect();
+    let exact = analytic_linear(&data.x, &data.y, &cov);
+    let cal = calibrate::run(&problem, 5, &Silent).unwrap();
+    for (k, name) in ["a", "b"].iter().enumerate() {
+        let p = &cal.summary.parameters[*name];
+        let ess = cal.summary.diagnostics.parameters.iter().find(|d| d.name == *name).map(|d| d.ess_bulk).unwrap();
+        println!("{name}: SMC {:.4} ± {:.4} (ESS {ess:.0}), exact {:.4} ± {:.4}", p.mean, p.sd, exact.mean[k], exact.sd[k]);
+        assert!(ess > 900.0, "{name}: ESS {ess}");
+        assert!((p.mean - exact.mean[k]).abs() < 0.1 * exact.sd[k], "{name}: mean {} vs {}", p.mean, exact.mean[k]);
+        assert!((p.sd / exact.sd[k] - 1.0).abs() < 0.1, "{name}: sd {} vs {}", p.sd, exact.sd[k]);
+    }
+    // The likelihood is the hand-written model's, value for value.
+    let rows: Vec<_> = problem.measurements.clone();
+    let by_hand = linear_likelihood(&rows, None);
+    for theta in [[1.0, 2.0], [0.5, -3.0], [9.0, 9.0]] {
+        let (a, b) = (problem.likelihood.log_likelihood(&theta), by_hand.log_likelihood(&theta));
+        assert!((a - b).abs() < 1e-9, "{a} vs {b}");
+    }
+}
+
+fn ball_drop_analysis() -> mdpipe::calibrate::Analysis {
+    mdpipe::systems::load(&root().join("pipeline/ball_drop.toml")).unwrap()
+}
+
+/// The bundled ball drop, declared as an ODE in TOML, against the Rust
+/// ball drop's RK4 (step 1e-4 s, error ~1e-13): the base model, every
+/// declared candidate force and the declared true process agree to 1e-6,
+/// 1e5 times below the smallest measurement error (0.1 m).
+#[test]
+fn the_declared_ball_drop_matches_the_rust_oracle() {
+    let analysis = ball_drop_analysis();
+    let times: Vec<f64> = (0..=40).map(|i| 0.05 * i as f64).collect();
+    let oracle = |g: f64, v0: f64, forces: ExtraForces| {
+        let mut out = vec![[0.0; 3]; times.len()];
+        ball_drop::integrate(&BallDropSetup { h0: 60.0, g, v0 }, &forces, &times, 1e-4, &mut out);
+        out
+    };
+    let check = |model: &dyn Simulator, theta: &[f64], want: &[[f64; 3]], what: &str| {
+        for k in 0..3 {
+            let mut got = vec![0.0; times.len()];
+            model.predict(k, &times, theta, &mut got);
+            for (i, g) in got.iter().enumerate() {
+                assert!((g - want[i][k]).abs() < 1e-6, "{what}, observable {k}, t = {}: {g} vs {}", times[i], want[i][k]);
+            }
+        }
+    };
+    let names = analysis.simulator.observable_names();
+    assert_eq!(names, vec!["acceleration", "height", "velocity"]);
+    // The oracle's order is (height, velocity, acceleration).
+    let reorder = |rows: Vec<[f64; 3]>| rows.into_iter().map(|r| [r[2], r[0], r[1]]).collect::<Vec<_>>();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(2);
+    for _ in 0..20 {
+        let (g, v0) = (rng.random_range(0.0..20.0), rng.random_range(-2.0..2.0));
+        check(analysis.simulator.as_ref(), &[g, v0], &reorder(oracle(g, v0, ExtraForces::NONE)), "drag-free model");
+        let candidates = analysis.candidates().unwrap();
+        assert_eq!(candidates.len(), 4 + 6, "4 candidates and their 6 pairs");
+        for c in &candidates {
+            let (p, value) = (&c.extra_parameters, rng.random::<f64>());
+            let params: Vec<f64> = p.iter().map(|(_, s)| s.min + value * (s.max - s.min)).collect();
+            let mut forces = ExtraForces::NONE;
+            for ((name, _), v) in p.iter().zip(&params) {
+                match name.as_str() {
+                    "b" => forces.linear_drag = *v,
+                    "k" => forces.quadratic_drag = *v,
+                    "f" => forces.constant_force = *v,
+                    "gamma" => forces.height_gradient = *v,
+                    other => panic!("unexpected candidate parameter {other}"),
+                }
+            }
+            let theta: Vec<f64> = [g, v0].into_iter().chain(params).collect();
+            check(c.simulator.as_ref(), &theta, &reorder(oracle(g, v0, forces)), &c.name);
+        }
+    }
+    let truth = analysis.truth.clone().expect("a [truth] process");
+    check(truth.as_ref(), &[9.8, 0.0], &reorder(oracle(9.8, 0.0, ExtraForces { quadratic_drag: 0.4, ..ExtraForces::NONE })), "true process");
+}
+
+/// Writes `config` (a ball-drop variant) into `dir` and returns the error
+/// that loading or calibrating it gives.
+fn error_of(dir: &Path, name: &str, text: &str) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, text.replace("\"ball_drop_data.csv\"", &format!("{:?}", root().join("pipeline/ball_drop_data.csv")))).unwrap();
+    let result = mdpipe::systems::load(&path).and_then(|a| Problem::new(&a, &Overrides::default()).map(|_| ()).and_then(|_| a.candidates().map(|_| ())));
+    format!("{:#}", result.err().unwrap_or_else(|| panic!("{name} was accepted")))
+}
+
+#[test]
+fn bad_declarations_get_errors_naming_file_table_and_formula() {
+    let dir = tmpdir("bad");
+    let base = std::fs::read_to_string(root().join("pipeline/ball_drop.toml")).unwrap();
+    let cases = [
+        ("unknown.toml", base.replace("v = \"g\"", "v = \"g - drag*v\""), vec!["unknown.toml", "[model.rates] v", "unknown name 'drag'", "g - drag*v"]),
+        ("syntax.toml", base.replace("height = \"h\"", "height = \"h*(\""), vec!["syntax.toml", "[model.observables] height", "not a formula", "h*("]),
+        ("prior.toml", base.replace("rates = { v = \"-b*v\" }", "rates = { v = \"-b*v*c\" }"), vec!["prior.toml", "[[candidates]] linear_drag", "unknown name 'c'"]),
+        ("corner.toml", base.replace("v = \"g\"", "v = \"g + 1/v0\""), vec!["corner.toml", "[model.rates] v", "g + 1/v0", "not finite", "v0 = "]),
+        ("state.toml", base.replace("[model.rates]\nh = \"-v\"\n", "[model.rates]\n"), vec!["state.toml", "[model.initial] h", "no rate for 'h'"]),
+        ("clash.toml", base.replace("constants = { h0 = 60.0 }", "constants = { h0 = 60.0, g = 9.8 }"), vec!["clash.toml", "'g' is both a parameter and a constant"]),
+        ("target.toml", base.replace("rates = { v = \"-f\" }", "rates = { w = \"-f\" }"), vec!["target.toml", "[[candidates]] constant_force", "no state variable 'w'"]),
+        ("truth.toml", base.replace("candidates = { quadratic_drag = { k = 0.4 } }", "candidates = { quadratic_drag = { kk = 0.4 } }"), vec!["truth.toml", "[truth.candidates] quadratic_drag", "'k'"]),
+        ("solver.toml", base.replace("rtol = 1e-10", "rtol = 0.0"), vec!["solver.toml", "[model.solver]", "rtol"]),
+    ];
+    for (name, text, says) in cases {
+        assert_ne!(text, base, "{name}: the replacement did not apply");
+        let msg = error_of(&dir, name, &text);
+        println!("{name}: {msg}");
+        for s in says {
+            assert!(msg.contains(s), "{name}: the error should say {s:?}: {msg}");
+        }
+    }
+}
+
+/// dv/dt = g v²/(1 m/s) from v0 > 0 blows up at t = 1/(g v0): where that
+/// comes before the last data time, the integration fails. Those θ get zero
+/// likelihood, the run ends with a posterior where it can be finite, and
+/// summary.json counts the failures.
+#[test]
+fn an_ode_that_fails_at_some_theta_is_counted_not_fatal() {
+    let dir = tmpdir("blowup");
+    let text = std::fs::read_to_string(root().join("pipeline/ball_drop.toml"))
+        .unwrap()
+        .replace("\"ball_drop_data.csv\"", &format!("{:?}", root().join("pipeline/ball_drop_data.csv")))
+        .replace("v = \"g\"", "v = \"g + v*v*v0\"")
+        .replace("particles = 2000", "particles = 400")
+        .replace("replicates = 4", "replicates = 2");
+    let path = dir.join("blowup.toml");
+    std::fs::write(&path, text).unwrap();
+    let out = dir.join("out");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+        .args(["calibrate", &path.display().to_string(), "--kernel", "none", "--observables", "velocity", "--out", &out.display().to_string()])
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let failures = summary["diagnostics"]["model_failures"].as_u64().unwrap();
+    println!("failed integrations: {failures}; warnings {}", summary["diagnostics"]["warnings"]);
+    assert!(failures > 0, "no failed integration was counted");
+    // Where the solution blows up before t = 1 s the likelihood is zero, so
+    // the posterior keeps g v0 small.
+    assert!(summary["parameters"]["v0"]["q975"].as_f64().unwrap() < 1.0);
+}
