@@ -121,7 +121,7 @@ fn effect_size(opts: &MockOptions) -> f64 {
 /// verdict, noise-free mismatch in σ) and asserts the targets: at
 /// most 5% false alarms on null data, at least 90% of in-library effects of
 /// 3σ or more named correctly, and out-of-library effects never given a name.
-fn confusion_matrix_meets_targets(system: &str, labels: &[&str], rows: &[(&str, String, f64)]) {
+pub(crate) fn confusion_matrix_meets_targets(system: &str, labels: &[&str], rows: &[(&str, String, f64)]) {
     let width = labels.iter().map(|l| l.len()).max().unwrap_or(0) + 2;
     println!("{system}: confusion matrix (rows: concealed effect, columns: verdict)");
     print!("{:>width$}", "");
@@ -158,7 +158,7 @@ fn confusion_matrix_meets_targets(system: &str, labels: &[&str], rows: &[(&str, 
 }
 
 /// Exact (Clopper–Pearson) 95% interval of a binomial rate k/n.
-fn clopper_pearson(k: usize, n: usize) -> (f64, f64) {
+pub(crate) fn clopper_pearson(k: usize, n: usize) -> (f64, f64) {
     use statrs::distribution::{Beta, ContinuousCDF};
     let lo = if k == 0 { 0.0 } else { Beta::new(k as f64, (n - k + 1) as f64).unwrap().inverse_cdf(0.025) };
     let hi = if k >= n { 1.0 } else { Beta::new((k + 1) as f64, (n - k) as f64).unwrap().inverse_cdf(0.975) };

@@ -6,6 +6,12 @@
 //!    the model's library and rank them by SMC log-evidence against the base.
 //! 3. Repair: refit with the winner, with and without MD, and compare.
 //!
+//! Nested candidates: a candidate named `a+b` combines candidates `a` and `b`
+//! (declared models offer every pair). By Occam's rule the best candidate
+//! gives way to a candidate it contains unless it beats it by more than
+//! `strong_log_bf`: a second effect must earn its place as decisively as the
+//! first did against the base model.
+//!
 //! Decision rule (log Bayes factors, Kass & Raftery's "strong" = 3):
 //! * a candidate is named when it beats the base model by more than
 //!   `strong_log_bf`, fits adequately (χ² p-value ≥ `min_p_value` at its
@@ -196,6 +202,7 @@ struct CandidateRun {
 /// What every calibration of one diagnosis shares.
 struct Diagnoser<'a> {
     overrides: &'a Overrides,
+    strong_log_bf: f64,
     out: Option<&'a Path>,
     observer: &'a dyn Observer,
 }
@@ -233,13 +240,47 @@ impl Diagnoser<'_> {
         }
         // A stable sort keeps the library's order among equal evidences.
         runs.sort_by(|a, b| b.result.log_evidence.total_cmp(&a.result.log_evidence));
+        let preferred = occam(&runs.iter().map(|r| &r.result).collect::<Vec<_>>(), self.strong_log_bf);
+        let first = runs.remove(preferred);
+        runs.insert(0, first);
         Ok(runs)
     }
 }
 
+/// The single candidates a candidate combines: `a+b` → {a, b}.
+fn members(name: &str) -> std::collections::BTreeSet<&str> {
+    name.split('+').collect()
+}
+
+/// Index of the candidate to name among `ranked` (best evidence first): the
+/// best, unless a candidate it contains comes within `strong` of it; then
+/// that one (the best such), and so on down.
+fn occam(ranked: &[&CandidateResult], strong: f64) -> usize {
+    let mut chosen = 0;
+    while let Some((i, _)) = ranked
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| {
+            let (inner, outer) = (members(&r.name), members(&ranked[chosen].name));
+            inner.len() < outer.len() && inner.is_subset(&outer) && ranked[chosen].log_evidence - r.log_evidence <= strong
+        })
+        .max_by(|a, b| a.1.log_evidence.total_cmp(&b.1.log_evidence))
+    {
+        chosen = i;
+    }
+    chosen
+}
+
+/// The best alternative to `winner` among `ranked`: a candidate that does not
+/// contain it (a+b is the winner a with more, not another explanation).
+fn runner_up<'c>(winner: &CandidateResult, ranked: &'c [CandidateResult]) -> Option<&'c CandidateResult> {
+    let mine = members(&winner.name);
+    ranked.iter().find(|c| c.name != winner.name && !mine.is_subset(&members(&c.name)))
+}
+
 /// Runs the whole diagnosis. `out`, when given, receives every calibration.
 pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &DiagnoseSettings, out: Option<&Path>, observer: &dyn Observer) -> Result<DiagnoseRun> {
-    let d = Diagnoser { overrides, out, observer };
+    let d = Diagnoser { overrides, strong_log_bf: settings.strong_log_bf, out, observer };
     let (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
     let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
     let (z_base, e_base) = evidence(&base.summary);
@@ -293,7 +334,7 @@ fn decide(candidates: &[CandidateResult], named: Option<&CandidateResult>, runs:
     let prob = |z: f64| (z - lse).exp();
     let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
     match named {
-        Some(c) => Verdict { best: c.name.clone(), statement: named_statement(c, &runs[0].candidate, candidates.get(1), mismatch), confidence: prob(c.log_evidence) },
+        Some(c) => Verdict { best: c.name.clone(), statement: named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), confidence: prob(c.log_evidence) },
         None if significant => {
             let w = worst.map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max)).unwrap_or_default();
             let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
@@ -391,5 +432,48 @@ pub fn print(d: &Diagnosis) {
             let limit = imp.information_limit.get(n).map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)")).unwrap_or_default();
             println!("  95% interval of {n}: {r:.1}x narrower than with MD alone{limit}");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ranked(evidences: &[(&str, f64)]) -> Vec<CandidateResult> {
+        evidences
+            .iter()
+            .map(|(name, z)| CandidateResult {
+                name: name.to_string(),
+                description: String::new(),
+                log_evidence: *z,
+                log_evidence_err: 0.1,
+                log_bayes_factor: *z,
+                log_bayes_factor_err: 0.1,
+                parameters: BTreeMap::new(),
+                chi2_per_dof: 1.0,
+                p_value: 0.5,
+                converged: true,
+            })
+            .collect()
+    }
+
+    fn named(evidences: &[(&str, f64)]) -> String {
+        let r = ranked(evidences);
+        r[occam(&r.iter().collect::<Vec<_>>(), 3.0)].name.clone()
+    }
+
+    #[test]
+    fn a_pair_is_named_only_when_it_beats_what_it_contains_decisively() {
+        // The ball drop's case: the pair leads its member by 0.6.
+        assert_eq!(named(&[("quadratic_drag+field_gradient", -4.4), ("quadratic_drag", -5.0), ("field_gradient", -590.0)]), "quadratic_drag");
+        // Two effects that each need the other: the pair leads both by more than 3.
+        assert_eq!(named(&[("a+b", 0.0), ("a", -5.0), ("b", -6.0)]), "a+b");
+        // Of two members within 3, the better one.
+        assert_eq!(named(&[("a+b", 0.0), ("b", -2.0), ("a", -2.5)]), "b");
+        // Not nested: the best stands, however close.
+        assert_eq!(named(&[("a", 0.0), ("b", -0.1)]), "a");
+        // The runner-up of a named member is another explanation, not the pair that contains it.
+        let r = ranked(&[("a", 0.0), ("a+b", -0.5), ("b+c", -8.0), ("c", -9.0)]);
+        assert_eq!(runner_up(&r[0], &r).map(|c| c.name.as_str()), Some("b+c"));
     }
 }

@@ -13,8 +13,10 @@ use super::declaration::{check_parameters_used, corners, describe, Declared, Sol
 use super::formula::Formula;
 use crate::engine::model::Simulator;
 use anyhow::{bail, Result};
+use nalgebra::allocator::Allocator;
+use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
 use ode_solvers::continuous_output_model::ContinuousOutputModel;
-use ode_solvers::{DVector, Dopri5, OutputType, System};
+use ode_solvers::{Dopri5, OutputType, System};
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -48,8 +50,40 @@ struct Solved {
     theta: Vec<f64>,
     t_end: f64,
     /// None when the integration failed.
-    dense: Option<ContinuousOutputModel<f64, DVector<f64>>>,
+    dense: Option<Dense>,
     y0: Vec<f64>,
+}
+
+/// Dense output of one integration. Up to four state variables live in
+/// stack vectors, so neither the steps nor the evaluations allocate; more
+/// use heap vectors.
+enum Dense {
+    Empty,
+    S1(ContinuousOutputModel<f64, OVector<f64, Const<1>>>),
+    S2(ContinuousOutputModel<f64, OVector<f64, Const<2>>>),
+    S3(ContinuousOutputModel<f64, OVector<f64, Const<3>>>),
+    S4(ContinuousOutputModel<f64, OVector<f64, Const<4>>>),
+    Heap(ContinuousOutputModel<f64, OVector<f64, Dyn>>),
+}
+
+impl Dense {
+    /// The state at t into `y`; false outside the solution.
+    fn state_at(&self, t: f64, y: &mut [f64]) -> bool {
+        fn copy<D: Dim>(d: &ContinuousOutputModel<f64, OVector<f64, D>>, t: f64, y: &mut [f64]) -> bool
+        where
+            DefaultAllocator: Allocator<D>,
+        {
+            d.evaluate(t).map(|s| y.copy_from_slice(s.as_slice())).is_some()
+        }
+        match self {
+            Dense::Empty => false,
+            Dense::S1(d) => copy(d, t, y),
+            Dense::S2(d) => copy(d, t, y),
+            Dense::S3(d) => copy(d, t, y),
+            Dense::S4(d) => copy(d, t, y),
+            Dense::Heap(d) => copy(d, t, y),
+        }
+    }
 }
 
 thread_local! {
@@ -100,18 +134,33 @@ impl OdeModel {
             return solved;
         }
         if t_end <= self.t0 {
-            solved.dense = Some(ContinuousOutputModel::default());
+            solved.dense = Some(Dense::Empty);
             return solved;
         }
-        let rhs = Rhs { model: self, values: v };
+        solved.dense = match y0.len() {
+            1 => self.integrate::<Const<1>>(v, &y0, t_end).map(Dense::S1),
+            2 => self.integrate::<Const<2>>(v, &y0, t_end).map(Dense::S2),
+            3 => self.integrate::<Const<3>>(v, &y0, t_end).map(Dense::S3),
+            4 => self.integrate::<Const<4>>(v, &y0, t_end).map(Dense::S4),
+            _ => self.integrate::<Dyn>(v, &y0, t_end).map(Dense::Heap),
+        };
+        solved
+    }
+
+    /// Dormand–Prince 5(4) from t0 to `t_end` with the state in vectors of
+    /// dimension `D`; None when the integration fails.
+    fn integrate<D: Dim>(&self, values: [f64; MAX_NAMES], y0: &[f64], t_end: f64) -> Option<ContinuousOutputModel<f64, OVector<f64, D>>>
+    where
+        DefaultAllocator: Allocator<D>,
+        OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
+    {
+        let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
         let s = &self.solver;
         let span = t_end - self.t0;
-        let mut stepper = Dopri5::from_param(rhs, self.t0, t_end, span, DVector::from_vec(y0), s.rtol, s.atol, 0.9, 0.04, 0.2, 10.0, span, 0.0, s.max_steps, 1000, OutputType::Dense);
-        let mut dense = ContinuousOutputModel::default();
-        if stepper.integrate_with_continuous_output_model(&mut dense).is_ok() {
-            solved.dense = Some(dense);
-        }
-        solved
+        let rhs = Rhs { model: self, values };
+        let mut stepper = Dopri5::from_param(rhs, self.t0, t_end, span, y, s.rtol, s.atol, 0.9, 0.04, 0.2, 10.0, span, 0.0, s.max_steps, 1000, OutputType::Dense);
+        let mut dense = ContinuousOutputModel::new();
+        stepper.integrate_with_continuous_output_model(&mut dense).ok().map(|_| dense)
     }
 
     /// The state at each t of `x` from a solution; None where it is undefined.
@@ -120,12 +169,9 @@ impl OdeModel {
             y.copy_from_slice(&solved.y0);
             return true;
         }
-        match solved.dense.as_ref().filter(|_| t > self.t0 && t <= solved.t_end).and_then(|d| d.evaluate(t)) {
-            Some(state) => {
-                y.copy_from_slice(state.as_slice());
-                true
-            }
-            None => false,
+        match solved.dense.as_ref() {
+            Some(d) if t > self.t0 && t <= solved.t_end => d.state_at(t, y),
+            _ => false,
         }
     }
 
@@ -162,8 +208,11 @@ struct Rhs<'a> {
     values: [f64; MAX_NAMES],
 }
 
-impl System<f64, DVector<f64>> for Rhs<'_> {
-    fn system(&self, t: f64, y: &DVector<f64>, dy: &mut DVector<f64>) {
+impl<D: Dim> System<f64, OVector<f64, D>> for Rhs<'_>
+where
+    DefaultAllocator: Allocator<D>,
+{
+    fn system(&self, t: f64, y: &OVector<f64, D>, dy: &mut OVector<f64, D>) {
         let mut v = self.values;
         v[0] = t;
         let at = self.model.variables.state_at;
