@@ -371,41 +371,41 @@ fn diverging(t: f64) -> RGBColor {
     }
 }
 
-/// Bar chart of log Bayes factors of the candidates against the base model.
+/// Bar chart of log Bayes factors of the candidates against the base model,
+/// one horizontal bar per candidate (pairs have long names), best on top.
 pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
     let c = &d.candidates;
     let vals: Vec<f64> = c.iter().map(|c| c.log_bayes_factor).chain([d.md_log_evidence - d.base_log_evidence, 0.0]).collect();
-    let yr = range_of(vals.iter().cloned());
+    let xr = range_of(vals.iter().cloned());
+    let names: Vec<String> = c.iter().map(|c| c.name.clone()).chain(["MD (kernel)".to_string()]).collect();
+    let n = names.len();
+    // Room for the longest name at about 7 px a character, and 26 px a bar.
+    let label_width = 7 * names.iter().map(|s| s.chars().count()).max().unwrap_or(8) as u32 + 16;
+    let height = H.max(26 * n as u32 + 90);
     svg(
         |root| {
-            let n = c.len() + 1;
             let mut chart = p!(ChartBuilder::on(root)
                 .caption("log Bayes factor against the model without MD", ("sans-serif", 16))
                 .margin(8)
                 .x_label_area_size(40)
-                .y_label_area_size(60)
-                .build_cartesian_2d(0.0..n as f64, yr.0.min(0.0)..yr.1));
-            let names: Vec<String> = c.iter().map(|c| c.name.clone()).chain(["MD (kernel)".to_string()]).collect();
-            p!(chart
-                .configure_mesh()
-                .disable_x_mesh()
-                .x_desc("candidate")
-                .y_desc("log BF")
-                .x_labels(2 * n + 1)
-                .x_label_formatter(&|v| category_label(&names, *v))
-                .draw());
+                .y_label_area_size(label_width)
+                .build_cartesian_2d(xr.0.min(0.0)..xr.1, 0.0..n as f64));
+            // Row k from the top is category n - 1 - k on the axis.
+            let row = |v: f64| category_label(&names, n as f64 - v);
+            p!(chart.configure_mesh().disable_y_mesh().x_desc("log BF").y_desc("candidate").y_labels(2 * n + 1).y_label_formatter(&|v| row(*v)).draw());
             for (k, v) in vals.iter().take(n).enumerate() {
                 let colour = if k == n - 1 { RGBColor(30, 150, 60) } else if c[k].name == d.verdict.best { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
-                p!(chart.draw_series(std::iter::once(Rectangle::new([(k as f64 + 0.15, 0.0), (k as f64 + 0.85, *v)], colour.filled()))));
+                let top = (n - k) as f64;
+                p!(chart.draw_series(std::iter::once(Rectangle::new([(0.0, top - 0.15), (*v, top - 0.85)], colour.filled()))));
             }
             p!(chart
-                .draw_series(DashedLineSeries::new(vec![(0.0, 3.0), (n as f64, 3.0)], 6, 4, BLACK.stroke_width(1)))
+                .draw_series(DashedLineSeries::new(vec![(3.0, 0.0), (3.0, n as f64)], 6, 4, BLACK.stroke_width(1)))
                 .map(|s| s.label("strong evidence (log BF = 3)").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
             p!(chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
             Ok(())
         },
-        W + 100,
-        H,
+        W + 100 + label_width,
+        height,
     )
 }
 

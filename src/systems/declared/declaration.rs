@@ -229,7 +229,13 @@ impl Declared {
                 d.constants.push((p.clone(), *v));
             }
         }
-        d.constants.extend(truth.constants.iter().map(|(k, v)| (k.clone(), *v)));
+        for (name, value) in &truth.constants {
+            // A name already in the scope would shadow this value silently.
+            if d.parameters.contains(name) || d.constants.iter().any(|(c, _)| c == name) || d.states.iter().any(|s| &s.name == name) {
+                bail!("{file}: [truth.constants] {name}: the model already has a parameter, constant or state of that name");
+            }
+            d.constants.push((name.clone(), *value));
+        }
         d.add_terms(file, "[truth]", &truth.observables, &truth.rates)
     }
 
