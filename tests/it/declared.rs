@@ -221,6 +221,21 @@ fn an_ode_that_fails_at_some_theta_is_counted_not_fatal() {
     // Where the solution blows up before t = 1 s the likelihood is zero, so
     // the posterior keeps g v0 small.
     assert!(summary["parameters"]["v0"]["q975"].as_f64().unwrap() < 1.0);
+
+    // With one step allowed, every integration fails: the run stops at once
+    // and says that the model failed, not only that its prediction is NaN.
+    let one_step = std::fs::read_to_string(&path).unwrap().replace("atol = 1e-10", "atol = 1e-10\nmax_steps = 1");
+    std::fs::write(dir.join("one_step.toml"), one_step).unwrap();
+    let start = std::time::Instant::now();
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+        .args(["calibrate", &dir.join("one_step.toml").display().to_string(), "--kernel", "none", "--out", &dir.join("far").display().to_string()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    println!("{stderr}");
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("could not be computed") && stderr.contains("max_steps"), "{stderr}");
+    assert!(start.elapsed() < std::time::Duration::from_secs(30) && !dir.join("far/summary.json").exists());
 }
 
 /// The kinetics example's truth, integrated here by classical RK4 with a

@@ -51,10 +51,17 @@ fn why_not_finite(problem: &Problem, b: usize, draw: &[f64]) -> String {
     }
     let theta = &draw[..lik.n_theta];
     let mut eta = vec![0.0; block.len()];
+    let failures = lik.simulator.failures();
     lik.simulator.predict(block.model_index, &block.x, theta, &mut eta);
+    // A model that says it failed (an ODE that did not integrate) is named as such.
+    let failed = if lik.simulator.failures() > failures {
+        "; the model reports that it could not be computed there (an ODE whose integration failed before the data's latest x: more steps than [model.solver] max_steps, a step size too small, or a rate that is not finite)"
+    } else {
+        ""
+    };
     if let Some(i) = eta.iter().position(|v| !v.is_finite()) {
         return format!(
-            "{file}: observable '{name}': the model's prediction is not finite at any of {DRAWS} prior draws tried (e.g. {} at x = {:e} for {} = {:?}); check the model, or narrow the prior to where it is defined",
+            "{file}: observable '{name}': the model's prediction is not finite at any of {DRAWS} prior draws tried (e.g. {} at x = {:e} for {} = {:?}){failed}; check the model, or narrow the prior to where it is defined",
             eta[i],
             block.x[i],
             lik.simulator.parameter_names().join(", "),
