@@ -183,6 +183,10 @@ pub enum Command {
         /// Output folder (default: outputs/<config name>)
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Where the simulate stage runs the design points: local (parallel processes) or
+        /// slurm (a job array submitted with sbatch and followed with squeue)
+        #[arg(long, default_value = "local")]
+        executor: String,
     },
     /// Generate mock measurements from a built-in truth
     Simulate {
@@ -207,6 +211,10 @@ pub enum SimulateSystem {
         /// With --design: run only this design id (one SLURM array task)
         #[arg(long, requires = "design")]
         only: Option<i64>,
+        /// With --only: --out is the point's own folder (what `mdpipe run` gives each attempt),
+        /// written directly, without a copy of the design
+        #[arg(long, requires = "only")]
+        point_folder: bool,
         /// Particlization: none (f_eq), grad (Grad 14-moment shear δf, Bjorken shear) or grad-transverse
         /// (adds the blast wave's transverse expansion rates)
         #[arg(long, default_value = "grad")]

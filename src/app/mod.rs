@@ -21,14 +21,14 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::TrainEmulator { config, training, design, seed, out } => commands::train_emulator(&config, &training, design.as_deref(), seed, &out),
         Command::ValidateEmulator { emulator, validation, folds, seed } => commands::validate_emulator(&emulator, validation.as_deref(), folds, seed),
         Command::Report { dirs, out, png } => commands::report(&dirs, &out, png.as_deref()),
-        Command::Run { config, stage, force, seed, out } => commands::run_study(&config, stage, force, seed, out),
+        Command::Run { config, stage, force, seed, out, executor } => commands::run_study(&config, stage, force, seed, out, &executor),
         Command::Demo { seed, out } => demo::run(seed, &out),
         Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator, heavy_ion_events, diagnose } => {
             bench::command(bench::BenchArgs { config, evaluations, likelihood_only, sampler, out, seed, emulator, heavy_ion_events, diagnose })
         }
         Command::Ingest { runs, pt_bins, design, min_events, format, out } => commands::ingest(&runs, pt_bins, design.as_deref(), min_events, &format, &out),
-        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, only, delta_f, events, oversample, seed, layout, relative_error, out } } => {
-            simulate::heavy_ion(simulate::HeavyIonArgs { point, design, only, delta_f, events, oversample, seed, layout, relative_error, out })
+        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, only, point_folder, delta_f, events, oversample, seed, layout, relative_error, out } } => {
+            simulate::heavy_ion(simulate::HeavyIonArgs { point, design, only, point_folder, delta_f, events, oversample, seed, layout, relative_error, out })
         }
         Command::Simulate { system: SimulateSystem::BallDrop { seed, out, k, g, v0, h0, points, t_max, sigma } } => simulate::ball_drop(seed, &out, k, g, v0, h0, points, t_max, &sigma),
     }

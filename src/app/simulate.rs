@@ -12,6 +12,7 @@ pub struct HeavyIonArgs {
     pub point: Option<String>,
     pub design: Option<PathBuf>,
     pub only: Option<i64>,
+    pub point_folder: bool,
     pub delta_f: String,
     pub events: Option<usize>,
     pub oversample: usize,
@@ -24,6 +25,13 @@ pub struct HeavyIonArgs {
 pub fn heavy_ion(a: HeavyIonArgs) -> Result<()> {
     let df: heavy_ion::DeltaF = a.delta_f.parse()?;
     let smooth = a.events.is_none() && a.out.extension().is_some_and(|e| e == "csv" || e == "parquet");
+    if let (true, Some(design), Some(id)) = (a.point_folder, &a.design, a.only) {
+        let n_events = a.events.unwrap_or(100);
+        let params = heavy_ion::design_point(design, id)?;
+        heavy_ion::simulate_point(id, &params, df, n_events, a.oversample, a.seed, a.layout.parse()?, &a.out)?;
+        println!("wrote {n_events} events of design point {id} (delta-f {}) to {}", a.delta_f, a.out.display());
+        return Ok(());
+    }
     if !smooth {
         let n_events = a.events.unwrap_or(100);
         let start = std::time::Instant::now();

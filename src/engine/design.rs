@@ -261,7 +261,6 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
     }
     let mut df = DataFrame::new(n, cols)?;
     artifacts::write_parquet_atomic(&out.join("design.parquet"), &mut df, Some(&prov))?;
-    let width = (n.max(1) - 1).to_string().len().max(3);
     for (i, r) in rows.iter().enumerate() {
         let mut text = String::new();
         for (key, value) in &spec.fixed {
@@ -270,8 +269,9 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
         for (p, v) in spec.parameters.iter().zip(r) {
             text.push_str(&format!("{} {v}\n", p.key));
         }
-        artifacts::write_text_atomic(&out.join("parameters").join(format!("parameter_{i:0width$}")), &text)?;
+        artifacts::write_text_atomic(&parameter_file(out, i as i64, n), &text)?;
     }
+    let width = parameter_file_width(n);
     let param_file = format!("parameters/parameter_$(printf '%0{width}d' $SLURM_ARRAY_TASK_ID)");
     let cmd = spec.slurm.command.replace("{param_file}", &param_file).replace("{point}", "$(printf '%04d' $SLURM_ARRAY_TASK_ID)").replace("{id}", "$SLURM_ARRAY_TASK_ID");
     let script = format!(
@@ -286,6 +286,30 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
     artifacts::write_text_atomic(&out.join("submit.slurm"), &script)?;
     artifacts::write_json_atomic(&out.join("quality.json"), &serde_json::json!({"quality": q, "provenance": prov}))?;
     Ok(q)
+}
+
+fn parameter_file_width(n: usize) -> usize {
+    (n.max(1) - 1).to_string().len().max(3)
+}
+
+/// The iEBE-MUSIC parameter file of point `id` in a design of `n` points written into `dir`.
+pub fn parameter_file(dir: &Path, id: i64, n: usize) -> std::path::PathBuf {
+    dir.join("parameters").join(format!("parameter_{id:0width$}", width = parameter_file_width(n)))
+}
+
+/// The points of a design.parquet: each design id with its parameter values by name.
+pub fn read_points(design: &Path) -> Result<Vec<(i64, BTreeMap<String, f64>)>> {
+    use polars::prelude::DataType;
+    let df = artifacts::read_parquet(design)?;
+    let column = |name: &str| -> Result<Vec<f64>> {
+        let c = df.column(name).map_err(|_| anyhow!("{}: missing column '{name}'", design.display()))?.cast(&DataType::Float64)?;
+        let ca = c.f64()?;
+        (0..df.height()).map(|i| ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", design.display(), i + 1))).collect()
+    };
+    let ids = column("design_id")?;
+    let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).filter(|n| n != "design_id").collect();
+    let columns: Vec<Vec<f64>> = names.iter().map(|n| column(n)).collect::<Result<_>>()?;
+    Ok((0..ids.len()).map(|i| (ids[i] as i64, names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect())).collect())
 }
 
 fn toml_scalar(v: &toml::Value) -> String {

@@ -9,6 +9,7 @@ pub mod compare;
 pub mod design;
 pub mod diagnose;
 pub mod emulator;
+pub mod execute;
 pub mod gp;
 pub mod ingest;
 pub mod model;

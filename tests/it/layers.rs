@@ -6,10 +6,11 @@
 use std::path::{Path, PathBuf};
 
 /// Units from the bottom up, with their rank.
-const UNITS: [(&str, u32); 15] = [
+const UNITS: [(&str, u32); 16] = [
     ("base", 0),
     ("engine::gp", 1),
     ("engine::model", 2),
+    ("engine::execute", 2),
     ("engine::design", 3),
     ("engine::ingest", 3),
     ("engine::emulator", 3),

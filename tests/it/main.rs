@@ -4,6 +4,7 @@ mod bad_inputs;
 mod ball_drop;
 mod checkpoint;
 mod closed_form;
+mod cluster;
 mod declared;
 mod common;
 mod diagnose;

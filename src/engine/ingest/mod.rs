@@ -11,6 +11,7 @@
 pub mod cumulants;
 pub mod hdf5;
 pub mod layout;
+pub mod tables;
 
 use crate::base::artifacts::{self, Provenance};
 use anyhow::{anyhow, bail, Context, Result};
@@ -228,30 +229,7 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
     if settings.pt_edges.len() < 2 || settings.pt_edges.windows(2).any(|w| !(w[1] > w[0])) {
         bail!("--pt-bins: edges must be increasing, at least two (got {:?})", settings.pt_edges);
     }
-    let mut folders: Vec<(i64, PathBuf)> = Vec::new();
-    for entry in std::fs::read_dir(runs_dir).with_context(|| format!("listing runs folder {}", runs_dir.display()))? {
-        let path = entry?.path();
-        if !path.is_dir() {
-            continue;
-        }
-        let name = path.file_name().unwrap().to_string_lossy().into_owned();
-        // Hidden folders are staging areas of writes in progress (or interrupted).
-        if name.starts_with('.') {
-            continue;
-        }
-        if let Some(id) = design_id_of(&name) {
-            folders.push((id, path));
-        }
-    }
-    folders.sort();
-    if folders.is_empty() {
-        bail!("{}: no design point folders (expected one folder per point, named by its design id, e.g. 0007)", runs_dir.display());
-    }
-    for w in folders.windows(2) {
-        if w[0].0 == w[1].0 {
-            bail!("{} and {} both name design point {}", w[0].1.display(), w[1].1.display(), w[0].0);
-        }
-    }
+    let folders = point_folders(runs_dir)?;
     let default_design = runs_dir.join("design.parquet");
     let design_path = design.map(Path::to_path_buf).or_else(|| default_design.exists().then_some(default_design));
     let design_df = design_path.as_deref().map(artifacts::read_parquet).transpose()?;
@@ -286,19 +264,51 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
         })
         .collect();
     bar.finish_and_clear();
-    let mut missing_points = Vec::new();
-    if let Some(df) = &design_df {
-        let ids = design_ids(df, design_path.as_deref().unwrap())?;
-        missing_points = ids.iter().copied().filter(|id| !folders.iter().any(|(f, _)| f == id)).collect();
-        if let Some((id, dir)) = folders.iter().find(|(f, _)| !ids.contains(f)) {
-            bail!("{}: design point {id} is not in the design {}", dir.display(), design_path.unwrap().display());
-        }
-    }
+    let missing_points = missing_points(&folders, design_df.as_ref(), design_path.as_deref())?;
     let (points, rows): (Vec<PointReport>, Vec<Vec<IngestedRow>>) = results.into_iter().unzip();
     // No config here: the analysis settings stand in for its hash.
     let settings_hash = artifacts::sha256_hex(format!("{settings:?}").as_bytes());
     let prov = Provenance::new(settings_hash, String::new(), 0, &format!("ingest {}", runs_dir.display()));
     Ok((Ingested { rows: rows.into_iter().flatten().collect(), report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov } }, design_df))
+}
+
+/// The design point folders of a runs folder (named by design id, e.g. `0007`), sorted.
+pub(crate) fn point_folders(runs_dir: &Path) -> Result<Vec<(i64, PathBuf)>> {
+    let mut folders: Vec<(i64, PathBuf)> = Vec::new();
+    for entry in std::fs::read_dir(runs_dir).with_context(|| format!("listing runs folder {}", runs_dir.display()))? {
+        let path = entry?.path();
+        if !path.is_dir() {
+            continue;
+        }
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        // Hidden folders are staging areas of writes in progress (or interrupted).
+        if name.starts_with('.') {
+            continue;
+        }
+        if let Some(id) = design_id_of(&name) {
+            folders.push((id, path));
+        }
+    }
+    folders.sort();
+    if folders.is_empty() {
+        bail!("{}: no design point folders (expected one folder per point, named by its design id, e.g. 0007)", runs_dir.display());
+    }
+    for w in folders.windows(2) {
+        if w[0].0 == w[1].0 {
+            bail!("{} and {} both name design point {}", w[0].1.display(), w[1].1.display(), w[0].0);
+        }
+    }
+    Ok(folders)
+}
+
+/// Design points without a folder; an error if a folder names a point the design lacks.
+pub(crate) fn missing_points(folders: &[(i64, PathBuf)], design_df: Option<&DataFrame>, design_path: Option<&Path>) -> Result<Vec<i64>> {
+    let (Some(df), Some(path)) = (design_df, design_path) else { return Ok(Vec::new()) };
+    let ids = design_ids(df, path)?;
+    if let Some((id, dir)) = folders.iter().find(|(f, _)| !ids.contains(f)) {
+        bail!("{}: design point {id} is not in the design {}", dir.display(), path.display());
+    }
+    Ok(ids.iter().copied().filter(|id| !folders.iter().any(|(f, _)| f == id)).collect())
 }
 
 fn design_ids(df: &DataFrame, path: &Path) -> Result<Vec<i64>> {

@@ -308,7 +308,8 @@ impl std::str::FromStr for Layout {
 /// `dir` is refused: a rerun must never mix its events with an earlier run's.
 pub fn write_point(dir: &std::path::Path, events: &[Event], layout: Layout) -> anyhow::Result<()> {
     use anyhow::Context;
-    if dir.exists() {
+    // An empty folder is the one `mdpipe run` made for this attempt; rename replaces it.
+    if dir.exists() && std::fs::read_dir(dir).map_or(true, |mut d| d.next().is_some()) {
         anyhow::bail!("{} already exists: remove it to rerun this point (its old events would mix with the new ones)", dir.display());
     }
     let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();

@@ -619,14 +619,31 @@ pub fn simulate_runs(points: &[(i64, HeavyIonParams)], delta_f: DeltaF, n_events
     }
     let bar = crate::base::progress::bar(points.len() as u64, "heavy-ion stand-in, event by event");
     points.par_iter().try_for_each(|(id, p)| -> anyhow::Result<()> {
-        let tables = events::SmoothTables::new(p, delta_f);
-        let evs = events::sample_events(&tables, n_events, oversample.max(1), seed.wrapping_add((*id as u64).wrapping_mul(1_000_003)));
-        events::write_point(&out.join(format!("{id:04}")), &evs, layout)?;
+        simulate_point(*id, p, delta_f, n_events, oversample, seed, layout, &out.join(format!("{id:04}")))?;
         bar.inc(1);
         Ok(())
     })?;
     bar.finish_and_clear();
     Ok(points.len() * n_events)
+}
+
+/// The events of one design point, written into `dir`. Its seed depends on
+/// the point's id only, so a point run alone (one array task, one attempt of
+/// `mdpipe run`) equals the same point run with the whole design.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_point(id: i64, p: &HeavyIonParams, delta_f: DeltaF, n_events: usize, oversample: usize, seed: u64, layout: events::Layout, dir: &std::path::Path) -> anyhow::Result<()> {
+    if n_events == 0 {
+        anyhow::bail!("--events must be at least 1");
+    }
+    let tables = events::SmoothTables::new(p, delta_f);
+    let evs = events::sample_events(&tables, n_events, oversample.max(1), seed.wrapping_add((id as u64).wrapping_mul(1_000_003)));
+    events::write_point(dir, &evs, layout)
+}
+
+/// The parameters of design point `id` of a design.parquet.
+pub fn design_point(design: &std::path::Path, id: i64) -> anyhow::Result<HeavyIonParams> {
+    let d = read_design_points(design)?;
+    d.ids.iter().position(|&i| i == id).map(|k| d.points[k]).ok_or_else(|| anyhow::anyhow!("--only {id}: no design point {id} in {}", design.display()))
 }
 
 /// Runs the smooth (infinite-statistics) stand-in at every point of a design,

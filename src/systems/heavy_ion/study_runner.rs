@@ -33,6 +33,7 @@ use crate::base::progress::observer;
 use crate::engine::calibrate::{self, Analysis, Overrides, Problem};
 use crate::engine::compare;
 use crate::engine::emulator::{EmulatorFamily, EmulatorSettings};
+use crate::engine::execute::{self, Executor, OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::{ModelFamily, Registry};
 use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
@@ -50,21 +51,29 @@ pub struct RunConfig {
     /// Training design points and held-out validation points.
     pub points: usize,
     pub validation_points: usize,
-    /// Events per design point of the model runs, and Cooper–Frye samples per event.
-    pub events: usize,
+    /// The simulator run at each design point. Without it, the heavy-ion
+    /// stand-in (`mdpipe simulate heavy-ion`) with `events` and `model_delta_f`.
+    #[serde(default)]
+    pub simulator: Option<SimulatorSpec>,
+    /// Events per design point of the stand-in's model runs, and Cooper–Frye samples per event.
+    #[serde(default)]
+    pub events: Option<usize>,
     #[serde(default = "default_oversample")]
     pub oversample: usize,
     /// Particlization of the model runs: none (f_eq), as in the paper.
     #[serde(default = "default_model_delta_f")]
     pub model_delta_f: String,
     /// Mock data: the stand-in at the parameters' `truth` values with this δf.
-    pub mock_delta_f: String,
+    /// Without it, the calibrations use the config's `[data] measurements`.
+    #[serde(default)]
+    pub mock_delta_f: Option<String>,
     /// Stand-in parameters of the mock data when they are not the calibration
     /// parameters' truth values (a constant η/s = 0.1 behind a kink model:
     /// `{ eta_s = 0.1, e_sw = 0.2 }`).
     #[serde(default)]
     pub mock_truth: Option<BTreeMap<String, f64>>,
-    pub mock_events: usize,
+    #[serde(default)]
+    pub mock_events: Option<usize>,
     /// Observable sets to calibrate on, in order (each should extend the last).
     pub observable_sets: Vec<Vec<String>>,
     /// Discrepancy kernels: "none", "I", "II".
@@ -90,14 +99,24 @@ fn default_kernels() -> Vec<String> {
 
 impl RunConfig {
     /// Checks everything a later stage would trip on, before any stage runs.
-    fn validate(&self) -> Result<()> {
-        for (field, n) in [("points", self.points), ("validation_points", self.validation_points), ("events", self.events), ("mock_events", self.mock_events), ("oversample", self.oversample)] {
-            if n == 0 {
+    fn validate(&self, design_parameters: &[String]) -> Result<()> {
+        for (field, n) in [("points", Some(self.points)), ("validation_points", Some(self.validation_points)), ("events", self.events), ("mock_events", self.mock_events), ("oversample", Some(self.oversample))] {
+            if n == Some(0) {
                 bail!("{field} must be at least 1");
             }
         }
+        match &self.simulator {
+            Some(spec) => spec.validate(design_parameters).context("[run.simulator]")?,
+            None if self.events.is_none() => bail!("give `events` (the stand-in's events per point) or a [run.simulator] table"),
+            None => {}
+        }
         self.model_delta_f.parse::<DeltaF>().context("model_delta_f")?;
-        self.mock_delta_f.parse::<DeltaF>().context("mock_delta_f")?;
+        if let Some(m) = &self.mock_delta_f {
+            m.parse::<DeltaF>().context("mock_delta_f")?;
+            if self.mock_events.is_none() {
+                bail!("mock_delta_f needs mock_events (the events of the stand-in's mock data)");
+            }
+        }
         for k in &self.kernels {
             DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("kernels: unknown kernel {k:?} (use none, I or II)"))?;
         }
@@ -106,9 +125,12 @@ impl RunConfig {
         }
         let known: Vec<String> = artifacts::PAPER_TABLE_OBSERVABLES.iter().map(|(_, name)| name.to_string()).collect();
         for o in self.observable_sets.iter().flatten() {
-            if !known.contains(o) {
+            if self.simulator.is_none() && !known.contains(o) {
                 bail!("observable_sets: unknown observable '{o}' (the stand-in gives {})", known.join(", "));
             }
+        }
+        if !self.candidates.is_empty() && !self.stand_in_study() {
+            bail!("candidates come from the stand-in's library: they need the stand-in's mock data (mock_delta_f)");
         }
         for c in &self.candidates {
             heavy_ion::candidate(c).context("candidates")?;
@@ -117,6 +139,17 @@ impl RunConfig {
             bail!("candidate_points must be at least 1");
         }
         Ok(())
+    }
+}
+
+impl RunConfig {
+    /// A study on the stand-in's mock data (with its truth known), rather than on measurements.
+    pub fn stand_in_study(&self) -> bool {
+        self.mock_delta_f.is_some()
+    }
+
+    fn output(&self) -> OutputKind {
+        self.simulator.as_ref().map_or(OutputKind::IebeMusic, |s| s.output)
     }
 }
 
@@ -131,6 +164,10 @@ pub struct RunOptions {
     /// Run stages even when their stamps match.
     pub force: bool,
     pub show_progress: bool,
+    /// Where the simulate stage runs the design points.
+    pub executor: Executor,
+    /// The mdpipe executable, substituted for `{mdpipe}` (the stand-in's command).
+    pub mdpipe: PathBuf,
 }
 
 /// Paths of a run's artifacts.
@@ -210,7 +247,9 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
             bail!("--stage {s}: unknown stage (use one of {})", STAGES.join(", "));
         }
     }
-    run.validate().with_context(|| format!("{}: [run]", config.path.display()))?;
+    let spec = crate::engine::design::DesignSpec::load(&config.resolve(&run.design))?;
+    let design_parameters: Vec<String> = spec.parameters.iter().map(|p| p.name.clone()).collect();
+    run.validate(&design_parameters).with_context(|| format!("{}: [run]", config.path.display()))?;
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
@@ -219,8 +258,12 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     r.stage("simulate", &["design"], &[r.paths.design().join("runs"), r.paths.validation_design().join("runs")], |r| r.simulate())?;
     r.stage("ingest", &["simulate"], &[r.paths.training(), r.paths.validation()], |r| r.ingest())?;
     r.stage("emulator", &["ingest"], &[r.paths.emulator().join("emulator.json"), r.paths.emulator().join("validation.json")], |r| r.emulator())?;
-    r.stage("mock", &[], &[r.paths.measurements()], |r| r.mock())?;
-    r.stage("calibrate", &["emulator", "mock"], &[r.paths.out.join("study.json")], |r| r.calibrate())?;
+    if run.stand_in_study() {
+        r.stage("mock", &[], &[r.paths.measurements()], |r| r.mock())?;
+        r.stage("calibrate", &["emulator", "mock"], &[r.paths.out.join("study.json")], |r| r.calibrate())?;
+    } else {
+        r.stage("calibrate", &["emulator"], &[r.paths.calibrate().join("cases.json")], |r| r.calibrate())?;
+    }
     r.stage("report", &["calibrate"], &[r.paths.out.join("report.html")], |r| r.report())?;
     if !run.candidates.is_empty() {
         let variants: Vec<PathBuf> = run.candidates.iter().map(|c| r.paths.candidate(c).join("emulator").join("emulator.json")).collect();
@@ -241,11 +284,11 @@ impl Runner<'_> {
             // The design stage also writes the array script, which carries the simulate settings.
             "design" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed,
                 "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f}),
-            "simulate" => serde_json::json!({"events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed}),
+            "simulate" => serde_json::json!({"simulator": serde_json::to_value(&run.simulator)?, "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed}),
             "ingest" => serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()}),
             "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed}),
             "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()}),
-            "calibrate" => serde_json::json!({"config": self.analysis_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
+            "calibrate" => serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
             "candidates" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "candidates": run.candidates, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
                 "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed}),
             "diagnose" => serde_json::json!({"config": self.config.hash, "observables": self.diagnose_observables(), "seed": self.opts.seed}),
@@ -331,14 +374,16 @@ impl Runner<'_> {
         let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
         let hash = artifacts::sha256_hex(&bytes);
         for (dir, n, seed) in [(self.paths.design(), self.run.points, self.opts.seed), (self.paths.validation_design(), self.run.validation_points, self.opts.seed.wrapping_add(7919))] {
-            // The array script runs the stand-in exactly as the simulate stage would.
-            spec.slurm.command = format!(
-                "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {} --oversample {} --layout hdf5 --seed {} --out runs",
-                self.run.model_delta_f,
-                self.run.events,
-                self.run.oversample,
-                self.runs_seed(dir == self.paths.validation_design())
-            );
+            // The array script runs the stand-in exactly as the simulate stage would
+            // (a user's simulator keeps the design spec's own [slurm] command).
+            if let (None, Some(events)) = (&self.run.simulator, self.run.events) {
+                spec.slurm.command = format!(
+                    "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {events} --oversample {} --layout hdf5 --seed {} --out runs",
+                    self.run.model_delta_f,
+                    self.run.oversample,
+                    self.runs_seed(dir == self.paths.validation_design())
+                );
+            }
             // Runs of an earlier design belong to other points: the simulate stage
             // keeps unstamped point folders (SLURM's), so they must not survive here.
             let runs = dir.join("runs");
@@ -353,28 +398,49 @@ impl Runner<'_> {
     }
 
     fn simulate(&mut self) -> Result<()> {
-        let delta_f: DeltaF = self.run.model_delta_f.parse()?;
         let stale = read_stamp(&self.paths.stamp("simulate")).is_some();
         for dir in [self.paths.design(), self.paths.validation_design()] {
             let runs = dir.join("runs");
             if stale && runs.exists() {
-                // Settings changed since the last run: its events are not these.
+                // Settings changed since the last run: its runs are not these.
                 std::fs::remove_dir_all(&runs).with_context(|| format!("removing outdated runs {}", runs.display()))?;
             }
             std::fs::create_dir_all(&runs)?;
             std::fs::copy(dir.join("design.parquet"), runs.join("design.parquet"))?;
-            let d = heavy_ion::read_design_points(&dir.join("design.parquet"))?;
-            // Points already run (e.g. by the SLURM array) are kept, not redone.
-            let todo: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).filter(|(id, _)| !runs.join(format!("{id:04}")).exists()).collect();
-            if todo.is_empty() {
-                println!("  {}: every design point has its run", runs.display());
-                continue;
+            let validation = dir == self.paths.validation_design();
+            let spec = self.simulator(validation)?;
+            let design = dir.join("design.parquet");
+            let rows = crate::engine::design::read_points(&design)?;
+            let n = rows.len();
+            // Points already run (by an earlier attempt or the design's SLURM array) are kept.
+            let points = rows.into_iter().map(|(id, values)| execute::Point { id, param_file: crate::engine::design::parameter_file(&dir, id, n), values }).collect();
+            let label = if validation { "validation design" } else { "design" };
+            let job = execute::Job { spec: &spec, workdir: dir.clone(), design, runs: runs.clone(), points, label: label.into(), mdpipe: self.opts.mdpipe.clone() };
+            let report = execute::run(&job, self.opts.executor, self.opts.show_progress)?;
+            println!("  {}: {} points ({} had their run, {} ran, {} after a retry, {} failed) in {:.1} s", runs.display(), report.points, report.already_done, report.succeeded - report.already_done, report.retried.len(), report.failed.len(), report.seconds);
+            if !report.failed.is_empty() {
+                report.print_failures();
+                let ids: Vec<i64> = report.failed.iter().map(|f| f.id).collect();
+                println!("  warning: {} of {} points of the {label} failed and are left out (never averaged in): {ids:?}; see {}", ids.len(), n, execute::ExecutionReport::path(&runs).display());
             }
-            let seed = self.runs_seed(dir == self.paths.validation_design());
-            let n = heavy_ion::simulate_runs(&todo, delta_f, self.run.events, self.run.oversample, seed, Layout::Hdf5, &runs)?;
-            println!("  {}: {} points, {n} events", runs.display(), todo.len());
         }
         Ok(())
+    }
+
+    /// What the simulate stage runs: `[run.simulator]`, or the stand-in as one
+    /// instance of it (the same command line as the design's SLURM array).
+    fn simulator(&self, validation: bool) -> Result<SimulatorSpec> {
+        if let Some(s) = &self.run.simulator {
+            return Ok(s.clone());
+        }
+        let events = self.run.events.ok_or_else(|| anyhow!("[run] events is needed to run the stand-in"))?;
+        let command = format!(
+            "{{mdpipe}} simulate heavy-ion --design {{design}} --only {{id}} --point-folder --delta-f {} --events {events} --oversample {} --layout hdf5 --seed {} --out {{point}}",
+            self.run.model_delta_f,
+            self.run.oversample,
+            self.runs_seed(validation)
+        );
+        Ok(SimulatorSpec { command, output: OutputKind::IebeMusic, time_limit: "1h".into(), retries: 1, parallel: None, slurm: Default::default() })
     }
 
     fn ingest(&mut self) -> Result<()> {
@@ -387,8 +453,10 @@ impl Runner<'_> {
     /// Ingests one design's runs into a training table of the study's observables.
     fn ingest_design(&self, dir: &Path, out: &Path) -> Result<()> {
         let keep = self.all_observables();
-        let settings = crate::engine::ingest::IngestSettings::default();
-        let (mut ingested, design_df) = crate::engine::ingest::ingest_runs(&dir.join("runs"), Some(&dir.join("design.parquet")), &settings)?;
+        let (mut ingested, design_df) = match self.run.output() {
+            OutputKind::IebeMusic => crate::engine::ingest::ingest_runs(&dir.join("runs"), Some(&dir.join("design.parquet")), &crate::engine::ingest::IngestSettings::default())?,
+            OutputKind::Table => crate::engine::ingest::tables::ingest_tables(&dir.join("runs"), Some(&dir.join("design.parquet")))?,
+        };
         ingested.rows.retain(|r| keep.contains(&r.observable));
         let dropped = drop_incomplete_points(&mut ingested.rows);
         for (id, what) in &dropped {
@@ -397,6 +465,9 @@ impl Runner<'_> {
         let flagged: Vec<i64> = ingested.report.points.iter().filter(|p| p.flagged.is_some()).map(|p| p.design_id).collect();
         if !flagged.is_empty() {
             println!("  design points flagged by ingest and left out: {flagged:?}");
+        }
+        if !ingested.report.missing_points.is_empty() {
+            println!("  warning: design points without a run (failed, see runs/execution.json) left out of {}: {:?}", out.display(), ingested.report.missing_points);
         }
         let report = crate::engine::ingest::write(&ingested, design_df.as_ref(), out)?;
         let points: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
@@ -419,13 +490,15 @@ impl Runner<'_> {
 
     fn mock(&mut self) -> Result<()> {
         let params = HeavyIonParams::from_named(&self.truth_named()?)?;
-        let delta_f: DeltaF = self.run.mock_delta_f.parse()?;
+        let mock_delta_f = self.run.mock_delta_f.clone().unwrap_or_default();
+        let mock_events = self.run.mock_events.unwrap_or_default();
+        let delta_f: DeltaF = mock_delta_f.parse()?;
         let runs = self.paths.mock().join("runs");
         if runs.exists() {
             std::fs::remove_dir_all(&runs)?;
         }
         std::fs::create_dir_all(&runs)?;
-        heavy_ion::simulate_runs(&[(0, params)], delta_f, self.run.mock_events, self.run.oversample, mock_seed(self.opts.seed), Layout::Hdf5, &runs)?;
+        heavy_ion::simulate_runs(&[(0, params)], delta_f, mock_events, self.run.oversample, mock_seed(self.opts.seed), Layout::Hdf5, &runs)?;
         let (ingested, _) = crate::engine::ingest::ingest_runs(&runs, None, &crate::engine::ingest::IngestSettings::default())?;
         let undefined: Vec<String> = ingested.report.points.iter().flat_map(|p| p.undefined_bins.clone()).collect();
         if !undefined.is_empty() {
@@ -433,9 +506,9 @@ impl Runner<'_> {
         }
         let keep = self.all_observables();
         let data: Vec<Measurement> = ingested.rows.iter().filter(|r| keep.contains(&r.observable)).map(|r| Measurement::new(&r.observable, r.x, r.value, r.error)).collect();
-        let prov = Provenance::new(self.config.hash.clone(), artifacts::measurements_hash(&data), self.opts.seed, &format!("run --stage mock: {} events, delta-f {}", self.run.mock_events, self.run.mock_delta_f));
+        let prov = Provenance::new(self.config.hash.clone(), artifacts::measurements_hash(&data), self.opts.seed, &format!("run --stage mock: {mock_events} events, delta-f {mock_delta_f}"));
         artifacts::write_measurements(&self.paths.measurements(), &data, Some(&prov))?;
-        println!("  {} values from {} events (delta-f {}) -> {}", data.len(), self.run.mock_events, self.run.mock_delta_f, self.paths.measurements().display());
+        println!("  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}", data.len(), self.paths.measurements().display());
         Ok(())
     }
 
@@ -443,7 +516,9 @@ impl Runner<'_> {
     fn study_config(&self) -> Config {
         let mut c = self.config.clone();
         c.model = EmulatorFamily::model_table(&absolute(&self.paths.emulator()));
-        c.data.measurements = absolute(&self.paths.measurements());
+        if self.run.stand_in_study() {
+            c.data.measurements = absolute(&self.paths.measurements());
+        }
         c
     }
 
@@ -454,7 +529,9 @@ impl Runner<'_> {
         families.register(Arc::new(EmulatorFamily)).register(Arc::new(HeavyIonFamily));
         let mut analysis = Analysis::resolve(config, &families)?;
         // The emulator knows no units; the stand-in's come first, as in its figures.
-        analysis.units = HeavyIonFamily.units(config).or(&analysis.units);
+        if self.run.stand_in_study() {
+            analysis.units = HeavyIonFamily.units(config).or(&analysis.units);
+        }
         Ok(analysis)
     }
 
@@ -489,6 +566,9 @@ impl Runner<'_> {
                 dirs.push(dir);
             }
         }
+        if !self.run.stand_in_study() {
+            return self.write_cases(&dirs);
+        }
         let truth_curve: BTreeMap<String, f64> = self.truth_named()?.into_iter().collect();
         let study = crate::systems::heavy_ion::study::assess(&config, &dirs, &truth_curve, &self.paths.emulator(), &self.paths.validation(), &self.paths.measurements())?;
         artifacts::write_json_atomic(&self.paths.out.join("study.json"), &study)?;
@@ -497,7 +577,45 @@ impl Runner<'_> {
         Ok(())
     }
 
+    /// Without mock data there is no truth to assess: each case's parameters
+    /// and evidence, as `calibrate/cases.json` and `cases.md`.
+    fn write_cases(&self, dirs: &[PathBuf]) -> Result<()> {
+        let mut cases = Vec::new();
+        let mut md = String::from("| case | parameter | median | 95% interval | log evidence | converged |\n|---|---|---|---|---|---|\n");
+        for dir in dirs {
+            let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json"))?)?;
+            let case = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            for name in self.config.parameters.keys() {
+                let p = &summary["parameters"][name];
+                md.push_str(&format!("| {case} | {name} | {:.4} | [{:.4}, {:.4}] | {:.2} | {} |\n", p["median"].as_f64().unwrap_or(f64::NAN), p["q025"].as_f64().unwrap_or(f64::NAN), p["q975"].as_f64().unwrap_or(f64::NAN), summary["log_evidence"].as_f64().unwrap_or(f64::NAN), summary["diagnostics"]["converged"]));
+            }
+            cases.push(serde_json::json!({"case": case, "parameters": summary["parameters"], "log_evidence": summary["log_evidence"], "converged": summary["diagnostics"]["converged"]}));
+        }
+        let prov = Provenance::new(self.config.hash.clone(), self.data_hash()?, self.opts.seed, &format!("run {} --stage calibrate", self.config.path.display()));
+        let mut staged = artifacts::StagedWrites::new();
+        staged.json(&self.paths.calibrate().join("cases.json"), &serde_json::json!({"cases": cases, "provenance": prov}))?;
+        staged.text(&self.paths.calibrate().join("cases.md"), &md)?;
+        staged.commit()?;
+        println!("{md}");
+        Ok(())
+    }
+
+    /// SHA-256 of the measurements the calibrations use (the config's, when there is no mock stage).
+    fn data_hash(&self) -> Result<String> {
+        if self.run.stand_in_study() {
+            return Ok(String::new());
+        }
+        let path = self.config.resolve(&self.config.data.measurements);
+        Ok(artifacts::sha256_hex(&std::fs::read(&path).with_context(|| format!("reading the measurements {}", path.display()))?))
+    }
+
     fn report(&mut self) -> Result<()> {
+        if !self.run.stand_in_study() {
+            let html = crate::engine::report::build(&[self.paths.calibrate(), self.paths.emulator()], &format!("mdpipe run: {}", self.config.name), &[])?;
+            artifacts::write_text_atomic(&self.paths.out.join("report.html"), &html)?;
+            println!("  {}", self.paths.out.join("report.html").display());
+            return Ok(());
+        }
         let study: crate::systems::heavy_ion::study::Study = serde_json::from_str(&std::fs::read_to_string(self.paths.out.join("study.json"))?)?;
         let mut dirs = vec![self.paths.calibrate(), self.paths.emulator()];
         dirs.dedup();
@@ -542,7 +660,7 @@ impl Runner<'_> {
             spec.slurm.command = format!(
                 "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {} --oversample {} --layout hdf5 --seed {seed} --out runs",
                 if cand.shear_delta_f { "grad" } else { run.model_delta_f.as_str() },
-                run.events,
+                run.events.unwrap_or_default(),
                 run.oversample
             );
             crate::engine::design::write_design(&spec, &spec_hash, run.candidate_points.unwrap_or(run.points), seed, &design_dir)?;
@@ -551,7 +669,7 @@ impl Runner<'_> {
             std::fs::create_dir_all(&runs)?;
             std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
             let points: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).collect();
-            heavy_ion::simulate_runs(&points, delta_f, run.events, run.oversample, seed, Layout::Hdf5, &runs)?;
+            heavy_ion::simulate_runs(&points, delta_f, run.events.unwrap_or_default(), run.oversample, seed, Layout::Hdf5, &runs)?;
             let training = dir.join("training.parquet");
             self.ingest_design(&design_dir, &training)?;
             let command = format!("run {} --stage candidates ({name})", self.config.path.display());

@@ -1,0 +1,180 @@
+//! The Slurm executor: the points go out as one job array (`sbatch --array`),
+//! followed with `squeue` and the attempts' exit records. Failed, timed-out or
+//! vanished tasks go out again as a new array, up to the retry count. The
+//! arrays submitted are kept in `RUNS/.attempts/slurm.json`, so a restarted
+//! mdpipe (the login-node case) follows the same array instead of submitting again.
+
+use super::attempt;
+use super::spec::shell_quote;
+use super::{Job, Tracker};
+use crate::base::artifacts;
+use anyhow::{anyhow, bail, Context, Result};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+#[derive(Default, serde::Serialize, serde::Deserialize)]
+struct State {
+    submissions: Vec<Submission>,
+}
+
+#[derive(Clone, serde::Serialize, serde::Deserialize)]
+struct Submission {
+    job_id: String,
+    ids: Vec<i64>,
+}
+
+fn state_path(runs: &Path) -> PathBuf {
+    attempt::attempts_dir(runs).join("slurm.json")
+}
+
+pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
+    if Command::new("sbatch").arg("--version").output().is_err() {
+        bail!("sbatch not found: --executor slurm runs where Slurm's commands are (a login node), or use --executor local");
+    }
+    let poll = Duration::from_secs_f64(job.spec.slurm.poll_seconds.unwrap_or(10.0));
+    let path = state_path(&job.runs);
+    let mut state: State = match std::fs::read_to_string(&path) {
+        Ok(text) => serde_json::from_str(&text).with_context(|| format!("{}: not mdpipe's Slurm state", path.display()))?,
+        Err(_) => State::default(),
+    };
+    let done = |id: i64| job.runs.join(attempt::point_name(id)).exists();
+    let mut seen: BTreeSet<(i64, String)> = BTreeSet::new();
+    for &id in todo {
+        for tag in attempt::ended_tags(&job.runs, id) {
+            seen.insert((id, tag.clone()));
+            if tracker.replay(id, attempt::settle(&job.runs, id, &tag, job.spec.output)?) {
+                break;
+            }
+        }
+    }
+    if let Some(last) = state.submissions.last() {
+        println!("  {}: following array job {} from an earlier mdpipe", job.label, last.job_id);
+    }
+    loop {
+        // squeue first: a task that has left the queue has written its record.
+        let live = match state.submissions.last() {
+            Some(s) => queued_tasks(&s.job_id)?,
+            None => Vec::new(),
+        };
+        for &id in todo {
+            for tag in attempt::ended_tags(&job.runs, id) {
+                if seen.insert((id, tag.clone())) {
+                    tracker.ended(id, attempt::settle(&job.runs, id, &tag, job.spec.output)?);
+                }
+            }
+        }
+        if let Some(last) = state.submissions.last() {
+            let tag = format!("j{}", last.job_id);
+            for &id in &last.ids {
+                let still_queued = live.iter().any(|(t, _)| *t == id);
+                if !still_queued && !done(id) && !attempt::has_ended(&job.runs, id, &tag) {
+                    attempt::mark_lost(&job.runs, id, &tag)?;
+                    seen.insert((id, tag.clone()));
+                    tracker.ended(id, attempt::settle(&job.runs, id, &tag, job.spec.output)?);
+                }
+            }
+        }
+        if !live.is_empty() {
+            let running = live.iter().filter(|(_, s)| s == "R" || s == "CG").count();
+            tracker.set_running(running, live.len() - running);
+            std::thread::sleep(poll);
+            continue;
+        }
+        let again: Vec<i64> = todo.iter().copied().filter(|&id| !done(id) && tracker.may_retry(id)).collect();
+        if again.is_empty() {
+            return Ok(());
+        }
+        let job_id = submit(job, &again)?;
+        println!("  {}: submitted array job {job_id} ({} points)", job.label, again.len());
+        state.submissions.push(Submission { job_id, ids: again });
+        artifacts::write_json_atomic(&path, &state)?;
+    }
+}
+
+/// Submits `ids` as one array; returns the array's job id.
+fn submit(job: &Job, ids: &[i64]) -> Result<String> {
+    let dir = std::path::absolute(attempt::attempts_dir(&job.runs))?;
+    let s = &job.spec.slurm;
+    let minutes = job.spec.time_limit_seconds().div_ceil(60) + 2;
+    let name: String = job.label.chars().map(|c| if c.is_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
+    let mut script = format!("#!/bin/bash\n# Made by mdpipe: one design point per array task (the task id is the design id).\n#SBATCH --job-name=mdpipe-{name}\n#SBATCH --output={}/slurm-%A_%a.out\n#SBATCH --time={minutes}\n", dir.display());
+    for (key, value) in [("partition", s.partition.clone()), ("account", s.account.clone()), ("cpus-per-task", s.cpus_per_task.map(|c| c.to_string())), ("mem", s.mem.clone())] {
+        if let Some(v) = value {
+            script.push_str(&format!("#SBATCH --{key}={v}\n"));
+        }
+    }
+    for extra in &s.extra {
+        script.push_str(&format!("#SBATCH {extra}\n"));
+    }
+    script.push_str(&format!("exec bash {}/\"$(printf '%04d' \"$SLURM_ARRAY_TASK_ID\")\".sh \"j$SLURM_ARRAY_JOB_ID\"\n", shell_quote(&dir.display().to_string())));
+    let path = dir.join("array.sbatch");
+    artifacts::write_text_atomic(&path, &script)?;
+    let mut array = ids.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(",");
+    if let Some(p) = job.spec.parallel {
+        array.push_str(&format!("%{p}"));
+    }
+    let out = Command::new("sbatch").arg("--parsable").arg(format!("--array={array}")).arg(format!("--chdir={}", std::path::absolute(&job.workdir)?.display())).arg(&path).output().context("running sbatch")?;
+    if !out.status.success() {
+        bail!("sbatch {} failed: {}", path.display(), String::from_utf8_lossy(&out.stderr).trim());
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let id = text.trim().split(';').next().unwrap_or("").to_string();
+    if id.is_empty() || !id.chars().all(|c| c.is_ascii_digit()) {
+        bail!("sbatch printed {:?}, not a job id", text.trim());
+    }
+    Ok(id)
+}
+
+/// The array's tasks still in the queue (pending, running or completing), as (design id, state).
+fn queued_tasks(job_id: &str) -> Result<Vec<(i64, String)>> {
+    let mut last_error = String::new();
+    // The controller can be briefly unreachable; a restart would follow the same array anyway.
+    for _ in 0..10 {
+        let out = Command::new("squeue").args(["-h", "-r", "-j", job_id, "-o", "%i %t"]).output().context("running squeue")?;
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        if out.status.success() {
+            return Ok(String::from_utf8_lossy(&out.stdout).lines().flat_map(parse_task_line).collect());
+        }
+        // A finished job is forgotten by the controller after a while.
+        if stderr.contains("Invalid job id") {
+            return Ok(Vec::new());
+        }
+        last_error = stderr.trim().to_string();
+        std::thread::sleep(Duration::from_secs(3));
+    }
+    Err(anyhow!("squeue -j {job_id} failed 10 times: {last_error}; the array keeps running, and mdpipe started again follows it"))
+}
+
+/// "57_3 R" → [(3, "R")]; "57_[4-6,9%2] PD" → [(4, "PD"), (5, "PD"), (6, "PD"), (9, "PD")].
+fn parse_task_line(line: &str) -> Vec<(i64, String)> {
+    let mut parts = line.split_whitespace();
+    let (Some(id), Some(state)) = (parts.next(), parts.next()) else { return Vec::new() };
+    let Some((_, task)) = id.split_once('_') else { return Vec::new() };
+    let task = task.trim_start_matches('[').trim_end_matches(']');
+    let task = task.split('%').next().unwrap_or("");
+    let mut out = Vec::new();
+    for piece in task.split(',') {
+        match piece.split_once('-') {
+            Some((a, b)) => {
+                if let (Ok(a), Ok(b)) = (a.parse::<i64>(), b.parse::<i64>()) {
+                    out.extend((a..=b).map(|i| (i, state.to_string())));
+                }
+            }
+            None => out.extend(piece.parse::<i64>().ok().map(|i| (i, state.to_string()))),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn squeue_task_lines_in_both_forms() {
+        assert_eq!(super::parse_task_line("57_3 R"), vec![(3, "R".to_string())]);
+        let ids: Vec<i64> = super::parse_task_line("57_[4-6,9%2] PD").into_iter().map(|(i, _)| i).collect();
+        assert_eq!(ids, vec![4, 5, 6, 9]);
+        assert!(super::parse_task_line("57 R").is_empty());
+    }
+}
