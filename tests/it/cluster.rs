@@ -60,7 +60,8 @@ max = 2.0
 min = 0.0
 max = 3.0
 [discrepancy]
-kernel = "none"
+kernel = "II"
+bounds = {{ cbar = [0.0, 5.0], ell = [0.0, 10.0], r = [0.0, 3.0], s = [0.0, 5.0] }}
 [sampler.smc]
 particles = 400
 replicates = 2

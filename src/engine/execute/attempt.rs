@@ -37,10 +37,11 @@ pub fn write_script(runs: &Path, id: i64, command: &str, workdir: &Path, spec: &
 set -u
 tag="$1"
 base={dir}/{name}."$tag"
-rm -rf "$base" && mkdir -p "$base" || exit 1
-# Held while this attempt runs: a restarted mdpipe waits for it instead of starting another.
+# Held while this attempt runs: a restarted mdpipe waits for it instead of
+# starting another, and a second script with the same tag leaves at once.
 exec 9>"$base.lock"
 flock -n 9 || exit 0
+rm -rf "$base" && mkdir -p "$base" || exit 1
 export MDPIPE_POINT="$base" MDPIPE_ID={id}
 cd {workdir} || {{ echo "cannot enter {workdir}" > "$base.log"; echo "1 0" > "$base.exit.tmp"; mv "$base.exit.tmp" "$base.exit"; exit 0; }}
 start=$(date +%s%N)

@@ -87,19 +87,19 @@ fn state_of(job: &Job, r: &mut Running) -> State {
         }
         return State::Ended;
     }
-    let gone = match r.child.as_mut() {
-        Some(c) => matches!(c.try_wait(), Ok(Some(_)) | Err(_)),
-        None => !attempt::is_running_here(&job.runs, r.id, &r.tag),
-    };
+    // Once the script process is gone, the attempt is followed through its
+    // lock (a same-tag attempt from a killed mdpipe may be the one running).
+    if r.child.as_mut().is_some_and(|c| matches!(c.try_wait(), Ok(Some(_)) | Err(_))) {
+        r.child = None;
+    }
+    if r.child.is_some() || attempt::is_running_here(&job.runs, r.id, &r.tag) {
+        return State::Running;
+    }
     // The script may have written its record just before exiting.
-    if gone && !attempt::has_ended(&job.runs, r.id, &r.tag) {
+    if !attempt::has_ended(&job.runs, r.id, &r.tag) {
         let _ = attempt::mark_lost(&job.runs, r.id, &r.tag);
     }
-    if gone {
-        State::Ended
-    } else {
-        State::Running
-    }
+    State::Ended
 }
 
 /// `a<n>` after the highest attempt number used for `id` so far.
