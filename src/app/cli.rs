@@ -187,6 +187,10 @@ pub enum Command {
         /// slurm (a job array submitted with sbatch and followed with squeue)
         #[arg(long, default_value = "local")]
         executor: String,
+        /// With --stage calibrate: only this calibration case, by index (what each
+        /// array task runs when the cases go out to Slurm)
+        #[arg(long)]
+        case: Option<usize>,
     },
     /// Generate mock measurements from a built-in truth
     Simulate {

@@ -122,12 +122,12 @@ pub fn report(dirs: &[PathBuf], out: &Path, png: Option<&Path>) -> Result<()> {
     Ok(())
 }
 
-pub fn run_study(config: &Path, stage: Option<String>, force: bool, seed: u64, out: Option<PathBuf>, executor: &str) -> Result<()> {
+pub fn run_study(config: &Path, stage: Option<String>, force: bool, seed: u64, out: Option<PathBuf>, executor: &str, case: Option<usize>) -> Result<()> {
     use crate::systems::heavy_ion::study_runner;
     let config = Config::load(config)?;
     let out = out.unwrap_or_else(|| PathBuf::from("outputs").join(&config.name));
     let start = std::time::Instant::now();
-    let opts = study_runner::RunOptions { out: out.clone(), seed, stage, force, show_progress: true, executor: executor.parse()?, mdpipe: std::env::current_exe()? };
+    let opts = study_runner::RunOptions { out: out.clone(), seed, stage, force, show_progress: true, executor: executor.parse()?, mdpipe: std::env::current_exe()?, case };
     let outcomes = study_runner::run(&config, &opts)?;
     let ran: Vec<&str> = outcomes.iter().filter(|o| o.ran).map(|o| o.stage.as_str()).collect();
     println!("ran {} stage(s) [{}] in {:.1} s; outputs in {}", ran.len(), ran.join(", "), start.elapsed().as_secs_f64(), out.display());

@@ -21,7 +21,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::TrainEmulator { config, training, design, seed, out } => commands::train_emulator(&config, &training, design.as_deref(), seed, &out),
         Command::ValidateEmulator { emulator, validation, folds, seed } => commands::validate_emulator(&emulator, validation.as_deref(), folds, seed),
         Command::Report { dirs, out, png } => commands::report(&dirs, &out, png.as_deref()),
-        Command::Run { config, stage, force, seed, out, executor } => commands::run_study(&config, stage, force, seed, out, &executor),
+        Command::Run { config, stage, force, seed, out, executor, case } => commands::run_study(&config, stage, force, seed, out, &executor, case),
         Command::Demo { seed, out } => demo::run(seed, &out),
         Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator, heavy_ion_events, diagnose } => {
             bench::command(bench::BenchArgs { config, evaluations, likelihood_only, sampler, out, seed, emulator, heavy_ion_events, diagnose })

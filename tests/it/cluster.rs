@@ -3,7 +3,8 @@
 //! left out of the emulator's training, retried), and the Slurm executor
 //! against a real Slurm (`.ci/slurm-setup.sh`): a job array with one point
 //! that fails once and is resubmitted, mdpipe killed while the array runs and
-//! restarted, and the ingested tables equal to the local executor's.
+//! restarted, and the ingested tables equal to the local executor's; then the
+//! calibration cases as array tasks, with posteriors equal to a local run's.
 
 use crate::pipeline::tmpdir;
 use std::path::{Path, PathBuf};
@@ -75,7 +76,7 @@ design = "design.toml"
 points = 16
 validation_points = 4
 observable_sets = [["y"]]
-kernels = ["none"]
+kernels = ["none", "II"]
 [run.simulator]
 command = "{env} bash {sim} {{id}} {{a}} {{b}} {{point}} {marks}"
 output = "table"
@@ -232,4 +233,22 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
         tables_equal(&slurm.join(table), &local.join(table));
     }
     assert_eq!(design_ids(&slurm.join("training.parquet")), (0..16).collect::<Vec<i64>>());
+
+    // The rest of the study, with the two calibration cases as one array, equals the local run's.
+    let o = run(&config, &slurm, &["--executor", "slurm"]);
+    assert!(o.status.success(), "{}\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    let cases = json(&slurm.join("calibrate/.array/.attempts/slurm.json"));
+    assert_eq!(cases["submissions"].as_array().unwrap().len(), 1, "{cases:#}");
+    assert_eq!(cases["submissions"][0]["ids"], serde_json::json!([0, 1]), "both cases as array tasks");
+    let o = run(&config, &local, &[]);
+    assert!(o.status.success(), "local: {}", String::from_utf8_lossy(&o.stderr));
+    for case in ["y__nomd", "y__kernel2"] {
+        let (a, b) = (mdpipe::artifacts::read_parquet(&slurm.join("calibrate").join(case).join("posterior.parquet")).unwrap(), mdpipe::artifacts::read_parquet(&local.join("calibrate").join(case).join("posterior.parquet")).unwrap());
+        assert_eq!(a.get_column_names(), b.get_column_names());
+        for col in a.get_column_names() {
+            let (va, vb) = (a.column(col.as_str()).unwrap().cast(&polars::prelude::DataType::Float64).unwrap(), b.column(col.as_str()).unwrap().cast(&polars::prelude::DataType::Float64).unwrap());
+            assert!(va.f64().unwrap().iter().zip(vb.f64().unwrap().iter()).all(|(x, y)| x == y), "{case}: posterior column {col} differs between the array task and the local run");
+        }
+    }
+    assert!(slurm.join("calibrate/cases.md").exists() && slurm.join("report.html").exists());
 }

@@ -68,7 +68,7 @@ candidate_points = {candidate_points}
 }
 
 fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
-    RunOptions { out: out.to_path_buf(), seed: 3, stage: stage.map(String::from), force, show_progress: false, executor: mdpipe::execute::Executor::Local, mdpipe: env!("CARGO_BIN_EXE_mdpipe").into() }
+    RunOptions { out: out.to_path_buf(), seed: 3, stage: stage.map(String::from), force, show_progress: false, executor: mdpipe::execute::Executor::Local, mdpipe: env!("CARGO_BIN_EXE_mdpipe").into(), case: None }
 }
 
 fn ran(outcomes: &[StageOutcome]) -> Vec<String> {

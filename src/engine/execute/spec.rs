@@ -15,6 +15,9 @@ pub enum OutputKind {
     /// One table of outputs, `outputs.csv` or `outputs.parquet`, with columns
     /// `observable, x, value` (and optionally `error`).
     Table,
+    /// Success is exit code 0; the command writes its results elsewhere
+    /// (mdpipe's own calibration cases as array tasks).
+    Exit,
 }
 
 /// `[run.simulator]`.

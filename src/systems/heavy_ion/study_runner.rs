@@ -79,6 +79,9 @@ pub struct RunConfig {
     /// Discrepancy kernels: "none", "I", "II".
     #[serde(default = "default_kernels")]
     pub kernels: Vec<String>,
+    /// Wall-time limit of one calibration case when cases go out as Slurm array tasks.
+    #[serde(default = "default_calibration_time_limit")]
+    pub calibration_time_limit: String,
     /// Diagnose candidates from the stand-in's library, by name.
     #[serde(default)]
     pub candidates: Vec<String>,
@@ -93,6 +96,9 @@ fn default_oversample() -> usize {
 fn default_model_delta_f() -> String {
     "none".into()
 }
+fn default_calibration_time_limit() -> String {
+    "12h".into()
+}
 fn default_kernels() -> Vec<String> {
     vec!["none".into(), "I".into(), "II".into()]
 }
@@ -106,6 +112,7 @@ impl RunConfig {
             }
         }
         match &self.simulator {
+            Some(spec) if spec.output == OutputKind::Exit => bail!("[run.simulator] output: the simulate stage reads what points leave: use \"iebe-music\" or \"table\""),
             Some(spec) => spec.validate(design_parameters).context("[run.simulator]")?,
             None if self.events.is_none() => bail!("give `events` (the stand-in's events per point) or a [run.simulator] table"),
             None => {}
@@ -168,6 +175,21 @@ pub struct RunOptions {
     pub executor: Executor,
     /// The mdpipe executable, substituted for `{mdpipe}` (the stand-in's command).
     pub mdpipe: PathBuf,
+    /// With `stage = calibrate`: only this case (by index), as one array task
+    /// would; nothing is assessed or stamped but the case.
+    pub case: Option<usize>,
+}
+
+/// One calibration case of the calibrate stage.
+struct Case {
+    index: usize,
+    name: String,
+    set: Vec<String>,
+    kernel: Option<DiscrepancyKernel>,
+    dir: PathBuf,
+    seed: u64,
+    key: String,
+    stamp: PathBuf,
 }
 
 /// Paths of a run's artifacts.
@@ -249,6 +271,10 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     }
     let spec = crate::engine::design::DesignSpec::load(&config.resolve(&run.design))?;
     let design_parameters: Vec<String> = spec.parameters.iter().map(|p| p.name.clone()).collect();
+    if opts.case.is_some() && opts.stage.as_deref() != Some("calibrate") {
+        bail!("--case needs --stage calibrate");
+    }
+    execute::spec::seconds_of(&run.calibration_time_limit).context("[run] calibration_time_limit")?;
     run.validate(&design_parameters).with_context(|| format!("{}: [run]", config.path.display()))?;
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
@@ -320,6 +346,9 @@ impl Runner<'_> {
         println!("[{name}] running");
         let start = std::time::Instant::now();
         body(self).with_context(|| format!("{}: stage {name}", self.config.path.display()))?;
+        if self.opts.case.is_some() {
+            return Ok(());
+        }
         let seconds = start.elapsed().as_secs_f64();
         let stamp = Stamp { stage: name.into(), key: key.clone(), seconds, provenance: Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage {name}", self.config.path.display())) };
         artifacts::write_json_atomic(&self.paths.stamp(name), &stamp)?;
@@ -455,7 +484,7 @@ impl Runner<'_> {
         let keep = self.all_observables();
         let (mut ingested, design_df) = match self.run.output() {
             OutputKind::IebeMusic => crate::engine::ingest::ingest_runs(&dir.join("runs"), Some(&dir.join("design.parquet")), &crate::engine::ingest::IngestSettings::default())?,
-            OutputKind::Table => crate::engine::ingest::tables::ingest_tables(&dir.join("runs"), Some(&dir.join("design.parquet")))?,
+            OutputKind::Table | OutputKind::Exit => crate::engine::ingest::tables::ingest_tables(&dir.join("runs"), Some(&dir.join("design.parquet")))?,
         };
         ingested.rows.retain(|r| keep.contains(&r.observable));
         let dropped = drop_incomplete_points(&mut ingested.rows);
@@ -535,36 +564,94 @@ impl Runner<'_> {
         Ok(analysis)
     }
 
-    fn calibrate(&mut self) -> Result<()> {
-        let config = self.study_config();
-        let analysis = self.analysis(&config)?;
-        let mut dirs = Vec::new();
+    /// The calibration cases: every observable set × kernel, with its seed and key.
+    fn cases(&self) -> Result<Vec<Case>> {
+        let mut cases = Vec::new();
         for (i, set) in self.run.observable_sets.iter().enumerate() {
             for (j, k) in self.run.kernels.iter().enumerate() {
                 let kernel = DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
                 let name = compare::case_dir_name(set, kernel);
-                let dir = self.paths.calibrate().join(&name);
                 let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
-                // Each finished case is stamped, so an interrupted stage resumes where it stopped.
-                let material = serde_json::json!({"config": self.analysis_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock")});
+                let material = serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock")});
                 let key = artifacts::sha256_hex(material.to_string().as_bytes());
-                let stamp = self.paths.stamp(&format!("calibrate/{name}"));
-                if !self.opts.force && read_stamp(&stamp).is_some_and(|s| s.key == key) && dir.join("summary.json").exists() {
-                    println!("  {name:<60} done earlier, kept");
-                    dirs.push(dir);
-                    continue;
-                }
-                let ov = Overrides { kernel: Some(kernel), observables: Some(set.clone()), ..Default::default() };
-                let problem = Problem::new(&analysis, &ov)?;
-                // Killed mid-case, the case resumes from its last saved tempering step.
-                let checkpoint = calibrate::checkpoint::Checkpointing::new(&dir.join(".checkpoint"), calibrate::checkpoint_key(&problem, seed), None);
-                let cal = calibrate::run_and_write(&problem, seed, observer(self.opts.show_progress), &checkpoint, &dir)?;
-                let seconds = cal.summary.diagnostics.wall_seconds;
-                let prov = Provenance::new(self.config.hash.clone(), String::new(), seed, &format!("run {} --stage calibrate ({name})", self.config.path.display()));
-                artifacts::write_json_atomic(&stamp, &Stamp { stage: format!("calibrate/{name}"), key, seconds, provenance: prov })?;
-                println!("  {name:<60} {seconds:>6.1} s");
-                dirs.push(dir);
+                cases.push(Case { index: cases.len(), dir: self.paths.calibrate().join(&name), stamp: self.paths.stamp(&format!("calibrate/{name}")), name, set: set.clone(), kernel, seed, key });
             }
+        }
+        Ok(cases)
+    }
+
+    /// Whether a case finished earlier with the same key (so an interrupted stage resumes case by case).
+    fn case_done(&self, c: &Case) -> bool {
+        !self.opts.force && read_stamp(&c.stamp).is_some_and(|s| s.key == c.key) && c.dir.join("summary.json").exists()
+    }
+
+    fn calibrate_case(&self, analysis: &Analysis, c: &Case) -> Result<()> {
+        let ov = Overrides { kernel: Some(c.kernel), observables: Some(c.set.clone()), ..Default::default() };
+        let problem = Problem::new(analysis, &ov)?;
+        // Killed mid-case, the case resumes from its last saved tempering step.
+        let checkpoint = calibrate::checkpoint::Checkpointing::new(&c.dir.join(".checkpoint"), calibrate::checkpoint_key(&problem, c.seed), None);
+        let cal = calibrate::run_and_write(&problem, c.seed, observer(self.opts.show_progress), &checkpoint, &c.dir)?;
+        let seconds = cal.summary.diagnostics.wall_seconds;
+        let prov = Provenance::new(self.config.hash.clone(), String::new(), c.seed, &format!("run {} --stage calibrate ({})", self.config.path.display(), c.name));
+        artifacts::write_json_atomic(&c.stamp, &Stamp { stage: format!("calibrate/{}", c.name), key: c.key.clone(), seconds, provenance: prov })?;
+        println!("  {:<60} {seconds:>6.1} s", c.name);
+        Ok(())
+    }
+
+    /// Under `--executor slurm`, the cases not yet done go out as one job
+    /// array, each task `mdpipe run … --stage calibrate --case <index>`; a case
+    /// whose task failed is then calibrated here, with the others kept.
+    fn calibrate_as_array(&self, cases: &[Case]) -> Result<()> {
+        let todo: Vec<&Case> = cases.iter().filter(|c| !self.case_done(c)).collect();
+        if todo.is_empty() {
+            return Ok(());
+        }
+        let out = absolute(&self.paths.out);
+        let command = format!("{{mdpipe}} run {} --out {} --seed {} --stage calibrate --case {{id}}", execute::spec::shell_quote(&absolute(&self.config.path).display().to_string()), execute::spec::shell_quote(&out.display().to_string()), self.opts.seed);
+        let template = self.run.simulator.clone();
+        let spec = SimulatorSpec {
+            command,
+            output: OutputKind::Exit,
+            time_limit: self.run.calibration_time_limit.clone(),
+            retries: template.as_ref().map_or(1, |t| t.retries),
+            parallel: None,
+            slurm: template.map(|t| t.slurm).unwrap_or_default(),
+        };
+        let runs = self.paths.calibrate().join(".array");
+        let points = todo.iter().map(|c| execute::Point { id: c.index as i64, values: BTreeMap::new(), param_file: runs.join("none") }).collect();
+        let job = execute::Job { spec: &spec, workdir: out.clone(), design: runs.join("none"), runs: runs.clone(), points, label: "calibrations".into(), mdpipe: self.opts.mdpipe.clone() };
+        std::fs::create_dir_all(&runs)?;
+        match execute::run(&job, Executor::Slurm, self.opts.show_progress) {
+            Ok(report) if report.failed.is_empty() => {}
+            Ok(report) => {
+                report.print_failures();
+                println!("  warning: {} calibration task(s) failed under Slurm; those cases run here", report.failed.len());
+            }
+            Err(e) => println!("  warning: {e:#}; the cases run here"),
+        }
+        Ok(())
+    }
+
+    fn calibrate(&mut self) -> Result<()> {
+        let config = self.study_config();
+        let analysis = self.analysis(&config)?;
+        let cases = self.cases()?;
+        if let Some(index) = self.opts.case {
+            // One array task: this case only; the stage is assessed and stamped by the mdpipe that submitted it.
+            let c = cases.get(index).ok_or_else(|| anyhow!("--case {index}: the study has {} calibration cases", cases.len()))?;
+            return if self.case_done(c) { Ok(()) } else { self.calibrate_case(&analysis, c) };
+        }
+        if self.opts.executor == Executor::Slurm {
+            self.calibrate_as_array(&cases)?;
+        }
+        let mut dirs = Vec::new();
+        for c in &cases {
+            if self.case_done(c) {
+                println!("  {:<60} done earlier, kept", c.name);
+            } else {
+                self.calibrate_case(&analysis, c)?;
+            }
+            dirs.push(c.dir.clone());
         }
         if !self.run.stand_in_study() {
             return self.write_cases(&dirs);
