@@ -181,6 +181,7 @@ fn bad_declarations_get_errors_naming_file_table_and_formula() {
         ("target.toml", base.replace("rates = { v = \"-f\" }", "rates = { w = \"-f\" }"), vec!["target.toml", "[[candidates]] constant_force", "no state variable 'w'"]),
         ("truth.toml", base.replace("candidates = { quadratic_drag = { k = 0.4 } }", "candidates = { quadratic_drag = { kk = 0.4 } }"), vec!["truth.toml", "[truth.candidates] quadratic_drag", "'k'"]),
         ("solver.toml", base.replace("rtol = 1e-10", "rtol = 0.0"), vec!["solver.toml", "[model.solver]", "rtol"]),
+        ("unused.toml", base.replace("rates = { v = \"-b*v\" }", "rates = { v = \"-0.5*v\" }"), vec!["unused.toml", "[[candidates]] linear_drag: [candidates.parameters.b]", "no formula uses it"]),
         ("shadow.toml", base.replace("candidates = { quadratic_drag = { k = 0.4 } }", "candidates = { quadratic_drag = { k = 0.4 } }\nconstants = { g = 1.0 }"), vec!["shadow.toml", "[truth.constants] g"]),
     ];
     for (name, text, says) in cases {

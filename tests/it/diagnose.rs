@@ -305,6 +305,8 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     let ch = mismatch("ch_spectrum");
     assert!(ch.residual_regions.iter().any(|r| r.sign == "above" && r.x_from >= 0.5 && r.x_to >= 1.5), "{ch:?}");
     assert!(ch.x_at_max >= 1.5 && ch.map.last().unwrap().1 > 3.0, "{ch:?}");
+    // δ's own regions, from its band at the data points (an emulated model has no grid).
+    assert!(ch.regions.iter().any(|r| r.sign == "above" && r.x_to >= 1.5), "{ch:?}");
     // v2 falls below the model at the highest pT (δ's posterior mean beyond
     // 2σ there); the no-MD fit raises η/s to pull v2 down, which leaves it
     // above the data at low pT instead, so only δ shows the high-pT deficit.

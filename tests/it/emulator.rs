@@ -199,10 +199,10 @@ fn bad_tables_get_errors_naming_file_row_and_field() {
     let t = format!("{header}{}{}0,flow0,0.7,0.3,0.0,0.3,0.2\n{}", good(0, 0.1), good(1, 0.2), good(2, 0.4));
     let e = error_of(&t, None);
     assert!(e.contains("design point 1") && e.contains("flow0[0.7]"), "{e}");
-    // A constant output.
+    // Every output constant: nothing to emulate (one constant output among others is emulated exactly).
     let t = format!("{header}{}{}{}", good(0, 0.5), good(1, 0.5), good(2, 0.5));
     let e = error_of(&t, None);
-    assert!(e.contains("constant") && e.contains("flow0[0.5]"), "{e}");
+    assert!(e.contains("every output is constant"), "{e}");
     // More components than design points allow.
     let t = format!("{header}{}{}{}", good(0, 0.1), good(1, 0.5), good(2, 0.2));
     let e = error_of(&t, Some(5));
@@ -221,6 +221,44 @@ fn bad_tables_get_errors_naming_file_row_and_field() {
     let t = "design_id,observable,x,value,a,b\n0,flow0,0.5,0.1,0.1,0.2\n";
     let e = error_of(t, None);
     assert!(e.contains("missing column 'c'"), "{e}");
+}
+
+/// Outputs constant over the design (flow at x = 0 is 0 for every θ; a
+/// log-transformed one at a fixed value) are emulated exactly: their
+/// prediction is that value with zero variance and zero covariance with the
+/// rest, at any θ, and after a reload.
+#[test]
+fn constant_outputs_are_emulated_exactly() {
+    let dir = tmpdir("constant");
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+    let mut text = String::from("design_id,observable,x,value,a,b,c\n");
+    for i in 0..40 {
+        let theta: Vec<f64> = (0..3).map(|_| rng.random::<f64>()).collect();
+        let mut rows = analytic(&theta);
+        rows.push(("flow0".into(), 0.0, 0.0));
+        rows.push(("spectrum0".into(), 5.0, 0.1));
+        for (obs, x, v) in rows {
+            text.push_str(&format!("{i},{obs},{x},{v},{},{},{}\n", theta[0], theta[1], theta[2]));
+        }
+    }
+    std::fs::write(dir.join("train.csv"), text).unwrap();
+    let table = read_training_table(&dir.join("train.csv"), &params()).unwrap();
+    let (emu, report) = train(&table, &settings(None), 1).unwrap();
+    store::save(&dir.join("emu"), &emu, &settings(None), &report, &mdpipe::artifacts::Provenance::new(String::new(), String::new(), 1, "test")).unwrap();
+    let reloaded = store::load(&dir.join("emu")).unwrap();
+    let constant: Vec<(usize, f64)> = table.outputs.iter().enumerate().filter_map(|(j, o)| match (o.observable.as_str(), o.x) { ("flow0", x) if x == 0.0 => Some((j, 0.0)), ("spectrum0", x) if x == 5.0 => Some((j, 0.1)), _ => None }).collect();
+    assert_eq!(constant.len(), 2);
+    let m = table.n_outputs();
+    for _ in 0..20 {
+        let theta: Vec<f64> = (0..3).map(|_| rng.random::<f64>()).collect();
+        for e in [&emu, &reloaded] {
+            let p = e.predict(&theta);
+            for &(j, value) in &constant {
+                assert_eq!(p.mean[j], value, "{}: emulated {} instead of its constant {value}", table.outputs[j], p.mean[j]);
+                assert!((0..m).all(|k| p.cov[j * m + k] == 0.0), "{}: nonzero covariance", table.outputs[j]);
+            }
+        }
+    }
 }
 
 /// The ball drop through an emulator: a calibration with `model = "emulator"`

@@ -10,7 +10,13 @@ pub(super) fn locate(md_problem: &Problem, md: &Calibration, base_problem: &Prob
     let mut out = Vec::new();
     for b in &md_problem.likelihood.blocks {
         let (x_lo, x_hi) = (b.x[0], b.x[b.len() - 1]);
-        let grid: Vec<&PredictionRow> = md.predictions.iter().filter(|r| r.observable == b.name && r.kind == "grid" && r.x >= x_lo - 1e-12 && r.x <= x_hi + 1e-12).collect();
+        let in_range = |kind: &str| -> Vec<&PredictionRow> { md.predictions.iter().filter(|r| r.observable == b.name && r.kind == kind && r.x >= x_lo - 1e-12 && r.x <= x_hi + 1e-12).collect() };
+        // An emulated model predicts only at its training outputs (no grid
+        // rows): its regions come from δ at the data points.
+        let mut grid = in_range("grid");
+        if grid.is_empty() {
+            grid = in_range("data");
+        }
         let mut regions: Vec<Region> = Vec::new();
         let mut open: Option<(f64, f64, &str)> = None;
         for r in &grid {

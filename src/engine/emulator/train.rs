@@ -280,10 +280,18 @@ struct Standardized {
 fn standardize(table: &TrainingTable, settings: &EmulatorSettings) -> Result<Standardized> {
     let file = table.path.display();
     let (n, m) = (table.n_points(), table.n_outputs());
-    let log_transform: Vec<bool> = table.outputs.iter().map(|o| settings.log_observables.contains(&o.observable)).collect();
+    let mut log_transform: Vec<bool> = table.outputs.iter().map(|o| settings.log_observables.contains(&o.observable)).collect();
     let mut z = vec![0.0; n * m];
     let (mut mean, mut std) = (vec![0.0; m], vec![0.0; m]);
     for j in 0..m {
+        let first = table.values[j];
+        if (0..n).all(|i| table.values[i * m + j] == first) {
+            // Constant over the design (an observable at x = 0, say): emulated
+            // exactly, as that value with no uncertainty (std 0, z 0, untransformed).
+            log_transform[j] = false;
+            mean[j] = first;
+            continue;
+        }
         for i in 0..n {
             let v = table.values[i * m + j];
             z[i * m + j] = if log_transform[j] {
@@ -298,11 +306,14 @@ fn standardize(table: &TrainingTable, settings: &EmulatorSettings) -> Result<Sta
         mean[j] = (0..n).map(|i| z[i * m + j]).sum::<f64>() / n as f64;
         std[j] = ((0..n).map(|i| (z[i * m + j] - mean[j]).powi(2)).sum::<f64>() / n as f64).sqrt();
         if !(std[j] > 1e-12 * mean[j].abs().max(1e-300)) {
-            bail!("{file}: output {} is constant over the design ({}); it carries no information about the parameters, remove it", table.outputs[j], mean[j]);
+            bail!("{file}: output {} varies over the design only by rounding ({} ± {:e}); make it exactly constant or remove it", table.outputs[j], mean[j], std[j]);
         }
         for i in 0..n {
             z[i * m + j] = (z[i * m + j] - mean[j]) / std[j];
         }
+    }
+    if std.iter().all(|&s| s == 0.0) {
+        bail!("{file}: every output is constant over the design; there is nothing to emulate");
     }
     Ok(Standardized { z, log_transform, mean, std })
 }

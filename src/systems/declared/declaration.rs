@@ -141,6 +141,9 @@ pub struct State {
 pub struct Declared {
     pub input: String,
     pub parameters: Vec<String>,
+    /// Where each parameter was declared, for errors: `[parameters.g]` or
+    /// `[[candidates]] drag: [candidates.parameters.k]`.
+    pub declared_at: Vec<String>,
     /// Prior box of each parameter, for the checks at its corners.
     pub bounds: Vec<(f64, f64)>,
     pub constants: Vec<(String, f64)>,
@@ -173,6 +176,7 @@ impl Declared {
         }
         let declared = Declared {
             input: table.input.clone().unwrap_or_else(|| if ode { "t".into() } else { "x".into() }),
+            declared_at: parameters.iter().map(|n| format!("[parameters.{n}]")).collect(),
             parameters,
             bounds,
             constants: table.constants.iter().map(|(k, v)| (k.clone(), *v)).collect(),
@@ -212,6 +216,7 @@ impl Declared {
                 bail!("{file}: [[candidates]] {}: parameter '{name}' is already a parameter or constant of the model", candidate.name);
             }
             d.parameters.push(name.clone());
+            d.declared_at.push(format!("[[candidates]] {}: [candidates.parameters.{name}]", candidate.name));
             d.bounds.push((spec.min, spec.max));
         }
         Ok(d)
@@ -290,9 +295,9 @@ fn check_solver(file: &str, s: &SolverSettings) -> Result<()> {
 /// Every θ must appear in some formula: a parameter that none uses would
 /// come back with its prior as its posterior, and is most likely a typo.
 pub fn check_parameters_used(file: &str, d: &Declared, formulas: &[&super::formula::Formula]) -> Result<()> {
-    for (i, name) in d.parameters.iter().enumerate() {
+    for (i, (name, place)) in d.parameters.iter().zip(&d.declared_at).enumerate() {
         if !formulas.iter().any(|f| f.uses(1 + i)) {
-            bail!("{file}: [parameters.{name}]: the model has no parameter '{name}': no formula uses it (remove it, or use it in a formula)");
+            bail!("{file}: {place}: the model has no parameter '{name}': no formula uses it (remove it, or use it in a formula)");
         }
     }
     Ok(())

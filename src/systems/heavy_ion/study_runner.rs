@@ -1,15 +1,20 @@
-//! `mdpipe run`: the heavy-ion study end to end, as a sequence of stages that
-//! each write their artifacts under one output folder and are skipped when
-//! their inputs have not changed.
+//! `mdpipe run`: a study end to end, as a sequence of stages that each write
+//! their artifacts under one output folder and are skipped when their inputs
+//! have not changed. The simulate stage runs `[run.simulator]` (any
+//! simulator) or, without it, the heavy-ion stand-in, through
+//! `engine::execute` (local processes or a Slurm array). The mock, candidates
+//! and diagnose stages, and the study's assessment, belong to the stand-in's
+//! study (`mock_delta_f`); with a user's simulator the calibrations use the
+//! config's measurements and are tabulated in calibrate/cases.md.
 //!
 //! | stage       | writes (under OUT/)                                             |
 //! |-------------|-----------------------------------------------------------------|
 //! | design      | design/, validation_design/ (design.parquet, parameter files, submit.slurm) |
-//! | simulate    | design/runs/, validation_design/runs/ (one folder per point)    |
+//! | simulate    | design/runs/, validation_design/runs/ (one folder per point, execution.json) |
 //! | ingest      | training.parquet, validation.parquet (+ .report.json)           |
 //! | emulator    | emulator/ (trained, then validated: validation.json)            |
 //! | mock        | mock/runs/, mock/measurements.parquet                           |
-//! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json |
+//! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json (or calibrate/cases.md, cases.json) |
 //! | report      | report.html                                                     |
 //! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator) per `[run] candidates` entry |
 //! | diagnose    | diagnose/ (diagnosis.json, report.html and every calibration)  |
