@@ -21,6 +21,8 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
     let run = diagnose::run(&cfg, &Overrides::default(), 1, &DiagnoseSettings::default(), Some(&out), &Silent).unwrap();
     let d = &run.diagnosis;
     assert_eq!(d.verdict.best, "quadratic_drag", "{}", d.verdict.statement);
+    // An exact (declared) model carries no emulator variance.
+    assert!(d.candidates.iter().all(|c| c.emulator_share == 0.0), "{:?}", d.candidates.iter().map(|c| c.emulator_share).collect::<Vec<_>>());
     let winner = &d.candidates[0];
     assert!(winner.parameters["k"].covers(0.4), "k {:?}", winner.parameters["k"]);
     assert!(winner.parameters["g"].covers(9.8), "g {:?}", winner.parameters["g"]);
@@ -285,6 +287,12 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     diagnose::print(d);
     assert_eq!(d.verdict.best, "grad_shear_delta_f", "{}", d.verdict.statement);
     let winner = &d.candidates[0];
+    // Every fit reports the emulator's share of its predictive variance; the statement warns past half.
+    for c in &d.candidates {
+        println!("{}: emulator share of the predictive variance {:.3}", c.name, c.emulator_share);
+        assert!(c.emulator_share > 0.0 && c.emulator_share < 1.0, "{}: {}", c.name, c.emulator_share);
+    }
+    assert_eq!(winner.emulator_share > 0.5, d.verdict.statement.contains("Caution: the emulator's uncertainty"), "{}", d.verdict.statement);
     assert!(winner.log_bayes_factor > 3.0 + 3.0 * winner.log_bayes_factor_err);
     // η/s and ε_sw are pinned to ±0.4% and ±0.25% by the spectra. The likely
     // limit on that is the mock data's bin-to-bin correlation: each event's

@@ -138,6 +138,11 @@ pub struct FitQuality {
     pub chi2_per_dof: f64,
     /// χ² per observable.
     pub per_observable: BTreeMap<String, f64>,
+    /// The model's own share of the predictive variance at the data points,
+    /// Σ model var / Σ (model var + σ²): 0 for an exact model; for an
+    /// emulator, how much of the fit rests on its uncertainty.
+    #[serde(default)]
+    pub model_variance_share: f64,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -232,6 +237,7 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
     let mut per_observable = BTreeMap::new();
     let mut chi2 = 0.0;
     let mut n = 0;
+    let (mut model_var, mut data_var) = (0.0, 0.0);
     for b in &problem.likelihood.blocks {
         let n_b = b.len();
         let mut eta = vec![0.0; n_b];
@@ -244,6 +250,10 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
                 ws.factor[i * n_b + i] = b.error[i] * b.error[i];
             }
             problem.simulator.add_model_covariance(b.model_index, &b.x, theta, 1.0, &mut ws.factor);
+            for i in 0..n_b {
+                data_var += b.error[i] * b.error[i];
+                model_var += ws.factor[i * n_b + i] - b.error[i] * b.error[i];
+            }
             match ws.factorize() {
                 Ok(_) => {
                     ws.solve_lower_in_place(&mut r);
@@ -252,6 +262,7 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
                 Err(_) => f64::INFINITY,
             }
         } else {
+            data_var += b.error.iter().map(|e| e * e).sum::<f64>();
             (0..n_b).map(|i| (r[i] / b.error[i]).powi(2)).sum()
         };
         per_observable.insert(b.name.clone(), c);
@@ -259,7 +270,8 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
         n += b.len();
     }
     let dof = n.saturating_sub(theta.len()).max(1);
-    FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable }
+    let model_variance_share = if model_var > 0.0 { model_var / (model_var + data_var) } else { 0.0 };
+    FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable, model_variance_share }
 }
 
 /// Posterior-predictive bands at one x for one observable.

@@ -101,6 +101,9 @@ pub struct CandidateResult {
     pub chi2_per_dof: f64,
     pub p_value: f64,
     pub converged: bool,
+    /// The model's (an emulator's) share of the fit's predictive variance at the data.
+    #[serde(default)]
+    pub emulator_share: f64,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -235,6 +238,7 @@ impl Diagnoser<'_> {
                 chi2_per_dof: calibration.summary.fit.chi2_per_dof,
                 p_value: p_value(calibration.summary.fit.chi2, calibration.summary.fit.dof),
                 converged: calibration.summary.diagnostics.converged,
+                emulator_share: calibration.summary.fit.model_variance_share,
             };
             runs.push(CandidateRun { result, candidate, problem, calibration });
         }
@@ -370,7 +374,13 @@ fn named_statement(c: &CandidateResult, model: &CandidateModel, runner_up: Optio
     let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
     let trend = mismatch_phrase(mismatch);
     let runner = runner_up.map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence)).unwrap_or_default();
-    format!("{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.", c.name.replace('_', " "), c.description, c.log_bayes_factor)
+    // Past half, the emulator rather than the data decides much of the fit: say so.
+    let caution = if c.emulator_share > 0.5 {
+        format!(" Caution: the emulator's uncertainty is {:.0}% of this fit's predictive variance at the data, so the verdict rests partly on the emulator; add design points where the posterior lies.", 100.0 * c.emulator_share)
+    } else {
+        String::new()
+    };
+    format!("{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.{caution}", c.name.replace('_', " "), c.description, c.log_bayes_factor)
 }
 
 /// MD 95% width over the repaired model's Cramér–Rao 95% width, per
@@ -417,7 +427,8 @@ pub fn print(d: &Diagnosis) {
     }
     println!("Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):", d.md_log_evidence - d.base_log_evidence);
     for c in &d.candidates {
-        println!("  {:<16} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof);
+        let share = if c.emulator_share > 0.0 { format!("   emulator share {:.0}%", 100.0 * c.emulator_share) } else { String::new() };
+        println!("  {:<16} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof);
     }
     println!("Verdict: {} (confidence {:.2})", d.verdict.best, d.verdict.confidence);
     println!("  {}", d.verdict.statement);
@@ -453,6 +464,7 @@ mod tests {
                 chi2_per_dof: 1.0,
                 p_value: 0.5,
                 converged: true,
+                emulator_share: 0.0,
             })
             .collect()
     }

@@ -483,9 +483,13 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
     html.push_str(&format!("<p class=\"verdict\"><b>{}</b> (confidence {:.2}): {}</p>\n", html_escape(&diag.verdict.best), diag.verdict.confidence, html_escape(&diag.verdict.statement)));
     figure(html, "Where the model misses: posterior-mean discrepancy of the MD fit at each measurement, in units of its error.", &mismatch_map(diag, &units.x)?);
     figure(html, "Candidate corrections ranked by SMC evidence; the MD fit for comparison.", &bayes_factor_chart(diag)?);
-    html.push_str("<table><tr><th>candidate</th><th>log BF</th><th>χ²/dof</th><th>parameters (median [95%])</th></tr>\n");
+    // For emulated models, how much of each fit's predictive variance is the emulator's own.
+    let emulated = diag.candidates.iter().any(|c| c.emulator_share > 0.0);
+    let share_head = if emulated { "<th>emulator share of variance</th>" } else { "" };
+    html.push_str(&format!("<table><tr><th>candidate</th><th>log BF</th><th>χ²/dof</th>{share_head}<th>parameters (median [95%])</th></tr>\n"));
     for c in &diag.candidates {
-        html.push_str(&format!("<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td><td>{}</td></tr>\n", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof, intervals(&c.parameters)));
+        let share = if emulated { format!("<td>{:.0}%</td>", 100.0 * c.emulator_share) } else { String::new() };
+        html.push_str(&format!("<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td>{share}<td>{}</td></tr>\n", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof, intervals(&c.parameters)));
     }
     html.push_str("</table>\n");
     if let Some(imp) = &diag.improvement {
