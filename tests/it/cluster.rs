@@ -16,11 +16,11 @@ fn mdpipe() -> Command {
 }
 
 /// A toy simulator, y(x) = a + b x² at six x: it fails for the ids in
-/// `$FAIL`, sleeps past any limit for `$HANG`, fails the first time for
+/// `$FAIL` while `$marks/down` exists, sleeps past any limit for `$HANG`, fails the first time for
 /// `$FLAKY` (a marker file remembers), and otherwise writes outputs.csv.
 const SIMULATOR: &str = r#"#!/bin/bash
 id=$1; a=$2; b=$3; out=$4; marks=$5
-for f in $FAIL; do [ "$id" = "$f" ] && { echo "solver diverged at design point $id" >&2; exit 3; }; done
+for f in $FAIL; do [ "$id" = "$f" ] && [ -e "$marks/down" ] && { echo "solver diverged at design point $id" >&2; exit 3; }; done
 for h in $HANG; do [ "$id" = "$h" ] && sleep 60; done
 if [ "$id" = "$FLAKY" ] && [ ! -e "$marks/flaky_$id" ]; then
   touch "$marks/flaky_$id"; echo "transient failure: scratch disk busy" >&2; exit 1
@@ -109,6 +109,7 @@ fn design_ids(table: &Path) -> Vec<i64> {
 fn local_executor_reports_failed_points_and_trains_on_the_rest() {
     let dir = tmpdir("local-failures");
     let config = write_study(&dir, "FAIL='2 5' HANG=7 FLAKY=4 NAP=0", "time_limit = \"3s\"\nretries = 1\nparallel = 2");
+    std::fs::write(dir.join("marks/down"), "").unwrap();
     let out = dir.join("out");
     let o = run(&config, &out, &[]);
     let stdout = String::from_utf8_lossy(&o.stdout);
@@ -154,6 +155,19 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
     let again = run(&config, &out, &[]);
     let stdout = String::from_utf8_lossy(&again.stdout);
     assert!(again.status.success() && stdout.contains("[simulate] up to date, skipped"), "{stdout}");
+
+    // The cause mended, `--stage simulate --force` runs only the failed points
+    // again (the finished ones are kept), and ingest takes them in.
+    std::fs::remove_file(dir.join("marks/down")).unwrap();
+    let kept = std::fs::metadata(out.join("design/runs/0000/outputs.csv")).unwrap().modified().unwrap();
+    let o = run(&config, &out, &["--stage", "simulate", "--force"]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success() && stdout.contains("16 points (13 had their run, 2 ran, 0 after a retry, 1 failed)"), "{stdout}");
+    assert_eq!(std::fs::metadata(out.join("design/runs/0000/outputs.csv")).unwrap().modified().unwrap(), kept, "a finished point was run again");
+    let report = json(&out.join("design/runs/execution.json"));
+    assert_eq!(report["failed"].as_array().unwrap().iter().map(|f| f["id"].as_i64().unwrap()).collect::<Vec<_>>(), vec![7], "{report:#}");
+    assert!(run(&config, &out, &["--stage", "ingest"]).status.success());
+    assert_eq!(design_ids(&out.join("training.parquet")), vec![0, 1, 2, 3, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14, 15]);
 }
 
 fn slurm_answers() -> bool {

@@ -96,21 +96,25 @@ impl AttemptRecord {
     }
 }
 
-/// Tags of the attempts of `id` that have ended (have an exit record), oldest first.
-pub fn ended_tags(runs: &Path, id: i64) -> Vec<String> {
-    let prefix = format!("{}.", point_name(id));
-    let mut tags: Vec<(std::time::SystemTime, String)> = std::fs::read_dir(attempts_dir(runs))
+/// The ended attempts' tags of every point, oldest first, from one listing
+/// of the attempts folder (a poll of a large array reads it once).
+pub fn ended_by_point(runs: &Path) -> std::collections::BTreeMap<i64, Vec<String>> {
+    let mut found: Vec<(i64, std::time::SystemTime, String)> = std::fs::read_dir(attempts_dir(runs))
         .into_iter()
         .flatten()
         .flatten()
         .filter_map(|e| {
             let name = e.file_name().to_string_lossy().into_owned();
-            let tag = name.strip_prefix(&prefix)?.strip_suffix(".exit")?.to_string();
-            Some((e.metadata().and_then(|m| m.modified()).ok()?, tag))
+            let (id, tag) = name.strip_suffix(".exit")?.split_once('.')?;
+            Some((id.parse().ok()?, e.metadata().and_then(|m| m.modified()).ok()?, tag.to_string()))
         })
         .collect();
-    tags.sort();
-    tags.into_iter().map(|(_, t)| t).collect()
+    found.sort();
+    let mut out: std::collections::BTreeMap<i64, Vec<String>> = std::collections::BTreeMap::new();
+    for (id, _, tag) in found {
+        out.entry(id).or_default().push(tag);
+    }
+    out
 }
 
 /// Whether an attempt has an exit record.

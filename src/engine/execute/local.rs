@@ -22,8 +22,9 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
     let parallel = job.spec.parallel.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let mut running: Vec<Running> = Vec::new();
     let mut queue: VecDeque<i64> = VecDeque::new();
+    let ended = attempt::ended_by_point(&job.runs);
     for &id in todo {
-        if replay_ended(job, id, tracker)? {
+        if replay_ended(job, id, ended.get(&id).map_or(&[], Vec::as_slice), tracker)? {
             continue;
         }
         let mut adopted = false;
@@ -64,10 +65,11 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
     Ok(())
 }
 
-/// Settles the attempts of `id` that ended before this execution; true if the point is now done.
-pub(super) fn replay_ended(job: &Job, id: i64, tracker: &mut Tracker) -> Result<bool> {
-    for tag in attempt::ended_tags(&job.runs, id) {
-        let record = attempt::settle(&job.runs, id, &tag, job.spec.output)?;
+/// Settles the attempts of `id` that ended before this execution (`tags`,
+/// oldest first); true if the point is now done.
+fn replay_ended(job: &Job, id: i64, tags: &[String], tracker: &mut Tracker) -> Result<bool> {
+    for tag in tags {
+        let record = attempt::settle(&job.runs, id, tag, job.spec.output)?;
         if tracker.replay(id, record) {
             return Ok(true);
         }

@@ -108,6 +108,12 @@ impl ExecutionReport {
 /// Runs every point of `job` that has no run yet, and writes `RUNS/execution.json`.
 pub fn run(job: &Job, executor: Executor, show_progress: bool) -> Result<ExecutionReport> {
     let start = std::time::Instant::now();
+    // The attempt script needs coreutils' timeout and util-linux's flock.
+    for tool in ["timeout", "flock"] {
+        if std::process::Command::new(tool).arg("--version").output().is_err() {
+            bail!("{tool} not found on PATH: the attempt scripts of `mdpipe run` need `timeout` (coreutils) and `flock` (util-linux)");
+        }
+    }
     std::fs::create_dir_all(attempt::attempts_dir(&job.runs)).with_context(|| format!("creating {}", job.runs.display()))?;
     let mut todo = Vec::new();
     for p in &job.points {

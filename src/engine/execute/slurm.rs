@@ -41,8 +41,9 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
     };
     let done = |id: i64| job.runs.join(attempt::point_name(id)).exists();
     let mut seen: BTreeSet<(i64, String)> = BTreeSet::new();
+    let ended = attempt::ended_by_point(&job.runs);
     for &id in todo {
-        for tag in attempt::ended_tags(&job.runs, id) {
+        for tag in ended.get(&id).cloned().unwrap_or_default() {
             seen.insert((id, tag.clone()));
             if tracker.replay(id, attempt::settle(&job.runs, id, &tag, job.spec.output)?) {
                 break;
@@ -58,8 +59,9 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
             Some(s) => queued_tasks(&s.job_id)?,
             None => Vec::new(),
         };
+        let ended = attempt::ended_by_point(&job.runs);
         for &id in todo {
-            for tag in attempt::ended_tags(&job.runs, id) {
+            for tag in ended.get(&id).cloned().unwrap_or_default() {
                 if seen.insert((id, tag.clone())) {
                     tracker.ended(id, attempt::settle(&job.runs, id, &tag, job.spec.output)?);
                 }

@@ -262,6 +262,8 @@ struct Runner<'a> {
     paths: RunPaths,
     opts: &'a RunOptions,
     keys: BTreeMap<String, String>,
+    /// Key of the stage running now.
+    running_key: String,
     outcomes: Vec<StageOutcome>,
 }
 
@@ -284,7 +286,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
-    let mut r = Runner { config, run, emulator, paths: RunPaths { out: opts.out.clone() }, opts, keys: BTreeMap::new(), outcomes: Vec::new() };
+    let mut r = Runner { config, run, emulator, paths: RunPaths { out: opts.out.clone() }, opts, keys: BTreeMap::new(), running_key: String::new(), outcomes: Vec::new() };
     r.stage("design", &[], &[r.paths.design().join("design.parquet"), r.paths.validation_design().join("design.parquet")], |r| r.design())?;
     r.stage("simulate", &["design"], &[r.paths.design().join("runs"), r.paths.validation_design().join("runs")], |r| r.simulate())?;
     r.stage("ingest", &["simulate"], &[r.paths.training(), r.paths.validation()], |r| r.ingest())?;
@@ -349,6 +351,7 @@ impl Runner<'_> {
             return Ok(());
         }
         println!("[{name}] running");
+        self.running_key = key.clone();
         let start = std::time::Instant::now();
         body(self).with_context(|| format!("{}: stage {name}", self.config.path.display()))?;
         if self.opts.case.is_some() {
@@ -432,12 +435,20 @@ impl Runner<'_> {
     }
 
     fn simulate(&mut self) -> Result<()> {
-        let stale = read_stamp(&self.paths.stamp("simulate")).is_some();
+        // Settings changed since the last run: its runs are not these. Forced
+        // with the same settings, finished points are kept and only the
+        // failed ones run again, with fresh attempts.
+        let previous = read_stamp(&self.paths.stamp("simulate"));
+        let stale = previous.as_ref().is_some_and(|s| s.key != self.running_key);
+        let forced = previous.is_some() && !stale;
         for dir in [self.paths.design(), self.paths.validation_design()] {
             let runs = dir.join("runs");
             if stale && runs.exists() {
-                // Settings changed since the last run: its runs are not these.
                 std::fs::remove_dir_all(&runs).with_context(|| format!("removing outdated runs {}", runs.display()))?;
+            }
+            let attempts = runs.join(".attempts");
+            if forced && attempts.exists() {
+                std::fs::remove_dir_all(&attempts).with_context(|| format!("removing the previous attempts {}", attempts.display()))?;
             }
             std::fs::create_dir_all(&runs)?;
             std::fs::copy(dir.join("design.parquet"), runs.join("design.parquet"))?;
