@@ -266,3 +266,37 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
     }
     assert!(slurm.join("calibrate/cases.md").exists() && slurm.join("report.html").exists());
 }
+
+/// An array that can never start (held here; a partition limit it can never
+/// meet elsewhere) stops mdpipe with the reason and the scancel to run, instead
+/// of a wait without end.
+#[test]
+fn a_slurm_array_that_cannot_start_stops_with_the_reason() {
+    if !slurm_answers() {
+        assert!(std::env::var("CI").is_err(), "CI=true but no Slurm cluster answers: .ci/run should have started one with .ci/slurm-setup.sh");
+        eprintln!("SKIPPED a_slurm_array_that_cannot_start_stops_with_the_reason: no Slurm cluster answers here");
+        return;
+    }
+    let dir = tmpdir("slurm-held");
+    let config = write_study(&dir, "FAIL= HANG= FLAKY= NAP=0", "slurm = { poll_seconds = 1.0, extra = [\"--hold\"] }");
+    let out = dir.join("out");
+    assert!(run(&config, &out, &["--stage", "design"]).status.success());
+    let mut child = mdpipe().arg("run").arg(&config).arg("--out").arg(&out).args(["--stage", "simulate", "--executor", "slurm"]).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if start.elapsed() > Duration::from_secs(120) {
+            child.kill().unwrap();
+            panic!("mdpipe kept waiting on a held array for 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    let job = json(&out.join("design/runs/.attempts/slurm.json"))["submissions"][0]["job_id"].as_str().unwrap().to_string();
+    let _ = Command::new("scancel").arg(&job).output();
+    assert!(!status.success(), "a held array must stop the run");
+    assert!(stderr.contains("JobHeldUser") && stderr.contains(&format!("scancel {job}")), "{stderr}");
+}

@@ -79,6 +79,8 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
             }
         }
         if !live.is_empty() {
+            let job_id = state.submissions.last().map(|s| s.job_id.clone()).unwrap_or_default();
+            stuck(&job_id, &live)?;
             let running = live.iter().filter(|(_, s)| s == "R" || s == "CG").count();
             tracker.set_running(running, live.len() - running);
             std::thread::sleep(poll);
@@ -134,7 +136,7 @@ fn queued_tasks(job_id: &str) -> Result<Vec<(i64, String)>> {
     let mut last_error = String::new();
     // The controller can be briefly unreachable; a restart would follow the same array anyway.
     for _ in 0..10 {
-        let out = Command::new("squeue").args(["-h", "-r", "-j", job_id, "-o", "%i %t"]).output().context("running squeue")?;
+        let out = Command::new("squeue").args(["-h", "-r", "-j", job_id, "-o", "%i %t %r"]).output().context("running squeue")?;
         let stderr = String::from_utf8_lossy(&out.stderr);
         if out.status.success() {
             return Ok(String::from_utf8_lossy(&out.stdout).lines().flat_map(parse_task_line).collect());
@@ -149,10 +151,46 @@ fn queued_tasks(job_id: &str) -> Result<Vec<(i64, String)>> {
     Err(anyhow!("squeue -j {job_id} failed 10 times: {last_error}; the array keeps running, and mdpipe started again follows it"))
 }
 
+/// Pending reasons that waiting does not resolve (Slurm's squeue %r codes).
+const NEVER_STARTS: [&str; 12] = [
+    "JobHeldUser",
+    "JobHeldAdmin",
+    "PartitionConfig",
+    "PartitionNodeLimit",
+    "PartitionTimeLimit",
+    "BadConstraints",
+    "InvalidAccount",
+    "InvalidQOS",
+    "AccountNotAllowed",
+    "QOSMaxWallDurationPerJobLimit",
+    "DependencyNeverSatisfied",
+    "PartitionDown",
+];
+
+/// Stops, rather than waits for ever, when every task left in the queue is
+/// pending for a reason that waiting will not resolve.
+fn stuck(job_id: &str, live: &[(i64, String)]) -> Result<()> {
+    if live.iter().any(|(_, s)| !s.starts_with("PD")) {
+        return Ok(());
+    }
+    let reasons: BTreeSet<&str> = live.iter().filter_map(|(_, s)| s.split_once(' ').map(|(_, r)| r)).collect();
+    if reasons.is_empty() || !reasons.iter().all(|r| NEVER_STARTS.iter().any(|n| r.contains(n))) {
+        return Ok(());
+    }
+    let reasons: Vec<&str> = reasons.into_iter().collect();
+    bail!("array job {job_id}: every task left is pending for {}, which waiting does not resolve; cancel it (scancel {job_id}), mend [run.simulator] slurm settings or the job's hold, and run mdpipe again", reasons.join(", "))
+}
+
 /// "57_3 R" → [(3, "R")]; "57_[4-6,9%2] PD" → [(4, "PD"), (5, "PD"), (6, "PD"), (9, "PD")].
 fn parse_task_line(line: &str) -> Vec<(i64, String)> {
     let mut parts = line.split_whitespace();
-    let (Some(id), Some(state)) = (parts.next(), parts.next()) else { return Vec::new() };
+    let (Some(id), Some(code)) = (parts.next(), parts.next()) else { return Vec::new() };
+    // A pending task keeps its reason: "PD JobHeldUser".
+    let state = match (code, parts.next()) {
+        ("PD", Some(reason)) => format!("PD {reason}"),
+        _ => code.to_string(),
+    };
+    let state = state.as_str();
     let Some((_, task)) = id.split_once('_') else { return Vec::new() };
     let task = task.trim_start_matches('[').trim_end_matches(']');
     let task = task.split('%').next().unwrap_or("");
@@ -178,5 +216,16 @@ mod tests {
         let ids: Vec<i64> = super::parse_task_line("57_[4-6,9%2] PD").into_iter().map(|(i, _)| i).collect();
         assert_eq!(ids, vec![4, 5, 6, 9]);
         assert!(super::parse_task_line("57 R").is_empty());
+        assert_eq!(super::parse_task_line("57_2 PD JobHeldUser"), vec![(2, "PD JobHeldUser".to_string())]);
+    }
+
+    #[test]
+    fn a_queue_that_waiting_will_not_move_is_an_error() {
+        let held = vec![(1, "PD JobHeldUser".to_string()), (2, "PD JobHeldUser".to_string())];
+        let e = super::stuck("57", &held).unwrap_err().to_string();
+        assert!(e.contains("JobHeldUser") && e.contains("scancel 57"), "{e}");
+        // Waiting for resources, or some task running: keep following.
+        assert!(super::stuck("57", &[(1, "PD Resources".to_string())]).is_ok());
+        assert!(super::stuck("57", &[(1, "PD JobHeldUser".to_string()), (2, "R".to_string())]).is_ok());
     }
 }
