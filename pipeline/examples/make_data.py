@@ -9,6 +9,11 @@ fixed seeds). Run from anywhere: python3 pipeline/examples/make_data.py
   y(t) = 3.5 exp(-1.7 t) + 1.5; the simulator y = 5 exp(-u t) (dy/dt = -u y)
   leaves out the equilibrium the reaction approaches.
 - kinetics_null: the simulator itself at u = 1.7, nothing left out.
+- goh_bias: Goh et al. (2013), Technometrics 55, 501, as calibrated in
+  Gramacy's laGP (J. Stat. Softw. 72(1), 2016): the simulator M(x1, x2; u)
+  at the true u = (0.2, 0.1) plus the published bias
+  b(x1, x2) = 2 (10 x1^2 + 4 x2^2) / (50 x1 x2 + 10); one observable per
+  level of x2.
 
 The x grids and noise levels are ours (the papers' own data are not
 reproduced); they are written beside each table.
@@ -44,3 +49,21 @@ write("kinetics_data.csv", noisy(rng, lambda t: 3.5 * math.exp(-1.7 * t) + 1.5, 
 rng = random.Random(2008)
 write("kinetics_null_data.csv", noisy(rng, lambda t: 5.0 * math.exp(-1.7 * t), ts, 0.05, "concentration"),
       "y(t) = 5 exp(-1.7 t) + N(0, 0.05^2), nothing missing, t = 0.1..2.8 (make_data.py, seed 2008)")
+
+
+def goh_simulator(x1, x2, u1, u2):
+    return (1.0 - math.exp(-1.0 / (2.0 * x2))) * (1000 * u1 * x1**3 + 1900 * x1**2 + 2092 * x1 + 60) / (
+        100 * u2 * x1**3 + 500 * x1**2 + 4 * x1 + 20)
+
+
+def goh_bias(x1, x2):
+    return 2.0 * (10 * x1**2 + 4 * x2**2) / (50 * x1 * x2 + 10)
+
+
+rng = random.Random(2013)
+rows = []
+for x2, name in [(0.25, "y_x2_025"), (0.5, "y_x2_050"), (0.75, "y_x2_075")]:
+    truth = lambda x1, x2=x2: goh_simulator(x1, x2, 0.2, 0.1) + goh_bias(x1, x2)
+    rows += noisy(rng, truth, [0.1 * i for i in range(1, 11)], 0.02, name)
+write("goh_bias_data.csv", rows,
+      "M(x1, x2; 0.2, 0.1) + b(x1, x2) + N(0, 0.02^2), x1 = 0.1..1.0, x2 = 0.25, 0.5, 0.75 (make_data.py, seed 2013)")

@@ -368,10 +368,59 @@ fn kinetics_blind_test_confusion_matrix() {
         println!("  concealed {:<13} ({effect:?}, u = {u:.2}) verdict {:<26} noise-free mismatch {s:.1}σ", effect.expected(), run.diagnosis.verdict.best);
         rows.push((effect.expected(), run.diagnosis.verdict.best.clone(), s));
     }
-    let labels = ["none", "equilibrium", "second_order", "saturation", "unexplained"];
+    let labels = ["none", "equilibrium", "second_order", "saturation", "unexplained", "ambiguous"];
     let nulls = rows.iter().filter(|r| r.0 == "none").count();
     let alarms = rows.iter().filter(|r| r.0 == "none" && r.1 != "none").count();
     let (_, upper) = clopper_pearson(alarms, nulls);
     confusion_matrix_meets_targets("kinetics (declared ODE)", &labels, &rows);
     assert!(upper < 0.15, "false alarms {alarms}/{nulls}: 95% upper bound {upper:.3}");
+}
+
+/// Issue 19's honest verdict on the simple machine (Brynjarsdóttir &
+/// O'Hagan 2014): saturation and a quadratic loss explain its ten points
+/// alike, so the verdict is `ambiguous`, naming both and the measurement that
+/// would separate them. That measurement, drawn from the published truth with
+/// the error the suggestion assumes and added to the data, makes the verdict
+/// decisive and right, with θ and the candidate's own c recovered.
+#[test]
+fn an_ambiguous_verdict_suggests_the_measurement_that_settles_it() {
+    use mdpipe::artifacts::{read_measurements, write_measurements, Measurement};
+    use mdpipe::diagnose::{self, DiagnoseSettings};
+    let analysis = mdpipe::systems::load(&root().join("pipeline/examples/simple_machine.toml")).unwrap();
+    let settings = DiagnoseSettings::default();
+    let first = diagnose::run(&analysis, &Overrides::default(), 1, &settings, None, &Silent).unwrap().diagnosis;
+    diagnose::print(&first);
+    let v = &first.verdict;
+    assert_eq!(v.best, "ambiguous", "{}", v.statement);
+    assert!(first.improvement.is_none(), "an ambiguous verdict has no winner to repair");
+    assert!(v.standing.iter().any(|s| s == "saturation") && v.standing.iter().any(|s| s == "quadratic_loss"), "{:?}", v.standing);
+    let s = v.suggestion.as_ref().expect("a suggested measurement");
+    assert!(v.statement.contains("to separate them, measure work at x ="), "{}", v.statement);
+    assert_eq!(s.observable, "work");
+    // The two laws part with the load: the best place is beyond the data (x ≤ 4).
+    assert!(s.x > 4.0, "suggested x = {}", s.x);
+
+    let repeats = s.repeats.expect("a measurement that can settle it within the prediction range");
+    assert!(s.expected_gain.iter().all(|g| *g > 1.0), "{:?}", s.expected_gain);
+
+    let mut data = read_measurements(&root().join("pipeline/examples/simple_machine_data.csv")).unwrap();
+    let truth = analysis.truth_curve("work", &[s.x]).unwrap()[0];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(19);
+    for _ in 0..repeats {
+        let z: f64 = rng.sample(rand_distr::StandardNormal);
+        data.push(Measurement { observable: "work".into(), x: s.x, value: truth + s.error * z, error: s.error, line: 0 });
+    }
+    let dir = tmpdir("ambiguous");
+    let path = dir.join("with_suggested.csv");
+    write_measurements(&path, &data, None).unwrap();
+    let second = diagnose::run(&analysis, &Overrides { data: Some(path), ..Default::default() }, 1, &settings, None, &Silent).unwrap().diagnosis;
+    diagnose::print(&second);
+    assert_eq!(second.verdict.best, "saturation", "{}", second.verdict.statement);
+    let winner = &second.candidates[0];
+    for (name, truth) in [("theta", 0.65), ("c", 0.05)] {
+        let p = &winner.parameters[name];
+        assert!(p.q025 <= truth && truth <= p.q975, "{name}: {truth} outside [{}, {}]", p.q025, p.q975);
+    }
+    let imp = second.improvement.as_ref().expect("the named candidate is repaired");
+    assert!(imp.interval_narrowing["theta"] > 1.0, "θ no narrower than with MD: {:?}", imp.interval_narrowing);
 }

@@ -221,7 +221,7 @@ fn blind_test_confusion_matrix() {
         let run = diagnose::run(&cfg, &Overrides { data: Some(path), ..Default::default() }, 100 + k as u64, &settings, None, &Silent).unwrap();
         rows.push((expected, run.diagnosis.verdict.best.clone(), effect_size(&opts)));
     }
-    let labels = ["none", "linear_drag", "quadratic_drag", "field_gradient", "constant_force", "unexplained"];
+    let labels = ["none", "linear_drag", "quadratic_drag", "field_gradient", "constant_force", "unexplained", "ambiguous"];
     for (e, p, s) in &rows {
         println!("  concealed {e:<15} verdict {p:<15} noise-free mismatch {s:.1}σ");
     }
@@ -423,7 +423,7 @@ fn heavy_ion_blind_test_confusion_matrix() {
         println!("  data set {k:>2}: concealed {:<20} verdict {:<20} noise-free mismatch {:.1}σ", b.expected, run.diagnosis.verdict.best, best.1);
         rows.push((b.expected, run.diagnosis.verdict.best.clone(), best.1));
     }
-    let labels = ["none", "grad_shear_delta_f", "bulk_delta_f", "proton_annihilation", "unexplained"];
+    let labels = ["none", "grad_shear_delta_f", "bulk_delta_f", "proton_annihilation", "unexplained", "ambiguous"];
     confusion_matrix_meets_targets("heavy ion", &labels, &rows);
     let _ = std::fs::remove_dir_all(&dir);
 }

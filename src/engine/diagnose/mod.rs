@@ -17,11 +17,21 @@
 //!   `strong_log_bf`, fits adequately (χ² p-value ≥ `min_p_value` at its
 //!   posterior median) and is not itself beaten by the MD fit by more than
 //!   `strong_log_bf`;
+//! * it is named alone only when it beats every other explanation (each
+//!   candidate that neither contains it nor is contained in it, and fits
+//!   adequately) decisively: by more than `strong_log_bf` plus twice the
+//!   Monte Carlo error of the difference of log evidences. log BF 3 is
+//!   posterior odds of 20:1 with equal prior odds (Kass & Raftery's
+//!   "strong"), and the 2σ margin keeps sampler noise from making a verdict.
+//!   Otherwise the verdict is "ambiguous": it names the candidates still
+//!   standing and the measurement that would separate the first two
+//!   (`suggest`);
 //! * otherwise the verdict is "unexplained" when the mismatch is significant
 //!   (MD beats the base by more than `strong_log_bf`, or the base χ² has
 //!   p < `min_p_value`), and "none" when it is not.
 
 mod locate;
+mod suggest;
 
 use crate::base::artifacts::{self, Provenance};
 use crate::base::progress::Observer;
@@ -31,6 +41,7 @@ use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::CandidateModel;
 use anyhow::Result;
 use locate::{locate, mismatch_phrase};
+pub use suggest::Suggestion;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -108,8 +119,14 @@ pub struct CandidateResult {
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Verdict {
-    /// A candidate name, "none" or "unexplained".
+    /// A candidate name, "ambiguous", "none" or "unexplained".
     pub best: String,
+    /// For "ambiguous": the candidates still standing, best evidence first.
+    #[serde(default)]
+    pub standing: Vec<String>,
+    /// For "ambiguous": the measurement that would best separate the first two.
+    #[serde(default)]
+    pub suggestion: Option<Suggestion>,
     pub statement: String,
     /// Posterior probability of the verdict's model among the base, MD and
     /// candidate models, with equal prior odds.
@@ -200,6 +217,12 @@ struct CandidateRun {
     candidate: CandidateModel,
     problem: Problem,
     calibration: Calibration,
+}
+
+impl CandidateRun {
+    fn fit(&self) -> suggest::Fit<'_> {
+        suggest::Fit { name: &self.result.name, problem: &self.problem, calibration: &self.calibration }
+    }
 }
 
 /// What every calibration of one diagnosis shares.
@@ -293,12 +316,19 @@ pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &Dia
     let runs = d.explain(analysis, seed, (z_base, e_base))?;
     let candidates: Vec<CandidateResult> = runs.iter().map(|r| r.result.clone()).collect();
     let named = named_candidate(&candidates, settings, z_md);
-    let verdict = decide(&candidates, named, &runs, &mismatch, &base.summary, settings, (z_base, z_md));
+    let rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
+    let suggestion = rivals.first().and_then(|r| {
+        let other = runs.iter().find(|run| run.result.name == r.name)?;
+        let err = (runs[0].result.log_evidence_err.powi(2) + other.result.log_evidence_err.powi(2)).sqrt();
+        let goal = suggest::Goal { lead: runs[0].result.log_evidence - other.result.log_evidence, decisive: settings.strong_log_bf + 2.0 * if err.is_finite() { err } else { 0.0 } };
+        suggest::suggest(&runs[0].fit(), &other.fit(), goal)
+    });
+    let verdict = decide(&candidates, named, (&rivals, suggestion), &runs, &mismatch, &base.summary, settings, (z_base, z_md));
 
     // Repair: refit the winner with MD on top, to show δ shrink.
     let mut improvement = None;
     let mut repaired_md = None;
-    if let (Some(_), true) = (named, settings.repair) {
+    if let (Some(_), true, true) = (named, rivals.is_empty(), settings.repair) {
         let winner = &runs[0];
         let (rep_md_problem, rep_md) = d.calibrate(&analysis.with_candidate(&winner.candidate), Some(settings.kernel), seed.wrapping_add(99), "repaired_md")?;
         let before = vec![figures("model, no MD", &base_problem, &base), figures("model + MD", &md_problem, &md)];
@@ -326,8 +356,40 @@ fn named_candidate<'c>(candidates: &'c [CandidateResult], settings: &DiagnoseSet
     candidates.first().filter(|c| c.log_bayes_factor > settings.strong_log_bf && c.p_value >= settings.min_p_value && c.log_evidence > z_md - settings.strong_log_bf)
 }
 
-/// The verdict: a named candidate, "unexplained" or "none" (see the module docs).
-fn decide(candidates: &[CandidateResult], named: Option<&CandidateResult>, runs: &[CandidateRun], mismatch: &[ObservableMismatch], base: &Summary, settings: &DiagnoseSettings, (z_base, z_md): (f64, f64)) -> Verdict {
+/// The other explanations `best` does not beat decisively: candidates that
+/// neither contain it nor are contained in it (Occam's rule settled those),
+/// fit adequately, and trail it by no more than `strong_log_bf` plus twice
+/// the Monte Carlo error of the difference.
+fn rivals<'c>(best: &CandidateResult, candidates: &'c [CandidateResult], settings: &DiagnoseSettings) -> Vec<&'c CandidateResult> {
+    let mine = members(&best.name);
+    candidates
+        .iter()
+        .filter(|c| c.name != best.name && c.p_value >= settings.min_p_value)
+        .filter(|c| {
+            let theirs = members(&c.name);
+            !mine.is_subset(&theirs) && !theirs.is_subset(&mine)
+        })
+        .filter(|c| {
+            let err = (best.log_evidence_err.powi(2) + c.log_evidence_err.powi(2)).sqrt();
+            let err = if err.is_finite() { err } else { 0.0 };
+            best.log_evidence - c.log_evidence <= settings.strong_log_bf + 2.0 * err
+        })
+        .collect()
+}
+
+/// The verdict: a named candidate, "ambiguous", "unexplained" or "none" (see
+/// the module docs).
+#[allow(clippy::too_many_arguments)]
+fn decide(
+    candidates: &[CandidateResult],
+    named: Option<&CandidateResult>,
+    (rivals, suggestion): (&[&CandidateResult], Option<Suggestion>),
+    runs: &[CandidateRun],
+    mismatch: &[ObservableMismatch],
+    base: &Summary,
+    settings: &DiagnoseSettings,
+    (z_base, z_md): (f64, f64),
+) -> Verdict {
     let base_p = p_value(base.fit.chi2, base.fit.dof);
     let significant = z_md - z_base > settings.strong_log_bf || base_p < settings.min_p_value;
     let best = candidates.first();
@@ -337,28 +399,57 @@ fn decide(candidates: &[CandidateResult], named: Option<&CandidateResult>, runs:
     let lse = crate::engine::calibrate::smc::log_sum_exp(&all_z);
     let prob = |z: f64| (z - lse).exp();
     let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
+    let verdict = |best: &str, statement: String, confidence: f64| Verdict { best: best.into(), standing: Vec::new(), suggestion: None, statement, confidence };
     match named {
-        Some(c) => Verdict { best: c.name.clone(), statement: named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), confidence: prob(c.log_evidence) },
+        Some(c) if !rivals.is_empty() => {
+            let standing: Vec<&CandidateResult> = std::iter::once(c).chain(rivals.iter().copied()).collect();
+            Verdict {
+                best: "ambiguous".into(),
+                statement: ambiguous_statement(&standing, suggestion.as_ref(), mismatch, settings.strong_log_bf),
+                confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
+                standing: standing.iter().map(|s| s.name.clone()).collect(),
+                suggestion,
+            }
+        }
+        Some(c) => verdict(&c.name, named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), prob(c.log_evidence)),
         None if significant => {
             let w = worst.map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max)).unwrap_or_default();
             let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
-            Verdict {
-                best: "unexplained".into(),
-                statement: format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.", z_md - z_base),
-                confidence: prob(z_md),
-            }
+            verdict("unexplained", format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.", z_md - z_base), prob(z_md))
         }
-        None => Verdict {
-            best: "none".into(),
-            statement: format!(
+        None => verdict(
+            "none",
+            format!(
                 "no significant mismatch: δ is consistent with zero (largest posterior-mean |δ| = {:.1}σ), the model alone fits with χ²/dof = {:.2}, and no candidate is favoured (best log BF = {:.1}).",
                 worst.map(|w| w.max_sigma).unwrap_or(0.0),
                 base.fit.chi2_per_dof,
                 best.map(|c| c.log_bayes_factor).unwrap_or(f64::NAN)
             ),
-            confidence: prob(z_base),
-        },
+            prob(z_base),
+        ),
     }
+}
+
+/// "…the data cannot yet choose between A (…) and B (…): …; to separate them, measure …".
+fn ambiguous_statement(standing: &[&CandidateResult], suggestion: Option<&Suggestion>, mismatch: &[ObservableMismatch], strong: f64) -> String {
+    let who: Vec<String> = standing
+        .iter()
+        .map(|c| {
+            let fitted: Vec<String> = c.parameters.iter().map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975)).collect();
+            format!("{} ({}; log BF {:.1} ± {:.1} against the model as it is; {})", c.name, c.description, c.log_bayes_factor, c.log_bayes_factor_err, fitted.join(", "))
+        })
+        .collect();
+    let (a, b) = (standing[0], standing[1]);
+    let gap = a.log_evidence - b.log_evidence;
+    let err = (a.log_evidence_err.powi(2) + b.log_evidence_err.powi(2)).sqrt();
+    let next = suggestion.map(|s| format!("; {}", suggest::phrase(s))).unwrap_or_default();
+    format!(
+        "{}the data cannot yet choose between {}: {} leads {} by log BF {gap:.1} ± {err:.1}, short of the decisive {strong} (plus twice its error){next}.",
+        mismatch_phrase(mismatch),
+        who.join(" and "),
+        a.name,
+        b.name
+    )
 }
 
 /// "…the data favour X (what it is), k = … over the runner-up by log BF = …".
@@ -487,5 +578,27 @@ mod tests {
         // The runner-up of a named member is another explanation, not the pair that contains it.
         let r = ranked(&[("a", 0.0), ("a+b", -0.5), ("b+c", -8.0), ("c", -9.0)]);
         assert_eq!(runner_up(&r[0], &r).map(|c| c.name.as_str()), Some("b+c"));
+    }
+
+    fn rival_names(r: &[CandidateResult]) -> Vec<&str> {
+        rivals(&r[0], r, &DiagnoseSettings::default()).iter().map(|c| c.name.as_str()).collect()
+    }
+
+    #[test]
+    fn a_candidate_stands_alone_only_when_it_leads_every_other_explanation_decisively() {
+        // The simple machine's case: a lead of 1.7 is no verdict.
+        assert_eq!(rival_names(&ranked(&[("saturation", 0.0), ("quadratic_loss", -1.7)])), ["quadratic_loss"]);
+        // 3.5 with errors 0.1 each: 3.5 > 3 + 2 × 0.14, decisive.
+        assert!(rival_names(&ranked(&[("a", 0.0), ("b", -3.5)])).is_empty());
+        // The same lead with errors 0.3 each (3 + 2 × 0.42 = 3.85) is not.
+        let mut r = ranked(&[("a", 0.0), ("b", -3.5)]);
+        r.iter_mut().for_each(|c| c.log_evidence_err = 0.3);
+        assert_eq!(rival_names(&r), ["b"]);
+        // A pair holding the best, or a member of the best, is Occam's business, not a rival;
+        // a candidate that does not fit is no explanation.
+        let mut r = ranked(&[("a", 0.0), ("a+b", -0.2), ("c", -0.5), ("d", -1.0)]);
+        r[3].p_value = 1e-5;
+        assert_eq!(rival_names(&r), ["c"]);
+        assert!(rival_names(&ranked(&[("a+b", 0.0), ("a", -3.2), ("b", -9.0)])).is_empty());
     }
 }
