@@ -394,7 +394,7 @@ pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
             let row = |v: f64| category_label(&names, n as f64 - v);
             p!(chart.configure_mesh().disable_y_mesh().x_desc("log BF").y_desc("candidate").y_labels(2 * n + 1).y_label_formatter(&|v| row(*v)).draw());
             for (k, v) in vals.iter().take(n).enumerate() {
-                let colour = if k == n - 1 { RGBColor(30, 150, 60) } else if c[k].name == d.verdict.best { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
+                let colour = if k == n - 1 { RGBColor(30, 150, 60) } else if c[k].name == d.verdict.best || d.verdict.standing.contains(&c[k].name) { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
                 let top = (n - k) as f64;
                 p!(chart.draw_series(std::iter::once(Rectangle::new([(0.0, top - 0.15), (*v, top - 0.85)], colour.filled()))));
             }
