@@ -107,6 +107,13 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     // The proton-annihilation variant is emulated over θ and its own parameter.
     let variant = mdpipe::emulator::EmulatedModel::load(&out.join("candidates/proton_annihilation/emulator")).unwrap();
     assert_eq!(mdpipe::model::Simulator::parameter_names(&variant), vec!["eta_s", "e_sw", "p_survival"]);
+    // Each variant is validated like the base emulator (5-fold cross-validation, every observable).
+    for name in ["grad_shear_delta_f", "proton_annihilation"] {
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("candidates").join(name).join("emulator/validation.json")).unwrap()).unwrap();
+        let cv = v["cross_validation"].as_array().unwrap();
+        assert_eq!(v["folds"], 5);
+        assert!(!cv.is_empty() && cv.iter().all(|o| o["rmse"].as_f64().unwrap().is_finite() && o["n"].as_u64().unwrap() > 0), "{name}: {cv:?}");
+    }
     let diagnosis: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
     let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
     assert_eq!(names.len(), 2);

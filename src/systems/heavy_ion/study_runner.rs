@@ -16,7 +16,7 @@
 //! | mock        | mock/runs/, mock/measurements.parquet                           |
 //! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json (or calibrate/cases.md, cases.json) |
 //! | report      | report.html                                                     |
-//! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator) per `[run] candidates` entry |
+//! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator with validation.json) per `[run] candidates` entry |
 //! | diagnose    | diagnose/ (diagnosis.json, report.html and every calibration)  |
 //!
 //! The last two run only when `[run] candidates` names physics from the
@@ -778,6 +778,12 @@ impl Runner<'_> {
             let command = format!("run {} --stage candidates ({name})", self.config.path.display());
             let (_, r) = crate::engine::emulator::train_with_settings(&settings, &self.config.hash, &command, &training, None, &dir.join("emulator"), seed)?;
             println!("  {name}: {} points x {} outputs -> {} components ({})", r.n_points, r.n_outputs, r.n_components, settings.parameters.join(", "));
+            // A variant decides verdicts as much as the base emulator does: validate it too
+            // (5-fold cross-validation, as no held-out design is run for it).
+            let v = crate::engine::emulator::validate::run(&dir.join("emulator"), None, 5, seed)?;
+            if let Some(cv) = &v.cross_validation {
+                crate::engine::emulator::validate::print(&format!("  {name}: 5-fold cross-validation"), cv);
+            }
         }
         Ok(())
     }
