@@ -319,8 +319,7 @@ pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &Dia
     let rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
     let suggestion = rivals.first().and_then(|r| {
         let other = runs.iter().find(|run| run.result.name == r.name)?;
-        let err = (runs[0].result.log_evidence_err.powi(2) + other.result.log_evidence_err.powi(2)).sqrt();
-        let goal = suggest::Goal { lead: runs[0].result.log_evidence - other.result.log_evidence, decisive: settings.strong_log_bf + 2.0 * if err.is_finite() { err } else { 0.0 } };
+        let goal = suggest::Goal { lead: runs[0].result.log_evidence - other.result.log_evidence, decisive: decisive_lead(&runs[0].result, &other.result, settings) };
         suggest::suggest(&runs[0].fit(), &other.fit(), goal)
     });
     let verdict = decide(&candidates, named, (&rivals, suggestion), &runs, &mismatch, &base.summary, settings, (z_base, z_md));
@@ -369,12 +368,15 @@ fn rivals<'c>(best: &CandidateResult, candidates: &'c [CandidateResult], setting
             let theirs = members(&c.name);
             !mine.is_subset(&theirs) && !theirs.is_subset(&mine)
         })
-        .filter(|c| {
-            let err = (best.log_evidence_err.powi(2) + c.log_evidence_err.powi(2)).sqrt();
-            let err = if err.is_finite() { err } else { 0.0 };
-            best.log_evidence - c.log_evidence <= settings.strong_log_bf + 2.0 * err
-        })
+        .filter(|c| best.log_evidence - c.log_evidence <= decisive_lead(best, c, settings))
         .collect()
+}
+
+/// The lead in log evidence of `a` over `b` that names `a` alone:
+/// `strong_log_bf` plus twice the Monte Carlo error of the difference.
+fn decisive_lead(a: &CandidateResult, b: &CandidateResult, settings: &DiagnoseSettings) -> f64 {
+    let err = (a.log_evidence_err.powi(2) + b.log_evidence_err.powi(2)).sqrt();
+    settings.strong_log_bf + 2.0 * if err.is_finite() { err } else { 0.0 }
 }
 
 /// The verdict: a named candidate, "ambiguous", "unexplained" or "none" (see
