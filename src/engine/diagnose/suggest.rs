@@ -136,6 +136,13 @@ fn sig(v: f64, digits: i32) -> String {
 /// "to separate them, measure work at x = 6.000 (…) 3 times: …".
 pub fn phrase(s: &Suggestion) -> String {
     let [a, b] = &s.candidates;
+    // Laws that agree wherever they can be measured are not told apart by any repeat.
+    if s.repeats.is_none() && s.expected_gain[0].max(s.expected_gain[1]) < 0.1 {
+        return format!(
+            "no measurement of these observables in the prediction range separates {a} from {b}: they predict alike everywhere (expected log BF gain below 0.1 even from {MAX_REPEATS} repeats at the best x, {} = {:.3})",
+            s.observable, s.x
+        );
+    }
     let predicts = |k: usize| format!("{} predicts {} ± {}", s.candidates[k], sig(s.predicted_mean[k], 4), sig(s.predicted_sd[k], 2));
     let how_often = match s.repeats {
         Some(1) => "once".to_string(),
