@@ -16,4 +16,4 @@ pub mod systems;
 
 // Short paths for the library's users (and the tests).
 pub use base::{artifacts, config, progress};
-pub use engine::{calibrate, compare, design, diagnose, emulator, execute, gp, ingest, model, report};
+pub use engine::{calibrate, compare, design, diagnose, emulator, execute, gp, ingest, model, refine, report};

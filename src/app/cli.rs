@@ -172,7 +172,8 @@ pub enum Command {
     Run {
         /// Analysis config with a [run] table, e.g. pipeline/heavy_ion_2param.toml
         config: PathBuf,
-        /// Run only this stage: design, simulate, ingest, emulator, mock, calibrate or report
+        /// Run only this stage: design, simulate, ingest, emulator, mock, refine, calibrate,
+        /// report, candidates or diagnose
         #[arg(long)]
         stage: Option<String>,
         /// Run the selected stages even if their inputs are unchanged
@@ -191,6 +192,21 @@ pub enum Command {
         /// array task runs when the cases go out to Slurm)
         #[arg(long)]
         case: Option<usize>,
+    },
+    /// Adaptive design: the refine stage of `mdpipe run` (its [run.refine] table). Rounds of
+    /// pilot calibrations, new runs where the emulator's error matters most to the posterior,
+    /// and retraining, until that error is below the data error or the run budget is spent
+    Refine {
+        /// Analysis config with [run] and [run.refine] tables
+        config: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output folder of the run (default: outputs/<config name>)
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Where the new runs go: local or slurm
+        #[arg(long, default_value = "local")]
+        executor: String,
     },
     /// Generate mock measurements from a built-in truth
     Simulate {

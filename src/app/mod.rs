@@ -22,6 +22,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::ValidateEmulator { emulator, validation, folds, seed } => commands::validate_emulator(&emulator, validation.as_deref(), folds, seed),
         Command::Report { dirs, out, png } => commands::report(&dirs, &out, png.as_deref()),
         Command::Run { config, stage, force, seed, out, executor, case } => commands::run_study(&config, stage, force, seed, out, &executor, case),
+        Command::Refine { config, seed, out, executor } => commands::run_study(&config, Some("refine".into()), false, seed, out, &executor, None),
         Command::Demo { seed, out } => demo::run(seed, &out),
         Command::Bench { config, evaluations, likelihood_only, sampler, out, seed, emulator, heavy_ion_events, diagnose } => {
             bench::command(bench::BenchArgs { config, evaluations, likelihood_only, sampler, out, seed, emulator, heavy_ion_events, diagnose })

@@ -255,13 +255,28 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
     let q = quality(&unit, d);
     let prov = Provenance::new(spec_hash.to_string(), String::new(), seed, &format!("design {} --points {n}", spec.name));
     let rows: Vec<Vec<f64>> = unit.chunks(d).map(|u| spec.scale(u)).collect();
-    let mut cols = vec![Column::new("design_id".into(), (0..n as u32).collect::<Vec<u32>>())];
+    let ids: Vec<i64> = (0..n as i64).collect();
+    write_points(spec, &ids, &rows, &prov, &format!("mdpipe design ({n} points, seed {seed})"), out)?;
+    artifacts::write_json_atomic(&out.join("quality.json"), &serde_json::json!({"quality": q, "provenance": prov}))?;
+    Ok(q)
+}
+
+/// Writes given points (physical units, in the spec's parameter order) with
+/// their design ids: `design.parquet`, one parameter file per point and a
+/// SLURM array script over those ids. `made_by` goes into the script's header.
+pub fn write_points(spec: &DesignSpec, ids: &[i64], rows: &[Vec<f64>], prov: &Provenance, made_by: &str, out: &Path) -> Result<()> {
+    let n = ids.len();
+    if n == 0 || rows.len() != n {
+        bail!("{}: a design needs one or more points, each with its id ({} ids, {} points)", out.display(), n, rows.len());
+    }
+    let span = span_of(ids);
+    let mut cols = vec![Column::new("design_id".into(), ids.iter().map(|&i| i as u32).collect::<Vec<u32>>())];
     for (k, p) in spec.parameters.iter().enumerate() {
         cols.push(Column::new(p.name.as_str().into(), rows.iter().map(|r| r[k]).collect::<Vec<f64>>()));
     }
     let mut df = DataFrame::new(n, cols)?;
-    artifacts::write_parquet_atomic(&out.join("design.parquet"), &mut df, Some(&prov))?;
-    for (i, r) in rows.iter().enumerate() {
+    artifacts::write_parquet_atomic(&out.join("design.parquet"), &mut df, Some(prov))?;
+    for (&id, r) in ids.iter().zip(rows) {
         let mut text = String::new();
         for (key, value) in &spec.fixed {
             text.push_str(&format!("{key} {}\n", toml_scalar(value)));
@@ -269,30 +284,35 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
         for (p, v) in spec.parameters.iter().zip(r) {
             text.push_str(&format!("{} {v}\n", p.key));
         }
-        artifacts::write_text_atomic(&parameter_file(out, i as i64, n), &text)?;
+        artifacts::write_text_atomic(&parameter_file(out, id, span), &text)?;
     }
-    let width = parameter_file_width(n);
+    let width = parameter_file_width(span);
     let param_file = format!("parameters/parameter_$(printf '%0{width}d' $SLURM_ARRAY_TASK_ID)");
     let cmd = spec.slurm.command.replace("{param_file}", &param_file).replace("{point}", "$(printf '%04d' $SLURM_ARRAY_TASK_ID)").replace("{id}", "$SLURM_ARRAY_TASK_ID");
+    let array = ids.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(",");
+    let array = if ids.windows(2).all(|w| w[1] == w[0] + 1) { format!("{}-{}", ids[0], ids[n - 1]) } else { array };
     let script = format!(
-        "#!/bin/bash\n# One design point per array task; made by mdpipe design ({} points, seed {seed}).\n#SBATCH --job-name={}\n#SBATCH --array=0-{}\n#SBATCH --time={}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={}\n#SBATCH --output=logs/%x_%A_%a.out\nset -euo pipefail\ncd \"$SLURM_SUBMIT_DIR\"\nmkdir -p logs runs\n# This task's iEBE-MUSIC parameter file: {param_file}\n{cmd}\n",
-        n,
+        "#!/bin/bash\n# One design point per array task; made by {made_by}.\n#SBATCH --job-name={}\n#SBATCH --array={array}\n#SBATCH --time={}\n#SBATCH --cpus-per-task={}\n#SBATCH --mem={}\n#SBATCH --output=logs/%x_%A_%a.out\nset -euo pipefail\ncd \"$SLURM_SUBMIT_DIR\"\nmkdir -p logs runs\n# This task's iEBE-MUSIC parameter file: {param_file}\n{cmd}\n",
         spec.name,
-        n.saturating_sub(1),
         spec.slurm.time,
         spec.slurm.cpus_per_task,
         spec.slurm.mem
     );
     artifacts::write_text_atomic(&out.join("submit.slurm"), &script)?;
-    artifacts::write_json_atomic(&out.join("quality.json"), &serde_json::json!({"quality": q, "provenance": prov}))?;
-    Ok(q)
+    Ok(())
+}
+
+/// What the parameter files' numbering is sized for: one past the largest id.
+pub fn span_of(ids: &[i64]) -> usize {
+    ids.iter().copied().max().map_or(0, |m| m.max(0) as usize + 1)
 }
 
 fn parameter_file_width(n: usize) -> usize {
     (n.max(1) - 1).to_string().len().max(3)
 }
 
-/// The iEBE-MUSIC parameter file of point `id` in a design of `n` points written into `dir`.
+/// The iEBE-MUSIC parameter file of point `id` in a design written into `dir`
+/// whose ids are below `n` ([`span_of`]).
 pub fn parameter_file(dir: &Path, id: i64, n: usize) -> std::path::PathBuf {
     dir.join("parameters").join(format!("parameter_{id:0width$}", width = parameter_file_width(n)))
 }

@@ -13,4 +13,5 @@ pub mod execute;
 pub mod gp;
 pub mod ingest;
 pub mod model;
+pub mod refine;
 pub mod report;

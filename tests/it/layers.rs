@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 /// Units from the bottom up, with their rank.
-const UNITS: [(&str, u32); 16] = [
+const UNITS: [(&str, u32); 17] = [
     ("base", 0),
     ("engine::gp", 1),
     ("engine::model", 2),
@@ -17,6 +17,7 @@ const UNITS: [(&str, u32); 16] = [
     ("engine::calibrate", 4),
     ("engine::compare", 5),
     ("engine::diagnose", 5),
+    ("engine::refine", 5),
     ("engine::report", 6),
     ("systems::ball_drop", 7),
     ("systems::heavy_ion", 7),

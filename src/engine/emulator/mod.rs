@@ -18,6 +18,7 @@
 //! predicts what the simulator would output, statistical noise included.
 
 pub mod family;
+pub mod latent;
 pub mod model;
 pub mod store;
 pub mod table;

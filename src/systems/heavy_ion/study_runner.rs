@@ -47,6 +47,9 @@ use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+mod refine_rounds;
+pub use refine_rounds::{RefineConfig, Rounds};
+
 /// The `[run]` table of an analysis config.
 #[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
@@ -93,6 +96,9 @@ pub struct RunConfig {
     /// Design points of each candidate's variant runs (default: `points`).
     #[serde(default)]
     pub candidate_points: Option<usize>,
+    /// Adaptive design after the emulator stage (`[run.refine]`).
+    #[serde(default)]
+    pub refine: Option<RefineConfig>,
 }
 
 fn default_oversample() -> usize {
@@ -147,6 +153,9 @@ impl RunConfig {
         for c in &self.candidates {
             heavy_ion::candidate(c).context("candidates")?;
         }
+        if let Some(r) = &self.refine {
+            r.validate()?;
+        }
         if self.candidate_points == Some(0) {
             bail!("candidate_points must be at least 1");
         }
@@ -165,7 +174,7 @@ impl RunConfig {
     }
 }
 
-pub const STAGES: [&str; 9] = ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report", "candidates", "diagnose"];
+pub const STAGES: [&str; 10] = ["design", "simulate", "ingest", "emulator", "mock", "refine", "calibrate", "report", "candidates", "diagnose"];
 
 /// Where and how to run.
 pub struct RunOptions {
@@ -291,17 +300,25 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     r.stage("simulate", &["design"], &[r.paths.design().join("runs"), r.paths.validation_design().join("runs")], |r| r.simulate())?;
     r.stage("ingest", &["simulate"], &[r.paths.training(), r.paths.validation()], |r| r.ingest())?;
     r.stage("emulator", &["ingest"], &[r.paths.emulator().join("emulator.json"), r.paths.emulator().join("validation.json")], |r| r.emulator())?;
+    let data_stage: &[&str] = if run.stand_in_study() { &["emulator", "mock"] } else { &["emulator"] };
     if run.stand_in_study() {
         r.stage("mock", &[], &[r.paths.measurements()], |r| r.mock())?;
-        r.stage("calibrate", &["emulator", "mock"], &[r.paths.out.join("study.json")], |r| r.calibrate())?;
-    } else {
-        r.stage("calibrate", &["emulator"], &[r.paths.calibrate().join("cases.json")], |r| r.calibrate())?;
     }
+    let mut calibrate_upstream = data_stage.to_vec();
+    if run.refine.is_some() {
+        r.stage("refine", data_stage, &[r.refine_dir().join("rounds.json")], |r| r.refine())?;
+        calibrate_upstream.push("refine");
+    } else if opts.stage.as_deref() == Some("refine") {
+        bail!("--stage refine: {} has no [run.refine] table", config.path.display());
+    }
+    let outputs = if run.stand_in_study() { r.paths.out.join("study.json") } else { r.paths.calibrate().join("cases.json") };
+    r.stage("calibrate", &calibrate_upstream, &[outputs], |r| r.calibrate())?;
     r.stage("report", &["calibrate"], &[r.paths.out.join("report.html")], |r| r.report())?;
     if !run.candidates.is_empty() {
         let variants: Vec<PathBuf> = run.candidates.iter().map(|c| r.paths.candidate(c).join("emulator").join("emulator.json")).collect();
         r.stage("candidates", &["design"], &variants, |r| r.candidates())?;
-        r.stage("diagnose", &["emulator", "mock", "candidates"], &[r.paths.diagnose().join("diagnosis.json"), r.paths.diagnose().join("report.html")], |r| r.diagnose())?;
+        let diagnose_upstream: &[&str] = if run.refine.is_some() { &["emulator", "mock", "refine", "candidates"] } else { &["emulator", "mock", "candidates"] };
+        r.stage("diagnose", diagnose_upstream, &[r.paths.diagnose().join("diagnosis.json"), r.paths.diagnose().join("report.html")], |r| r.diagnose())?;
     } else if opts.stage.as_deref().is_some_and(|s| s == "candidates" || s == "diagnose") {
         bail!("--stage {}: {} names no `candidates` in [run]", opts.stage.as_deref().unwrap_or_default(), config.path.display());
     }
@@ -322,6 +339,8 @@ impl Runner<'_> {
             "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed}),
             "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()}),
             "calibrate" => serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
+            "refine" => serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "refine": serde_json::to_value(&run.refine)?, "simulator": serde_json::to_value(&run.simulator)?,
+                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "set": self.diagnose_observables(), "kernels": run.kernels, "seed": self.opts.seed}),
             "candidates" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "candidates": run.candidates, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
                 "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed}),
             "diagnose" => serde_json::json!({"config": self.config.hash, "observables": self.diagnose_observables(), "seed": self.opts.seed}),
@@ -411,15 +430,8 @@ impl Runner<'_> {
         let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
         let hash = artifacts::sha256_hex(&bytes);
         for (dir, n, seed) in [(self.paths.design(), self.run.points, self.opts.seed), (self.paths.validation_design(), self.run.validation_points, self.opts.seed.wrapping_add(7919))] {
-            // The array script runs the stand-in exactly as the simulate stage would
-            // (a user's simulator keeps the design spec's own [slurm] command).
-            if let (None, Some(events)) = (&self.run.simulator, self.run.events) {
-                spec.slurm.command = format!(
-                    "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {events} --oversample {} --layout hdf5 --seed {} --out runs",
-                    self.run.model_delta_f,
-                    self.run.oversample,
-                    self.runs_seed(dir == self.paths.validation_design())
-                );
+            if let Some(command) = self.array_command(dir == self.paths.validation_design()) {
+                spec.slurm.command = command;
             }
             // Runs of an earlier design belong to other points: the simulate stage
             // keeps unstamped point folders (SLURM's), so they must not survive here.
@@ -432,6 +444,18 @@ impl Runner<'_> {
             println!("  {}: {} points, minimum distance {:.4}", dir.display(), q.points, q.min_distance);
         }
         Ok(())
+    }
+
+    /// The array script's command: the stand-in exactly as the simulate stage
+    /// runs it (a user's simulator keeps the design spec's own [slurm] command).
+    fn array_command(&self, validation: bool) -> Option<String> {
+        let (None, Some(events)) = (&self.run.simulator, self.run.events) else { return None };
+        Some(format!(
+            "mdpipe simulate heavy-ion --design design.parquet --only {{id}} --delta-f {} --events {events} --oversample {} --layout hdf5 --seed {} --out runs",
+            self.run.model_delta_f,
+            self.run.oversample,
+            self.runs_seed(validation)
+        ))
     }
 
     fn simulate(&mut self) -> Result<()> {
@@ -557,10 +581,16 @@ impl Runner<'_> {
         Ok(())
     }
 
-    /// The analysis config pointed at this run's emulator and mock data.
-    fn study_config(&self) -> Config {
+    /// The analysis config pointed at the study's emulator (refined, with
+    /// `[run.refine]`) and mock data.
+    fn study_config(&self) -> Result<Config> {
+        Ok(self.study_config_with(&self.study_emulator()?))
+    }
+
+    /// The analysis config pointed at `emulator` and this run's mock data.
+    fn study_config_with(&self, emulator: &Path) -> Config {
         let mut c = self.config.clone();
-        c.model = EmulatorFamily::model_table(&absolute(&self.paths.emulator()));
+        c.model = EmulatorFamily::model_table(&absolute(emulator));
         if self.run.stand_in_study() {
             c.data.measurements = absolute(&self.paths.measurements());
         }
@@ -588,7 +618,7 @@ impl Runner<'_> {
                 let kernel = DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
                 let name = compare::case_dir_name(set, kernel);
                 let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
-                let material = serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock")});
+                let material = serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock"), "refine": self.keys.get("refine")});
                 let key = artifacts::sha256_hex(material.to_string().as_bytes());
                 cases.push(Case { index: cases.len(), dir: self.paths.calibrate().join(&name), stamp: self.paths.stamp(&format!("calibrate/{name}")), name, set: set.clone(), kernel, seed, key });
             }
@@ -649,7 +679,7 @@ impl Runner<'_> {
     }
 
     fn calibrate(&mut self) -> Result<()> {
-        let config = self.study_config();
+        let config = self.study_config()?;
         let analysis = self.analysis(&config)?;
         let cases = self.cases()?;
         if let Some(index) = self.opts.case {
@@ -673,7 +703,7 @@ impl Runner<'_> {
             return self.write_cases(&dirs);
         }
         let truth_curve: BTreeMap<String, f64> = self.truth_named()?.into_iter().collect();
-        let study = crate::systems::heavy_ion::study::assess(&config, &dirs, &truth_curve, &self.paths.emulator(), &self.paths.validation(), &self.paths.measurements())?;
+        let study = crate::systems::heavy_ion::study::assess(&config, &dirs, &truth_curve, &self.study_emulator()?, &self.paths.validation(), &self.paths.measurements())?;
         artifacts::write_json_atomic(&self.paths.out.join("study.json"), &study)?;
         artifacts::write_text_atomic(&self.paths.out.join("study.md"), &study.markdown())?;
         println!("{}", study.markdown());
@@ -714,13 +744,13 @@ impl Runner<'_> {
 
     fn report(&mut self) -> Result<()> {
         if !self.run.stand_in_study() {
-            let html = crate::engine::report::build(&[self.paths.calibrate(), self.paths.emulator()], &format!("mdpipe run: {}", self.config.name), &[])?;
+            let html = crate::engine::report::build(&[self.paths.calibrate(), self.study_emulator()?], &format!("mdpipe run: {}", self.config.name), &[])?;
             artifacts::write_text_atomic(&self.paths.out.join("report.html"), &html)?;
             println!("  {}", self.paths.out.join("report.html").display());
             return Ok(());
         }
         let study: crate::systems::heavy_ion::study::Study = serde_json::from_str(&std::fs::read_to_string(self.paths.out.join("study.json"))?)?;
-        let mut dirs = vec![self.paths.calibrate(), self.paths.emulator()];
+        let mut dirs = vec![self.paths.calibrate(), self.study_emulator()?];
         dirs.dedup();
         let html = crate::engine::report::build(&dirs, &format!("mdpipe run: {}", self.config.name), &[&HeavyIonFigures])?;
         let html = html.replacen("</h1>\n", &format!("</h1>\n{}", study.html()), 1);
@@ -790,7 +820,7 @@ impl Runner<'_> {
 
     /// `mdpipe diagnose` on the mock data with the library variants declared.
     fn diagnose(&mut self) -> Result<()> {
-        let mut config = self.study_config();
+        let mut config = self.study_config()?;
         config.candidates = self
             .run
             .candidates

@@ -1,0 +1,291 @@
+//! The refine stage of `mdpipe run` (and `mdpipe refine`): rounds of
+//! adaptive design until the emulator's error where the posterior lives is
+//! below the data error, or the run budget is spent.
+//!
+//! A round: calibrate pilots (the largest observable set, without MD and
+//! with the last MD kernel: the emulator must be good wherever either fit
+//! puts its mass), pool their draws, measure the emulator's error there
+//! (`engine::refine::ratios`), stop if every observable's latent ratio is
+//! below 1, else choose `points_per_round` runs (`engine::refine::select`),
+//! write them as a design (parameter files and a SLURM array script, like the
+//! design stage's), run them with the simulate stage's simulator and
+//! executor, ingest, and retrain on every run so far.
+//!
+//! Writes `OUT/refine/round_<r>/` (pilots, design with runs, tables,
+//! emulator) and `OUT/refine/rounds.json` / `rounds.md`; `rounds.json` names
+//! the emulator the calibrations use.
+
+use super::{absolute, Runner};
+use crate::base::artifacts::{self, Provenance};
+use crate::base::progress::observer;
+use crate::engine::calibrate::{self, Overrides, Problem};
+use crate::engine::execute;
+use crate::engine::gp::DiscrepancyKernel;
+use crate::engine::refine::{self, ObservableRatio};
+use anyhow::{anyhow, Context, Result};
+use polars::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// `[run.refine]`.
+#[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefineConfig {
+    /// New runs per round.
+    pub points_per_round: usize,
+    /// The most new runs in all rounds together.
+    pub budget: usize,
+    /// Posterior draws weighed per round (candidate points and where the error is measured).
+    #[serde(default = "default_draws")]
+    pub draws: usize,
+}
+
+fn default_draws() -> usize {
+    300
+}
+
+impl RefineConfig {
+    pub(super) fn validate(&self) -> Result<()> {
+        if self.points_per_round == 0 || self.draws < 10 {
+            anyhow::bail!("[run.refine]: points_per_round must be at least 1 and draws at least 10");
+        }
+        Ok(())
+    }
+}
+
+/// One round as reported.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Round {
+    pub round: usize,
+    /// Training runs of the emulator this round measured.
+    pub training_runs: usize,
+    pub emulator: String,
+    pub ratios: Vec<ObservableRatio>,
+    /// Pilot posteriors: case → parameter → [median, q025, q975].
+    pub pilots: std::collections::BTreeMap<String, std::collections::BTreeMap<String, [f64; 3]>>,
+    /// Runs chosen in this round (none in the last).
+    pub new_runs: usize,
+    /// The forecast worst latent ratio once they have run.
+    pub forecast_worst_latent: Option<f64>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Rounds {
+    pub rounds: Vec<Round>,
+    /// Why refinement stopped: "below the data error" or "budget spent".
+    pub stopped: String,
+    /// The emulator the calibrations use, relative to `OUT/refine/`.
+    pub emulator: String,
+    pub provenance: Provenance,
+}
+
+impl Rounds {
+    pub fn markdown(&self) -> String {
+        let mut md = format!("# Adaptive design\n\nStopped: {}. The calibrations use `refine/{}`.\n\n", self.stopped, self.emulator);
+        md.push_str("Emulator sd over data error where the pilot posteriors live (root mean square over draws and bins): latent = the emulator's uncertainty about the simulator's mean (what more runs reduce); predictive = what the likelihood adds (latent, one run's noise and the dropped PCA components).\n\n");
+        md.push_str("| round | training runs | observable | latent | latent, worst bin | predictive |\n|---|---|---|---|---|---|\n");
+        for r in &self.rounds {
+            for o in &r.ratios {
+                md.push_str(&format!("| {} | {} | {} | {:.2} | {:.2} | {:.2} |\n", r.round, r.training_runs, o.observable, o.latent, o.latent_max_bin, o.predictive));
+            }
+        }
+        md.push_str("\n| round | pilot | parameter | median | 95% interval |\n|---|---|---|---|---|\n");
+        for r in &self.rounds {
+            for (case, params) in &r.pilots {
+                for (name, [m, lo, hi]) in params {
+                    md.push_str(&format!("| {} | {case} | {name} | {m:.4} | [{lo:.4}, {hi:.4}] |\n", r.round));
+                }
+            }
+        }
+        md
+    }
+}
+
+impl Runner<'_> {
+    pub(super) fn refine_dir(&self) -> PathBuf {
+        self.paths.out.join("refine")
+    }
+
+    /// The emulator the calibrations use: refine's last, when `[run.refine]` is set.
+    pub(super) fn study_emulator(&self) -> Result<PathBuf> {
+        if self.run.refine.is_none() {
+            return Ok(self.paths.emulator());
+        }
+        let path = self.refine_dir().join("rounds.json");
+        let rounds: Rounds = serde_json::from_str(&std::fs::read_to_string(&path).with_context(|| format!("reading {} (run the refine stage first)", path.display()))?)?;
+        Ok(self.refine_dir().join(rounds.emulator))
+    }
+
+    pub(super) fn refine(&mut self) -> Result<()> {
+        let settings = self.run.refine.clone().ok_or_else(|| anyhow!("{}: the refine stage needs a [run.refine] table", self.config.path.display()))?;
+        let dir = self.refine_dir();
+        if dir.exists() {
+            std::fs::remove_dir_all(&dir).with_context(|| format!("removing the previous refinement {}", dir.display()))?;
+        }
+        let mut emulator_dir = self.paths.emulator();
+        let mut tables = vec![self.paths.training()];
+        let mut rounds: Vec<Round> = Vec::new();
+        let mut spent = 0;
+        let stopped = loop {
+            let r = rounds.len();
+            let round_dir = dir.join(format!("round_{r}"));
+            let emu = crate::engine::emulator::store::load(&emulator_dir)?;
+            let (draws, pilots) = self.pilot_draws(&emulator_dir, &round_dir, &emu.parts.parameter_names, settings.draws, r)?;
+            let targets = refine::targets(&emu, &self.pilot_data()?)?;
+            let ratios = refine::ratios(&emu, &draws, &targets);
+            let worst = ratios.iter().map(|o| o.latent).fold(0.0, f64::max);
+            let training_runs = emu.parts.design_ids.len();
+            print_round(r, training_runs, &ratios);
+            let mut round = Round { round: r, training_runs, emulator: relative(&emulator_dir, &dir), ratios, pilots, new_runs: 0, forecast_worst_latent: None };
+            if worst < 1.0 {
+                rounds.push(round);
+                break "below the data error".to_string();
+            }
+            let k = settings.points_per_round.min(settings.budget.saturating_sub(spent));
+            if k == 0 {
+                rounds.push(round);
+                break format!("budget spent ({} new runs), latent ratio still {worst:.2} in the worst observable", settings.budget);
+            }
+            let sel = refine::select(&emu, &draws, &targets, k);
+            round.new_runs = sel.points.len();
+            round.forecast_worst_latent = Some(sel.forecast.iter().map(|o| o.latent).fold(0.0, f64::max));
+            let first_id = tables_max_id(&tables)? + 1;
+            let ids: Vec<i64> = (first_id..first_id + sel.points.len() as i64).collect();
+            let table = self.run_new_points(&round_dir, &ids, &sel.points, &emu.parts.parameter_names)?;
+            tables.push(table);
+            spent += sel.points.len();
+            rounds.push(round);
+            emulator_dir = self.retrain(&round_dir, &tables, r)?;
+        };
+        let prov = Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage refine", self.config.path.display()));
+        let result = Rounds { rounds, stopped, emulator: relative(&emulator_dir, &dir), provenance: prov };
+        let mut staged = artifacts::StagedWrites::new();
+        staged.json(&dir.join("rounds.json"), &result)?;
+        staged.text(&dir.join("rounds.md"), &result.markdown())?;
+        staged.commit()?;
+        println!("  stopped: {}; the calibrations use {}", result.stopped, dir.join(&result.emulator).display());
+        Ok(())
+    }
+
+    /// The measurements of the largest observable set.
+    fn pilot_data(&self) -> Result<Vec<artifacts::Measurement>> {
+        let config = self.study_config_with(&self.paths.emulator());
+        let set = self.diagnose_observables();
+        let data = artifacts::read_measurements(&config.resolve(&config.data.measurements))?;
+        Ok(data.into_iter().filter(|m| set.contains(&m.observable)).collect())
+    }
+
+    /// Calibrates the pilots with this round's emulator; their pooled draws
+    /// (half from each) and their parameter summaries.
+    fn pilot_draws(&self, emulator: &Path, round_dir: &Path, parameters: &[String], max: usize, round: usize) -> Result<(Vec<f64>, std::collections::BTreeMap<String, std::collections::BTreeMap<String, [f64; 3]>>)> {
+        let config = self.study_config_with(emulator);
+        let analysis = self.analysis(&config)?;
+        let md_kernel = self.run.kernels.iter().rev().find_map(|k| DiscrepancyKernel::parse(k).flatten());
+        let mut kernels = vec![None];
+        kernels.extend(md_kernel.map(Some));
+        let mut draws = Vec::new();
+        let mut pilots = std::collections::BTreeMap::new();
+        for (i, kernel) in kernels.iter().enumerate() {
+            let name = crate::engine::compare::case_dir_name(&self.diagnose_observables(), *kernel);
+            let out = round_dir.join("pilots").join(&name);
+            let problem = Problem::new(&analysis, &Overrides { kernel: Some(*kernel), observables: Some(self.diagnose_observables()), ..Default::default() })?;
+            let seed = self.opts.seed.wrapping_add(5_000 + 10 * round as u64 + i as u64);
+            let checkpoint = calibrate::checkpoint::Checkpointing::new(&out.join(".checkpoint"), calibrate::checkpoint_key(&problem, seed), None);
+            let cal = calibrate::run_and_write(&problem, seed, observer(self.opts.show_progress), &checkpoint, &out)?;
+            let summary = &cal.summary.parameters;
+            pilots.insert(name.clone(), parameters.iter().filter_map(|p| summary.get(p).map(|s| (p.clone(), [s.median, s.q025, s.q975]))).collect());
+            draws.extend(refine::read_draws(&out, parameters, max / kernels.len(), seed)?);
+        }
+        Ok((draws, pilots))
+    }
+
+    /// Writes the chosen points as a design and runs them as the simulate
+    /// stage would; returns their ingested table.
+    fn run_new_points(&self, round_dir: &Path, ids: &[i64], points: &[Vec<f64>], names: &[String]) -> Result<PathBuf> {
+        let design_dir = round_dir.join("design");
+        let spec_path = self.config.resolve(&self.run.design);
+        let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
+        if let Some(command) = self.array_command(false) {
+            spec.slurm.command = command;
+        }
+        // The design's parameter order may differ from the emulator's.
+        let rows: Vec<Vec<f64>> = points
+            .iter()
+            .map(|p| spec.parameters.iter().map(|sp| names.iter().position(|n| *n == sp.name).map(|k| p[k]).ok_or_else(|| anyhow!("design parameter {} is not an emulator parameter", sp.name))).collect::<Result<Vec<f64>>>())
+            .collect::<Result<_>>()?;
+        let prov = Provenance::new(artifacts::sha256_hex(&std::fs::read(&spec_path)?), String::new(), self.opts.seed, &format!("run {} --stage refine", self.config.path.display()));
+        crate::engine::design::write_points(&spec, ids, &rows, &prov, &format!("mdpipe refine ({} points)", ids.len()), &design_dir)?;
+        let runs = design_dir.join("runs");
+        std::fs::create_dir_all(&runs)?;
+        std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
+        let span = crate::engine::design::span_of(ids);
+        let design = design_dir.join("design.parquet");
+        let exec_points = crate::engine::design::read_points(&design)?.into_iter().map(|(id, values)| execute::Point { id, param_file: crate::engine::design::parameter_file(&design_dir, id, span), values }).collect();
+        let spec_run = self.simulator(false)?;
+        let job = execute::Job { spec: &spec_run, workdir: design_dir.clone(), design, runs: runs.clone(), points: exec_points, label: "refinement design".into(), mdpipe: self.opts.mdpipe.clone() };
+        let report = execute::run(&job, self.opts.executor, self.opts.show_progress)?;
+        if !report.failed.is_empty() {
+            report.print_failures();
+            println!("  warning: {} of {} refinement points failed and are left out (never averaged in)", report.failed.len(), ids.len());
+        }
+        let table = round_dir.join("training.parquet");
+        self.ingest_design(&design_dir, &table)?;
+        Ok(table)
+    }
+
+    /// Trains on every table so far; validates on the held-out design.
+    fn retrain(&self, round_dir: &Path, tables: &[PathBuf], round: usize) -> Result<PathBuf> {
+        let all = round_dir.join("training_all.parquet");
+        concat_tables(tables, &all)?;
+        let settings = self.emulator.clone().ok_or_else(|| anyhow!("{}: refinement needs an [emulator] table", self.config.path.display()))?;
+        let out = round_dir.join("emulator");
+        let seed = self.opts.seed.wrapping_add(round as u64 + 1);
+        let command = format!("run {} --stage refine (round {round})", self.config.path.display());
+        let (_, r) = crate::engine::emulator::train_with_settings(&settings, &self.config.hash, &command, &all, None, &out, seed)?;
+        println!("  retrained: {} points x {} outputs -> {} components", r.n_points, r.n_outputs, r.n_components);
+        let v = crate::engine::emulator::validate::run(&out, Some(&self.paths.validation()), 5, seed)?;
+        if let Some(h) = &v.holdout {
+            crate::engine::emulator::validate::print("  held-out design", h);
+        }
+        Ok(out)
+    }
+}
+
+fn print_round(r: usize, runs: usize, ratios: &[ObservableRatio]) {
+    let parts: Vec<String> = ratios.iter().map(|o| format!("{} {:.2}", o.observable, o.latent)).collect();
+    println!("  round {r} ({runs} training runs): emulator latent sd / data error: {}", parts.join(", "));
+}
+
+fn relative(path: &Path, base: &Path) -> String {
+    let abs = absolute(path);
+    match abs.strip_prefix(absolute(base)) {
+        Ok(rel) => rel.display().to_string(),
+        Err(_) => abs.display().to_string(),
+    }
+}
+
+fn tables_max_id(tables: &[PathBuf]) -> Result<i64> {
+    let mut max = -1;
+    for t in tables {
+        let df = artifacts::read_parquet(t)?;
+        let ids = df.column("design_id").map_err(|_| anyhow!("{}: no design_id column", t.display()))?.cast(&DataType::Int64)?;
+        max = max.max(ids.i64()?.max().unwrap_or(-1));
+    }
+    Ok(max)
+}
+
+/// Stacks ingested training tables (same schema) into one.
+fn concat_tables(tables: &[PathBuf], out: &Path) -> Result<()> {
+    let mut all: Option<DataFrame> = None;
+    for t in tables {
+        let df = artifacts::read_parquet(t)?;
+        all = Some(match all {
+            None => df,
+            Some(mut a) => {
+                a.vstack_mut(&df).map_err(|e| anyhow!("{}: its columns differ from the other training tables': {e}", t.display()))?;
+                a
+            }
+        });
+    }
+    let mut all = all.ok_or_else(|| anyhow!("no training tables"))?;
+    artifacts::write_parquet_atomic(out, &mut all, None)
+}
