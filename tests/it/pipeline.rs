@@ -59,12 +59,48 @@ observable_sets = [["ch_spectrum"], ["ch_spectrum", "ch_v2"]]
 kernels = ["none", "II"]
 candidates = ["grad_shear_delta_f", "proton_annihilation"]
 candidate_points = {candidate_points}
+[run.refine]
+points_per_round = 4
+budget = 8
+draws = 60
 "#,
         spec.display()
     );
     let path = dir.join("study.toml");
     std::fs::write(&path, text).unwrap();
     path
+}
+
+/// The refine stage: rounds reported, new runs under fresh ids with their
+/// parameter files and array script, the error where the posterior lives
+/// lower at the end, and the refined emulator trained on every run.
+fn check_refinement(out: &Path, config: &Config) {
+    let rounds: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("refine/rounds.json")).unwrap()).unwrap();
+    let list = rounds["rounds"].as_array().unwrap();
+    let new_runs: u64 = list.iter().map(|r| r["new_runs"].as_u64().unwrap()).sum();
+    assert!(new_runs <= 8 && list.len() >= 2, "{rounds}");
+    let worst = |r: &serde_json::Value| r["ratios"].as_array().unwrap().iter().map(|o| o["latent"].as_f64().unwrap()).fold(0.0, f64::max);
+    let (first, last) = (worst(&list[0]), worst(list.last().unwrap()));
+    let stopped = rounds["stopped"].as_str().unwrap();
+    assert!(if stopped.starts_with("below") { last < 1.0 } else { new_runs == 8 && first >= 1.0 }, "{stopped}: {first} -> {last}");
+    if new_runs > 0 {
+        assert!(last < first, "refinement did not lower the emulator's error where the posterior lives: {first} -> {last}");
+        let design = mdpipe::design::read_points(&out.join("refine/round_0/design/design.parquet")).unwrap();
+        let ids: Vec<i64> = design.iter().map(|(id, _)| *id).collect();
+        assert_eq!(ids, vec![16, 17, 18, 19]);
+        // Inside the prior box, where the pilot posteriors live.
+        for (_, values) in &design {
+            for (name, p) in &config.parameters {
+                assert!(values[name] >= p.min && values[name] <= p.max, "{name} = {}", values[name]);
+            }
+        }
+        let script = std::fs::read_to_string(out.join("refine/round_0/design/submit.slurm")).unwrap();
+        assert!(script.contains("#SBATCH --array=16-19") && script.contains("--seed"), "{script}");
+        assert!(out.join("refine/round_0/design/parameters/parameter_016").exists());
+        let emulator = mdpipe::emulator::store::load(&out.join("refine").join(rounds["emulator"].as_str().unwrap())).unwrap();
+        assert!(emulator.parts.design_ids.contains(&19) && emulator.parts.design_ids.contains(&0));
+    }
+    assert!(std::fs::read_to_string(out.join("refine/rounds.md")).unwrap().contains("| 0 | "));
 }
 
 fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
@@ -114,6 +150,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
         assert_eq!(v["folds"], 5);
         assert!(!cv.is_empty() && cv.iter().all(|o| o["rmse"].as_f64().unwrap().is_finite() && o["n"].as_u64().unwrap() > 0), "{name}: {cv:?}");
     }
+    check_refinement(&out, &config);
     let diagnosis: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
     let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
     assert_eq!(names.len(), 2);
@@ -155,7 +192,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     // More mock events: the mock data and everything after them rerun; the runs and emulator do not.
     let config2 = Config::load(&write_config(&dir, 400, 12)).unwrap();
     let third = run(&config2, &opts(&out, None, false)).unwrap();
-    assert_eq!(ran(&third), vec!["mock", "calibrate", "report", "diagnose"]);
+    assert_eq!(ran(&third), vec!["mock", "refine", "calibrate", "report", "diagnose"]);
 
     // A changed candidate setting redoes the variants and the diagnosis, not the calibrations.
     let config3 = Config::load(&write_config(&dir, 400, 10)).unwrap();

@@ -14,6 +14,7 @@
 //! | ingest      | training.parquet, validation.parquet (+ .report.json)           |
 //! | emulator    | emulator/ (trained, then validated: validation.json)            |
 //! | mock        | mock/runs/, mock/measurements.parquet                           |
+//! | refine      | refine/round_<r>/ (pilots, design with runs, tables, emulator), refine/rounds.json, rounds.md (only with `[run.refine]`; the stages after it use its emulator) |
 //! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json (or calibrate/cases.md, cases.json) |
 //! | report      | report.html                                                     |
 //! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator with validation.json) per `[run] candidates` entry |
@@ -705,8 +706,12 @@ impl Runner<'_> {
         let truth_curve: BTreeMap<String, f64> = self.truth_named()?.into_iter().collect();
         let study = crate::systems::heavy_ion::study::assess(&config, &dirs, &truth_curve, &self.study_emulator()?, &self.paths.validation(), &self.paths.measurements())?;
         artifacts::write_json_atomic(&self.paths.out.join("study.json"), &study)?;
-        artifacts::write_text_atomic(&self.paths.out.join("study.md"), &study.markdown())?;
-        println!("{}", study.markdown());
+        let mut md = study.markdown();
+        if let Some(rounds) = self.rounds()? {
+            md.push_str(&rounds.study_section());
+        }
+        artifacts::write_text_atomic(&self.paths.out.join("study.md"), &md)?;
+        println!("{md}");
         Ok(())
     }
 

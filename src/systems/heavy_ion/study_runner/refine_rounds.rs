@@ -100,19 +100,44 @@ impl Rounds {
     }
 }
 
+impl Rounds {
+    /// The first and last rounds side by side, for study.md.
+    pub fn study_section(&self) -> String {
+        let (Some(first), Some(last)) = (self.rounds.first(), self.rounds.last()) else { return String::new() };
+        let mut md = format!(
+            "\n## Emulator error where the posterior lives (adaptive design)\n\n{} training runs, then {} after {} round(s) of refinement (stopped: {}). Emulator sd over data error at the pilot posteriors' draws (root mean square over draws and bins). Latent: the emulator's uncertainty about the simulator's mean, what design points reduce. Predictive: what the likelihood adds, with one run's noise and the dropped components, which design points do not reduce.\n\n| observable | latent before | latent after | worst bin after | predictive before | predictive after |\n|---|---|---|---|---|---|\n",
+            first.training_runs,
+            last.training_runs,
+            self.rounds.len() - 1,
+            self.stopped
+        );
+        for (a, b) in first.ratios.iter().zip(&last.ratios) {
+            md.push_str(&format!("| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |\n", a.observable, a.latent, b.latent, b.latent_max_bin, a.predictive, b.predictive));
+        }
+        md
+    }
+}
+
 impl Runner<'_> {
+    /// The refine stage's report, when `[run.refine]` is set.
+    pub(super) fn rounds(&self) -> Result<Option<Rounds>> {
+        if self.run.refine.is_none() {
+            return Ok(None);
+        }
+        let path = self.refine_dir().join("rounds.json");
+        Ok(Some(serde_json::from_str(&std::fs::read_to_string(&path).with_context(|| format!("reading {} (run the refine stage first)", path.display()))?)?))
+    }
+
     pub(super) fn refine_dir(&self) -> PathBuf {
         self.paths.out.join("refine")
     }
 
     /// The emulator the calibrations use: refine's last, when `[run.refine]` is set.
     pub(super) fn study_emulator(&self) -> Result<PathBuf> {
-        if self.run.refine.is_none() {
-            return Ok(self.paths.emulator());
-        }
-        let path = self.refine_dir().join("rounds.json");
-        let rounds: Rounds = serde_json::from_str(&std::fs::read_to_string(&path).with_context(|| format!("reading {} (run the refine stage first)", path.display()))?)?;
-        Ok(self.refine_dir().join(rounds.emulator))
+        Ok(match self.rounds()? {
+            Some(rounds) => self.refine_dir().join(rounds.emulator),
+            None => self.paths.emulator(),
+        })
     }
 
     pub(super) fn refine(&mut self) -> Result<()> {
@@ -125,6 +150,9 @@ impl Runner<'_> {
         let mut tables = vec![self.paths.training()];
         let mut rounds: Vec<Round> = Vec::new();
         let mut spent = 0;
+        // New ids follow the training design's (whose failed points keep theirs).
+        let base_ids: Vec<i64> = crate::engine::design::read_points(&self.paths.design().join("design.parquet"))?.into_iter().map(|(id, _)| id).collect();
+        let mut next_id = crate::engine::design::span_of(&base_ids) as i64;
         let stopped = loop {
             let r = rounds.len();
             let round_dir = dir.join(format!("round_{r}"));
@@ -148,8 +176,8 @@ impl Runner<'_> {
             let sel = refine::select(&emu, &draws, &targets, k);
             round.new_runs = sel.points.len();
             round.forecast_worst_latent = Some(sel.forecast.iter().map(|o| o.latent).fold(0.0, f64::max));
-            let first_id = tables_max_id(&tables)? + 1;
-            let ids: Vec<i64> = (first_id..first_id + sel.points.len() as i64).collect();
+            let ids: Vec<i64> = (next_id..next_id + sel.points.len() as i64).collect();
+            next_id += ids.len() as i64;
             let table = self.run_new_points(&round_dir, &ids, &sel.points, &emu.parts.parameter_names)?;
             tables.push(table);
             spent += sel.points.len();
@@ -261,16 +289,6 @@ fn relative(path: &Path, base: &Path) -> String {
         Ok(rel) => rel.display().to_string(),
         Err(_) => abs.display().to_string(),
     }
-}
-
-fn tables_max_id(tables: &[PathBuf]) -> Result<i64> {
-    let mut max = -1;
-    for t in tables {
-        let df = artifacts::read_parquet(t)?;
-        let ids = df.column("design_id").map_err(|_| anyhow!("{}: no design_id column", t.display()))?.cast(&DataType::Int64)?;
-        max = max.max(ids.i64()?.max().unwrap_or(-1));
-    }
-    Ok(max)
 }
 
 /// Stacks ingested training tables (same schema) into one.
