@@ -50,6 +50,9 @@ pub struct DataConfig {
     pub measurements: PathBuf,
     /// Observables to calibrate on; all of the model's by default.
     pub observables: Option<Vec<String>>,
+    /// Covariance of the measurements beyond their errors (`base::covariance`), relative to the config.
+    #[serde(default)]
+    pub covariance: Option<PathBuf>,
 }
 
 #[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]

@@ -3,4 +3,5 @@
 
 pub mod artifacts;
 pub mod config;
+pub mod covariance;
 pub mod progress;

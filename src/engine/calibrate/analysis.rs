@@ -33,6 +33,8 @@ pub struct Analysis {
     pub predictions: PredictionConfig,
     /// Measurements file.
     pub data: PathBuf,
+    /// Covariance of those measurements beyond their errors (`[data] covariance`).
+    pub covariance: Option<PathBuf>,
     /// Observables to calibrate on; all of the model's by default.
     pub observables: Option<Vec<String>>,
     /// The config, read-only, for what the family decodes only when asked
@@ -78,6 +80,7 @@ impl Analysis {
             sampler,
             predictions: config.predictions.clone(),
             data: config.resolve(&config.data.measurements),
+            covariance: config.data.covariance.as_ref().map(|c| config.resolve(c)),
             observables: config.data.observables.clone(),
             source: Arc::new(config.clone()),
         })
@@ -101,9 +104,10 @@ impl Analysis {
         a
     }
 
-    /// This analysis on another measurements file made by the same process.
+    /// This analysis on another measurements file made by the same process
+    /// (drawn with independent errors: the config's covariance is not theirs).
     pub fn with_data(&self, path: &Path) -> Analysis {
-        Analysis { data: path.to_path_buf(), ..self.clone() }
+        Analysis { data: path.to_path_buf(), covariance: None, ..self.clone() }
     }
 
     /// Bounds of a discrepancy hyperparameter.

@@ -37,6 +37,9 @@ pub struct ObservableBlock {
     pub input: KernelInput,
     pub kernel_x: Vec<f64>,
     pub gram: DiscrepancyGram,
+    /// Covariance of the measurements beyond their errors (column-major
+    /// n × n, data units, in the block's x order), from `[data] covariance`.
+    pub covariance: Option<Vec<f64>>,
 }
 
 impl ObservableBlock {
@@ -65,7 +68,29 @@ impl ObservableBlock {
             error: rows.iter().map(|m| m.error).collect(),
             mean,
             scale,
+            covariance: None,
         })
+    }
+
+    /// Adds `scale2 ×` the data's covariance (errors² and any covariance
+    /// beyond them) to the lower triangle of `lower` (column-major n × n).
+    pub fn add_data_covariance(&self, scale2: f64, lower: &mut [f64]) {
+        let n = self.len();
+        for i in 0..n {
+            lower[i * n + i] += scale2 * self.error[i] * self.error[i];
+        }
+        if let Some(c) = &self.covariance {
+            for j in 0..n {
+                for i in j..n {
+                    lower[j * n + i] += scale2 * c[j * n + i];
+                }
+            }
+        }
+    }
+
+    /// Whether the data's covariance is diagonal (errors only).
+    pub fn diagonal_data(&self) -> bool {
+        self.covariance.is_none()
     }
 
     /// The block with the kernel's inputs `input.apply(x)` (the paper's x
@@ -231,6 +256,9 @@ impl MdLikelihood {
                     jac[i + k * n] = (up[i] - down[i]) / (2.0 * steps[k] * block.error[i]);
                 }
             }
+            if !block.diagonal_data() {
+                whiten_by_data_covariance(block, &mut jac, d)?;
+            }
             for a in 0..d {
                 for b in 0..d {
                     fisher[a + b * d] += (0..n).map(|i| jac[i + a * n] * jac[i + b * n]).sum::<f64>();
@@ -269,7 +297,7 @@ impl MdLikelihood {
             resid[i] = (block.y[i] - eta[i]) * inv_scale;
         }
         let mut total = 0.0;
-        if self.kernel.is_none() && !self.model_covariance {
+        if self.kernel.is_none() && !self.model_covariance && block.diagonal_data() {
             // Diagonal covariance: no factorization needed.
             for i in 0..n {
                 let s = block.error[i] * inv_scale;
@@ -285,10 +313,7 @@ impl MdLikelihood {
             if self.model_covariance {
                 self.simulator.add_model_covariance(block.model_index, &block.x, theta, inv_scale * inv_scale, &mut chol.factor);
             }
-            for i in 0..n {
-                let s = block.error[i] * inv_scale;
-                chol.factor[i * n + i] += s * s;
-            }
+            block.add_data_covariance(inv_scale * inv_scale, &mut chol.factor);
             if chol.factorize().is_err() {
                 return f64::NEG_INFINITY;
             }
@@ -300,6 +325,26 @@ impl MdLikelihood {
             total
         }
     }
+}
+
+/// Turns the error-scaled Jacobian columns `J/σ` into `L⁻¹J`, with `L L'`
+/// the data's whole covariance, so that `Σ_i` of their products is `J'C⁻¹J`.
+fn whiten_by_data_covariance(block: &ObservableBlock, jac: &mut [f64], d: usize) -> Option<()> {
+    let n = block.len();
+    let mut chol = CholeskyWorkspace::new(n);
+    chol.factor.fill(0.0);
+    block.add_data_covariance(1.0, &mut chol.factor);
+    if !chol.factorize_exact() {
+        return None;
+    }
+    for k in 0..d {
+        let col = &mut jac[k * n..(k + 1) * n];
+        for i in 0..n {
+            col[i] *= block.error[i];
+        }
+        chol.solve_lower_in_place(col);
+    }
+    Some(())
 }
 
 const LN_2PI: f64 = 1.837_877_066_409_345_5;

@@ -7,6 +7,7 @@
 
 pub mod analysis;
 pub mod checkpoint;
+pub mod data_covariance;
 pub mod diagnostics;
 pub mod ensemble;
 pub mod guard;
@@ -141,13 +142,18 @@ impl Problem {
             (Some(o), _) | (None, Some(o)) => o.clone(),
             (None, None) => simulator.observable_names().into_iter().filter(|o| measurements.iter().any(|m| &m.observable == o)).collect(),
         };
-        let blocks = observable_blocks(&simulator, &selected, &measurements, &data_path)?
+        let mut blocks: Vec<ObservableBlock> = observable_blocks(&simulator, &selected, &measurements, &data_path)?
             .into_iter()
             .map(|b| {
                 let input = analysis.kernel_inputs.get(&b.name).copied().unwrap_or_default();
                 b.with_kernel_input(input)
             })
             .collect();
+        match (&analysis.covariance, &overrides.data) {
+            (Some(path), None) => data_covariance::attach(&mut blocks, &data_covariance::read(path)?, &measurements, path, &data_path)?,
+            (Some(path), Some(_)) => eprintln!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display()),
+            (None, _) => {}
+        }
         let likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
         let prior = prior_of(analysis, &likelihood)?;
         let sampler = overrides.sampler.unwrap_or(analysis.sampler.kind);
@@ -240,7 +246,7 @@ pub fn run(problem: &Problem, seed: u64, observer: &dyn Observer) -> Result<Cali
 /// observables, prior, sampler settings and seed.
 pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
     let material = format!(
-        "{}|{}|{seed}|{}|{:?}|{:?}|{:?}|{:?}|{:?}",
+        "{}|{}|{seed}|{}|{:?}|{:?}|{:?}|{:?}|{:?}|{:?}",
         problem.analysis.config_hash,
         artifacts::measurements_hash(&problem.measurements),
         DiscrepancyKernel::label(problem.likelihood.kernel),
@@ -248,7 +254,9 @@ pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
         problem.prior.names,
         problem.prior.lower,
         problem.prior.upper,
-        problem.analysis.sampler.smc
+        problem.analysis.sampler.smc,
+        // The data's covariance beyond the errors changes the likelihood too.
+        problem.likelihood.blocks.iter().map(|b| b.covariance.as_ref().map(|c| c.iter().map(|v| v.to_bits()).collect::<Vec<u64>>())).collect::<Vec<_>>()
     );
     artifacts::sha256_hex(material.as_bytes())
 }

@@ -129,8 +129,9 @@ impl Diagnostics {
 
 /// Goodness of fit of the model alone at the posterior median θ: the
 /// generalized χ² `rᵀ C⁻¹ r` with the covariance of the no-MD likelihood,
-/// `C = diag(σ²)` plus, for an emulator, its predictive covariance (without
-/// it an emulated model would be judged as if it were exact).
+/// `C = diag(σ²)` plus the data's covariance beyond the errors (`[data]
+/// covariance`) and, for an emulator, its predictive covariance (without it
+/// an emulated model would be judged as if it were exact).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct FitQuality {
     pub chi2: f64,
@@ -243,16 +244,15 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
         let mut eta = vec![0.0; n_b];
         problem.simulator.predict(b.model_index, &b.x, theta, &mut eta);
         let mut r: Vec<f64> = (0..n_b).map(|i| b.y[i] - eta[i]).collect();
-        let c = if problem.simulator.has_model_covariance() {
+        let c = if problem.simulator.has_model_covariance() || !b.diagonal_data() {
             let mut ws = crate::engine::gp::CholeskyWorkspace::new(n_b);
             ws.factor.fill(0.0);
-            for i in 0..n_b {
-                ws.factor[i * n_b + i] = b.error[i] * b.error[i];
-            }
+            b.add_data_covariance(1.0, &mut ws.factor);
+            let data_diag: Vec<f64> = (0..n_b).map(|i| ws.factor[i * n_b + i]).collect();
             problem.simulator.add_model_covariance(b.model_index, &b.x, theta, 1.0, &mut ws.factor);
             for i in 0..n_b {
-                data_var += b.error[i] * b.error[i];
-                model_var += ws.factor[i * n_b + i] - b.error[i] * b.error[i];
+                data_var += data_diag[i];
+                model_var += ws.factor[i * n_b + i] - data_diag[i];
             }
             match ws.factorize() {
                 Ok(_) => {

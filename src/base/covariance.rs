@@ -1,0 +1,98 @@
+//! Measurement covariance beyond the per-point errors: correlated
+//! systematics, a normalization uncertainty, the jackknife covariance between
+//! bins measured on the same events.
+//!
+//! File format (CSV with a header, or Parquet with the same columns):
+//! `observable_a, x_a, observable_b, x_b, covariance`. Each row is the
+//! covariance of two measured points, in the measurements' units squared,
+//! *added* to the diagonal of their errors² (so a diagonal entry adds
+//! variance, and a file of off-diagonal entries keeps the errors as they are).
+//! A pair may be given in either order or both; if both, they must agree.
+
+use super::artifacts::read_parquet;
+use anyhow::{anyhow, bail, Context, Result};
+use polars::prelude::*;
+use std::path::Path;
+
+pub const COVARIANCE_COLUMNS: [&str; 5] = ["observable_a", "x_a", "observable_b", "x_b", "covariance"];
+
+/// One entry of a covariance file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CovarianceEntry {
+    pub observable_a: String,
+    pub x_a: f64,
+    pub observable_b: String,
+    pub x_b: f64,
+    pub covariance: f64,
+    /// CSV line or Parquet row (1-based), for messages.
+    pub line: usize,
+}
+
+impl CovarianceEntry {
+    pub fn location(&self, path: &Path) -> String {
+        let is_parquet = path.extension().is_some_and(|e| e == "parquet" || e == "pq");
+        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
+    }
+}
+
+pub fn read_covariance(path: &Path) -> Result<Vec<CovarianceEntry>> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let rows = if ext == "parquet" || ext == "pq" { read_parquet_rows(path)? } else { read_csv_rows(path)? };
+    for e in &rows {
+        if !(e.x_a.is_finite() && e.x_b.is_finite() && e.covariance.is_finite()) {
+            bail!("{}: x and covariance must be finite numbers", e.location(path));
+        }
+    }
+    Ok(rows)
+}
+
+fn read_csv_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
+    let file = path.display();
+    let mut reader = csv::ReaderBuilder::new().comment(Some(b'#')).trim(csv::Trim::All).from_path(path).with_context(|| format!("opening covariance file {file}"))?;
+    let headers = reader.headers().with_context(|| format!("{file}: reading header"))?.clone();
+    let mut idx = [0usize; 5];
+    for (k, name) in COVARIANCE_COLUMNS.iter().enumerate() {
+        idx[k] = headers.iter().position(|h| h == *name).ok_or_else(|| anyhow!("{file}: line 1: missing column '{name}' (expected: {})", COVARIANCE_COLUMNS.join(", ")))?;
+    }
+    let mut out = Vec::new();
+    for rec in reader.records() {
+        let rec = rec.with_context(|| format!("{file}: malformed CSV"))?;
+        let line = rec.position().map(|p| p.line() as usize).unwrap_or(0);
+        let field = |k: usize| rec.get(idx[k]).unwrap_or("");
+        let num = |k: usize| -> Result<f64> { field(k).parse::<f64>().map_err(|_| anyhow!("{file}: line {line}, field '{}': cannot parse {:?} as a number", COVARIANCE_COLUMNS[k], field(k))) };
+        out.push(CovarianceEntry { observable_a: field(0).to_string(), x_a: num(1)?, observable_b: field(2).to_string(), x_b: num(3)?, covariance: num(4)?, line });
+    }
+    Ok(out)
+}
+
+fn read_parquet_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
+    let file = path.display();
+    let df = read_parquet(path)?;
+    let col = |name: &str| df.column(name).map_err(|_| anyhow!("{file}: missing column '{name}' (expected: {})", COVARIANCE_COLUMNS.join(", ")));
+    let text = |name: &str| -> Result<StringChunked> { Ok(col(name)?.str().map_err(|_| anyhow!("{file}: column '{name}' must be a string column"))?.clone()) };
+    let num = |name: &str| -> Result<Float64Chunked> { Ok(col(name)?.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?.f64()?.clone()) };
+    let (oa, ob) = (text("observable_a")?, text("observable_b")?);
+    let (xa, xb, c) = (num("x_a")?, num("x_b")?, num("covariance")?);
+    (0..df.height())
+        .map(|i| {
+            let missing = |name: &str| anyhow!("{file}: row {}, field '{name}': missing value", i + 1);
+            Ok(CovarianceEntry {
+                observable_a: oa.get(i).ok_or_else(|| missing("observable_a"))?.to_string(),
+                x_a: xa.get(i).ok_or_else(|| missing("x_a"))?,
+                observable_b: ob.get(i).ok_or_else(|| missing("observable_b"))?.to_string(),
+                x_b: xb.get(i).ok_or_else(|| missing("x_b"))?,
+                covariance: c.get(i).ok_or_else(|| missing("covariance"))?,
+                line: i + 1,
+            })
+        })
+        .collect()
+}
+
+/// Writes entries as CSV (temporary file, then renamed).
+pub fn write_covariance_csv(path: &Path, entries: &[CovarianceEntry]) -> Result<()> {
+    let mut text = format!("{}\n", COVARIANCE_COLUMNS.join(","));
+    for e in entries {
+        text.push_str(&format!("{},{},{},{},{:e}\n", e.observable_a, e.x_a, e.observable_b, e.x_b, e.covariance));
+    }
+    super::artifacts::write_text_atomic(path, &text)
+}

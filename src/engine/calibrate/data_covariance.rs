@@ -1,0 +1,172 @@
+//! Puts a measurement covariance file (`base::covariance`) into the
+//! likelihood's observable blocks.
+//!
+//! The likelihood's blocks are per observable, independent of each other, so
+//! entries between two observables are not used: they are counted and a
+//! warning says so (a joint block would carry them; not built yet). Entries
+//! of observables not calibrated on are skipped; entries naming a point that
+//! is not in the measurements are errors.
+
+use super::likelihood::ObservableBlock;
+use crate::base::artifacts::Measurement;
+use crate::base::covariance::{read_covariance, CovarianceEntry};
+use crate::engine::gp::CholeskyWorkspace;
+use anyhow::{bail, Result};
+use std::path::Path;
+
+pub fn read(path: &Path) -> Result<Vec<CovarianceEntry>> {
+    read_covariance(path)
+}
+
+fn same_x(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0)
+}
+
+/// Sets each block's `covariance` from `entries`.
+pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measurements: &[Measurement], path: &Path, data_path: &Path) -> Result<()> {
+    let mut across = 0;
+    let mut set: Vec<Vec<bool>> = blocks.iter().map(|b| vec![false; b.len() * b.len()]).collect();
+    for e in entries {
+        for (obs, x, field) in [(&e.observable_a, e.x_a, "a"), (&e.observable_b, e.x_b, "b")] {
+            if !measurements.iter().any(|m| &m.observable == obs && same_x(m.x, x)) {
+                bail!("{}, fields 'observable_{field}', 'x_{field}': {} has no measurement of '{obs}' at x = {x}", e.location(path), data_path.display());
+            }
+        }
+        let find = |obs: &str| blocks.iter().position(|b| b.name == obs);
+        let (Some(ba), Some(bb)) = (find(&e.observable_a), find(&e.observable_b)) else { continue };
+        if ba != bb {
+            across += 1;
+            continue;
+        }
+        let block = &mut blocks[ba];
+        let n = block.len();
+        let index = |x: f64| block.x.iter().position(|&bx| same_x(bx, x)).expect("checked against the measurements");
+        let (i, j) = (index(e.x_a), index(e.x_b));
+        let c = block.covariance.get_or_insert_with(|| vec![0.0; n * n]);
+        if set[ba][j * n + i] && !same_x(c[j * n + i], e.covariance) {
+            bail!("{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})", e.location(path), e.covariance, c[j * n + i]);
+        }
+        c[j * n + i] = e.covariance;
+        c[i * n + j] = e.covariance;
+        set[ba][j * n + i] = true;
+        set[ba][i * n + j] = true;
+    }
+    if across > 0 {
+        eprintln!("warning: {}: {across} entries between two different observables are not used: the likelihood's blocks are per observable and independent", path.display());
+    }
+    for block in blocks.iter().filter(|b| !b.diagonal_data()) {
+        let mut chol = CholeskyWorkspace::new(block.len());
+        chol.factor.fill(0.0);
+        block.add_data_covariance(1.0, &mut chol.factor);
+        if !chol.factorize_exact() {
+            bail!("{}: the covariance of '{}' with its errors² on the diagonal is not positive definite", path.display(), block.name);
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::engine::calibrate::MdLikelihood;
+    use crate::engine::model::Simulator;
+    use std::sync::Arc;
+
+    /// η(x, θ) = θ₀ + θ₁ x for observables "a" and "b".
+    struct Line;
+    impl Simulator for Line {
+        fn parameter_names(&self) -> Vec<String> {
+            vec!["c".into(), "m".into()]
+        }
+        fn observable_names(&self) -> Vec<String> {
+            vec!["a".into(), "b".into()]
+        }
+        fn predict(&self, _o: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
+            for (o, x) in out.iter_mut().zip(x) {
+                *o = theta[0] + theta[1] * x;
+            }
+        }
+    }
+
+    fn data() -> Vec<Measurement> {
+        vec![Measurement::new("a", 0.0, 1.1, 0.1), Measurement::new("a", 1.0, 1.9, 0.2), Measurement::new("b", 0.0, 1.0, 0.1), Measurement::new("b", 2.0, 3.2, 0.1)]
+    }
+
+    fn entry(oa: &str, xa: f64, ob: &str, xb: f64, c: f64, line: usize) -> CovarianceEntry {
+        CovarianceEntry { observable_a: oa.into(), x_a: xa, observable_b: ob.into(), x_b: xb, covariance: c, line }
+    }
+
+    fn blocks(m: &[Measurement]) -> Vec<ObservableBlock> {
+        ["a", "b"].iter().enumerate().map(|(k, o)| ObservableBlock::new(o, k, &m.iter().filter(|r| r.observable == *o).collect::<Vec<_>>()).unwrap()).collect()
+    }
+
+    #[test]
+    fn the_likelihood_is_the_gaussian_density_with_the_whole_covariance() {
+        let m = data();
+        let mut b = blocks(&m);
+        let entries = [entry("a", 0.0, "a", 1.0, 0.012, 2), entry("a", 0.0, "a", 0.0, 0.005, 3), entry("a", 0.0, "b", 0.0, 0.003, 4)];
+        attach(&mut b, &entries, &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
+        let lik = MdLikelihood::new(Arc::new(Line), b, None);
+        let theta = [1.0, 0.95];
+        // Closed form: block a is 2×2, Σ = [[0.01 + 0.005, 0.012], [0.012, 0.04]];
+        // block b keeps its diagonal errors (the a–b entry is not used).
+        let (s11, s12, s22): (f64, f64, f64) = (0.015, 0.012, 0.04);
+        let det = s11 * s22 - s12 * s12;
+        let (r1, r2) = (1.1 - 1.0, 1.9 - 1.95);
+        let quad = (s22 * r1 * r1 - 2.0 * s12 * r1 * r2 + s11 * r2 * r2) / det;
+        let ln2pi = (2.0 * std::f64::consts::PI).ln();
+        let block_a = -0.5 * (quad + det.ln() + 2.0 * ln2pi);
+        let normal = |r: f64, s: f64| -0.5 * ((r / s).powi(2) + 2.0 * s.ln() + ln2pi);
+        let block_b = normal(1.0 - 1.0, 0.1) + normal(3.2 - 2.9, 0.1);
+        let got = lik.log_likelihood(&theta);
+        assert!((got - (block_a + block_b)).abs() < 1e-10, "{got} vs {}", block_a + block_b);
+        // Fisher information of the line: Jᵀ Σ⁻¹ J, J = [[1, x]] per point.
+        let f = lik.fisher_information(&theta, &[1e-3, 1e-3]).unwrap();
+        let inv = [s22 / det, -s12 / det, s11 / det];
+        let (xa, xb) = ([0.0, 1.0], [0.0, 2.0]);
+        let fa = |p: usize, q: usize| {
+            let j = |i: usize, k: usize| if k == 0 { 1.0 } else { xa[i] };
+            j(0, p) * (inv[0] * j(0, q) + inv[1] * j(1, q)) + j(1, p) * (inv[1] * j(0, q) + inv[2] * j(1, q))
+        };
+        let fb = |p: usize, q: usize| (0..2).map(|i| if p == 0 { 1.0 } else { xb[i] } * if q == 0 { 1.0 } else { xb[i] } / 0.01).sum::<f64>();
+        for p in 0..2 {
+            for q in 0..2 {
+                let expect = fa(p, q) + fb(p, q);
+                assert!((f[p + 2 * q] - expect).abs() < 1e-6 * expect.abs().max(1.0), "F[{p},{q}] = {} vs {expect}", f[p + 2 * q]);
+            }
+        }
+    }
+
+    #[test]
+    fn bad_covariance_files_are_refused_naming_the_row() {
+        let m = data();
+        let cases = [
+            (vec![entry("a", 0.5, "a", 1.0, 0.01, 7)], "cov.csv: line 7, fields 'observable_a', 'x_a': data.csv has no measurement of 'a' at x = 0.5"),
+            (vec![entry("a", 0.0, "a", 1.0, 0.01, 2), entry("a", 1.0, "a", 0.0, 0.02, 3)], "cov.csv: line 3, field 'covariance': 0.02 contradicts"),
+            (vec![entry("a", 0.0, "a", 1.0, 0.5, 2)], "the covariance of 'a' with its errors² on the diagonal is not positive definite"),
+        ];
+        for (entries, expect) in cases {
+            let mut b = blocks(&m);
+            let msg = format!("{:#}", attach(&mut b, &entries, &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap_err());
+            assert!(msg.contains(expect), "{msg}");
+        }
+        // Both orders of a pair, agreeing, are fine; an unselected observable's entries are skipped.
+        let mut b = blocks(&m);
+        b.truncate(1);
+        attach(&mut b, &[entry("a", 0.0, "a", 1.0, 0.01, 2), entry("a", 1.0, "a", 0.0, 0.01, 3), entry("b", 0.0, "b", 2.0, 0.001, 4)], &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
+        assert_eq!(b[0].covariance.as_ref().unwrap()[1], 0.01);
+    }
+
+    #[test]
+    fn covariance_files_round_trip_through_csv() {
+        let dir = std::env::temp_dir().join(format!("mdpipe-cov-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let entries = vec![entry("a", 0.0, "a", 1.0, 0.012, 2), entry("b", 2.0, "a", 0.0, -3.5e-4, 3)];
+        crate::base::covariance::write_covariance_csv(&dir.join("c.csv"), &entries).unwrap();
+        assert_eq!(read(&dir.join("c.csv")).unwrap(), entries);
+        std::fs::write(dir.join("bad.csv"), "observable_a,x_a,observable_b,x_b,covariance\na,0,a,one,0.1\n").unwrap();
+        let msg = format!("{:#}", read(&dir.join("bad.csv")).unwrap_err());
+        assert!(msg.contains("bad.csv: line 2, field 'x_b': cannot parse \"one\""), "{msg}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
