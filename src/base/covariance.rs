@@ -88,11 +88,16 @@ fn read_parquet_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
         .collect()
 }
 
-/// Writes entries as CSV (temporary file, then renamed).
-pub fn write_covariance_csv(path: &Path, entries: &[CovarianceEntry]) -> Result<()> {
+/// Entries as CSV text, header first.
+pub fn covariance_csv(entries: &[CovarianceEntry]) -> String {
     let mut text = format!("{}\n", COVARIANCE_COLUMNS.join(","));
     for e in entries {
         text.push_str(&format!("{},{},{},{},{:e}\n", e.observable_a, e.x_a, e.observable_b, e.x_b, e.covariance));
     }
-    super::artifacts::write_text_atomic(path, &text)
+    text
+}
+
+/// Writes entries as CSV (temporary file, then renamed).
+pub fn write_covariance_csv(path: &Path, entries: &[CovarianceEntry]) -> Result<()> {
+    super::artifacts::write_text_atomic(path, &covariance_csv(entries))
 }

@@ -103,6 +103,28 @@ fn check_refinement(out: &Path, config: &Config) {
     assert!(std::fs::read_to_string(out.join("refine/rounds.md")).unwrap().contains("| 0 | "));
 }
 
+/// The mock data's jackknife covariance: a correlation matrix within
+/// [-1, 1], used by a calibration that names it in `[data] covariance`.
+fn check_mock_covariance(out: &Path, config: &Config) {
+    let path = out.join("mock/covariance.csv");
+    let entries = mdpipe::base::covariance::read_covariance(&path).unwrap();
+    let data = mdpipe::artifacts::read_measurements(&out.join("mock/measurements.parquet")).unwrap();
+    let n = data.len();
+    assert_eq!(entries.len(), n * (n - 1) / 2, "every pair of the {n} points, once");
+    let error = |o: &str, x: f64| data.iter().find(|m| m.observable == o && m.x == x).unwrap().error;
+    for e in &entries {
+        let r = e.covariance / (error(&e.observable_a, e.x_a) * error(&e.observable_b, e.x_b));
+        assert!(r.abs() <= 1.0 + 1e-9, "correlation {r} of {e:?}");
+    }
+    let mut c = config.clone();
+    c.model = mdpipe::emulator::EmulatorFamily::model_table(&out.join("emulator"));
+    c.data.measurements = out.join("mock/measurements.parquet");
+    c.data.covariance = Some(path);
+    let analysis = mdpipe::systems::resolve(&c).unwrap();
+    let problem = mdpipe::calibrate::Problem::new(&analysis, &Default::default()).unwrap();
+    assert!(problem.likelihood.blocks.iter().all(|b| b.covariance.is_some()));
+}
+
 fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
     RunOptions { out: out.to_path_buf(), seed: 3, stage: stage.map(String::from), force, show_progress: false, executor: mdpipe::execute::Executor::Local, mdpipe: env!("CARGO_BIN_EXE_mdpipe").into(), case: None }
 }
@@ -151,6 +173,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
         assert!(!cv.is_empty() && cv.iter().all(|o| o["rmse"].as_f64().unwrap().is_finite() && o["n"].as_u64().unwrap() > 0), "{name}: {cv:?}");
     }
     check_refinement(&out, &config);
+    check_mock_covariance(&out, &config);
     let diagnosis: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
     let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
     assert_eq!(names.len(), 2);

@@ -116,8 +116,10 @@ pub struct Estimate {
 }
 
 /// Delete-one-event jackknife of `estimate`, a function of the per-event sums
-/// summed over events (so leaving an event out is a subtraction).
-fn jackknife(per_event: &[Vec<f64>], estimate: impl Fn(&[f64]) -> Vec<f64>) -> (Vec<f64>, Vec<f64>) {
+/// summed over events (so leaving an event out is a subtraction). Returns
+/// the estimate, its errors and the leave-one-out replicates (one per event),
+/// from which [`jackknife_covariance`] gives the covariance between outputs.
+fn jackknife(per_event: &[Vec<f64>], estimate: impl Fn(&[f64]) -> Vec<f64>) -> (Vec<f64>, Vec<f64>, Vec<Vec<f64>>) {
     let n = per_event.len();
     let width = per_event[0].len();
     let mut total = vec![0.0; width];
@@ -147,7 +149,39 @@ fn jackknife(per_event: &[Vec<f64>], estimate: impl Fn(&[f64]) -> Vec<f64>) -> (
         }
     }
     let scale = (n as f64 - 1.0) / n as f64;
-    (full, var.into_iter().map(|v| (scale * v).sqrt()).collect())
+    (full, var.into_iter().map(|v| (scale * v).sqrt()).collect(), reps)
+}
+
+/// Jackknife covariance `(n−1)/n Σ_k (r_k − r̄)(r_k − r̄)ᵀ` of replicates
+/// `reps` (one vector per left-out event), row-major m × m. Outputs measured
+/// on the same events are correlated (a multiplicity fluctuation moves every
+/// bin of a spectrum), and this is that correlation.
+pub fn jackknife_covariance(reps: &[Vec<f64>]) -> Vec<f64> {
+    let n = reps.len();
+    let m = reps.first().map_or(0, Vec::len);
+    let mut mean = vec![0.0; m];
+    for r in reps {
+        for (a, v) in mean.iter_mut().zip(r) {
+            *a += v / n as f64;
+        }
+    }
+    let mut cov = vec![0.0; m * m];
+    for r in reps {
+        for i in 0..m {
+            let di = r[i] - mean[i];
+            for j in 0..=i {
+                cov[i * m + j] += di * (r[j] - mean[j]);
+            }
+        }
+    }
+    let scale = (n as f64 - 1.0) / n as f64;
+    for i in 0..m {
+        for j in 0..=i {
+            cov[i * m + j] *= scale;
+            cov[j * m + i] = cov[i * m + j];
+        }
+    }
+    cov
 }
 
 /// The observables of one species in the analysis bins `edges`.
@@ -155,6 +189,8 @@ pub struct SpeciesResult {
     pub spectrum: Vec<Estimate>,
     /// v_2{2}, v_3{2}
     pub vn: [Vec<Estimate>; 2],
+    /// Leave-one-event-out replicates of [spectrum bins, v2 bins, v3 bins].
+    pub replicates: Vec<Vec<f64>>,
 }
 
 /// Rows of the file that fall into analysis bin [lo, hi), by the row's pT.
@@ -242,9 +278,40 @@ pub fn analyse(species: &Species, charged: &FileKind, events: &[BinnedEvent], re
         }
         out
     };
-    let (value, error) = jackknife(&per_event, estimate);
+    let (value, error, replicates) = jackknife(&per_event, estimate);
     // Values or errors are NaN where a bin holds a handful of particles, or
     // where <|Q|² − M> ≤ 0 (v_n{2} undefined); the caller leaves those out.
     let est = |k: usize| Estimate { value: value[k], error: error[k] };
-    Ok(SpeciesResult { spectrum: (0..nb).map(est).collect(), vn: [(nb..2 * nb).map(est).collect(), (2 * nb..3 * nb).map(est).collect()] })
+    Ok(SpeciesResult { spectrum: (0..nb).map(est).collect(), vn: [(nb..2 * nb).map(est).collect(), (2 * nb..3 * nb).map(est).collect()], replicates })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn the_jackknife_covariance_of_means_is_the_sample_covariance_over_n() {
+        // For a mean the jackknife is exact: cov = S_ab / n with S the sample
+        // covariance (denominator n − 1). Two correlated columns and a count.
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(3);
+        let n = 50;
+        let per_event: Vec<Vec<f64>> = (0..n)
+            .map(|_| {
+                let common: f64 = rng.random();
+                vec![common + 0.3 * rng.random::<f64>(), 2.0 * common - rng.random::<f64>(), 1.0]
+            })
+            .collect();
+        let (_, err, reps) = jackknife(&per_event, |s| vec![s[0] / s[2], s[1] / s[2]]);
+        let cov = jackknife_covariance(&reps);
+        let mean = |k: usize| per_event.iter().map(|e| e[k]).sum::<f64>() / n as f64;
+        let sample = |a: usize, b: usize| per_event.iter().map(|e| (e[a] - mean(a)) * (e[b] - mean(b))).sum::<f64>() / (n as f64 - 1.0);
+        for a in 0..2 {
+            for b in 0..2 {
+                let expect = sample(a, b) / n as f64;
+                assert!((cov[a * 2 + b] - expect).abs() < 1e-12 * expect.abs().max(1e-6), "cov[{a},{b}] = {} vs {expect}", cov[a * 2 + b]);
+            }
+            assert!((cov[a * 2 + a].sqrt() - err[a]).abs() < 1e-12);
+        }
+    }
 }

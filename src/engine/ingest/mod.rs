@@ -114,6 +114,9 @@ pub struct IngestReport {
 pub struct Ingested {
     pub rows: Vec<IngestedRow>,
     pub report: IngestReport,
+    /// Per design point, the jackknife covariance between its rows (off the
+    /// diagonal: the diagonal is the rows' errors²), over the same events.
+    pub covariance: std::collections::BTreeMap<i64, Vec<crate::base::covariance::CovarianceEntry>>,
 }
 
 /// Trailing integer of a folder name (`0007`, `point_12`) = its design id.
@@ -173,6 +176,12 @@ fn read_point_events(dir: &Path, format: RunFormat) -> Result<(String, Vec<Event
 
 /// Analyses the events of one design point: the observables, or why not.
 pub fn analyse_events(design_id: i64, events: &[Event], settings: &IngestSettings, skipped: &mut Vec<SkippedEvent>) -> Result<Vec<IngestedRow>> {
+    Ok(analyse_events_with_covariance(design_id, events, settings, skipped)?.0)
+}
+
+/// [`analyse_events`], with the jackknife covariance between the rows that
+/// are defined (every pair of them, off the diagonal).
+pub fn analyse_events_with_covariance(design_id: i64, events: &[Event], settings: &IngestSettings, skipped: &mut Vec<SkippedEvent>) -> Result<(Vec<IngestedRow>, Vec<crate::base::covariance::CovarianceEntry>)> {
     let species = analysis_species();
     // Per good event: one BinnedEvent per species (index 0 is charged, the reference).
     let mut binned: Vec<Vec<BinnedEvent>> = Vec::new();
@@ -205,21 +214,37 @@ pub fn analyse_events(design_id: i64, events: &[Event], settings: &IngestSetting
     let reference: Vec<BinnedEvent> = binned.iter().map(|b| b[0].clone()).collect();
     let mids: Vec<f64> = settings.pt_edges.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
     let mut rows = Vec::new();
+    // Each row's leave-one-event-out replicates, per event: the events are
+    // the same for every species, so rows of different species correlate too.
+    let mut replicates: Vec<Vec<f64>> = vec![Vec::new(); n_ev];
+    let nb = mids.len();
     for (k, (tag, s)) in species.iter().enumerate() {
         let evs: Vec<BinnedEvent> = binned.iter().map(|b| b[k].clone()).collect();
         let r = cumulants::analyse(s, &species[0].1.kind, &evs, &reference, &settings.pt_edges, settings.reference_pt).with_context(|| format!("{tag}"))?;
-        let mut push = |obs: String, est: &[cumulants::Estimate]| {
-            for (x, e) in mids.iter().zip(est) {
-                rows.push(IngestedRow { design_id, observable: obs.clone(), x: *x, value: e.value, error: e.error, n_events: n_ev });
+        let kinds: &[(&str, usize)] = if *tag == "ch" { &[("spectrum", 0), ("v2", 1), ("v3", 2)] } else { &[("spectrum", 0), ("v2", 1)] };
+        for &(kind, slot) in kinds {
+            let est = if slot == 0 { &r.spectrum } else { &r.vn[slot - 1] };
+            for (b, (x, e)) in mids.iter().zip(est).enumerate() {
+                rows.push(IngestedRow { design_id, observable: format!("{tag}_{kind}"), x: *x, value: e.value, error: e.error, n_events: n_ev });
+                for (reps, r_ev) in replicates.iter_mut().zip(&r.replicates) {
+                    reps.push(r_ev[slot * nb + b]);
+                }
             }
-        };
-        push(format!("{tag}_spectrum"), &r.spectrum);
-        push(format!("{tag}_v2"), &r.vn[0]);
-        if *tag == "ch" {
-            push(format!("{tag}_v3"), &r.vn[1]);
         }
     }
-    Ok(rows)
+    let cov = cumulants::jackknife_covariance(&replicates);
+    let m = rows.len();
+    let defined = |r: &IngestedRow| r.value.is_finite() && r.error.is_finite();
+    let mut entries = Vec::new();
+    for i in 0..m {
+        for j in 0..i {
+            let c = cov[i * m + j];
+            if defined(&rows[i]) && defined(&rows[j]) && c.is_finite() {
+                entries.push(crate::base::covariance::CovarianceEntry { observable_a: rows[i].observable.clone(), x_a: rows[i].x, observable_b: rows[j].observable.clone(), x_b: rows[j].x, covariance: c, line: 0 });
+            }
+        }
+    }
+    Ok((rows, entries))
 }
 
 /// Reads every design point folder under `runs_dir` (in parallel) and
@@ -234,7 +259,8 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
     let design_path = design.map(Path::to_path_buf).or_else(|| default_design.exists().then_some(default_design));
     let design_df = design_path.as_deref().map(artifacts::read_parquet).transpose()?;
     let bar = crate::base::progress::bar(folders.len() as u64, "ingesting design points");
-    let results: Vec<(PointReport, Vec<IngestedRow>)> = folders
+    type Cov = Vec<crate::base::covariance::CovarianceEntry>;
+    let results: Vec<(PointReport, (Vec<IngestedRow>, Cov))> = folders
         .par_iter()
         .map(|(id, dir)| {
             let mut report = PointReport { design_id: *id, folder: dir.display().to_string(), source: String::new(), good_events: 0, skipped: Vec::new(), flagged: None, undefined_bins: Vec::new() };
@@ -242,7 +268,7 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
                 Ok((source, events, mut skipped)) => {
                     report.source = source;
                     let before = skipped.len();
-                    let r = analyse_events(*id, &events, settings, &mut skipped);
+                    let r = analyse_events_with_covariance(*id, &events, settings, &mut skipped);
                     report.good_events = events.len() - (skipped.len() - before);
                     report.skipped = skipped;
                     r
@@ -251,25 +277,27 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
             };
             bar.inc(1);
             match rows {
-                Ok(rows) => {
+                Ok((rows, cov)) => {
                     let (good, bad): (Vec<IngestedRow>, Vec<IngestedRow>) = rows.into_iter().partition(|r| r.value.is_finite() && r.error.is_finite());
                     report.undefined_bins = bad.iter().map(|r| format!("{}[{:.2}]", r.observable, r.x)).collect();
-                    (report, good)
+                    (report, (good, cov))
                 }
                 Err(e) => {
                     report.flagged = Some(format!("{e:#}"));
-                    (report, Vec::new())
+                    (report, (Vec::new(), Vec::new()))
                 }
             }
         })
         .collect();
     bar.finish_and_clear();
     let missing_points = missing_points(&folders, design_df.as_ref(), design_path.as_deref())?;
-    let (points, rows): (Vec<PointReport>, Vec<Vec<IngestedRow>>) = results.into_iter().unzip();
+    let (points, analysed): (Vec<PointReport>, Vec<(Vec<IngestedRow>, Cov)>) = results.into_iter().unzip();
+    let covariance = points.iter().zip(&analysed).filter(|(_, (_, c))| !c.is_empty()).map(|(p, (_, c))| (p.design_id, c.clone())).collect();
+    let rows: Vec<Vec<IngestedRow>> = analysed.into_iter().map(|(r, _)| r).collect();
     // No config here: the analysis settings stand in for its hash.
     let settings_hash = artifacts::sha256_hex(format!("{settings:?}").as_bytes());
     let prov = Provenance::new(settings_hash, String::new(), 0, &format!("ingest {}", runs_dir.display()));
-    Ok((Ingested { rows: rows.into_iter().flatten().collect(), report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov } }, design_df))
+    Ok((Ingested { rows: rows.into_iter().flatten().collect(), covariance, report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov } }, design_df))
 }
 
 /// The design point folders of a runs folder (named by design id, e.g. `0007`), sorted.
@@ -350,8 +378,25 @@ pub fn write(ingested: &Ingested, design: Option<&DataFrame>, out: &Path) -> Res
     let mut staged = artifacts::StagedWrites::new();
     staged.parquet(out, &mut df, Some(&ingested.report.provenance))?;
     staged.json(&report_path, &ingested.report)?;
+    // One point is a measurement: its bins' covariance goes beside it, for `[data] covariance`.
+    if let Some(entries) = single_point_covariance(ingested) {
+        staged.text(&covariance_path(out), &crate::base::covariance::covariance_csv(&entries))?;
+    }
     staged.commit()?;
     Ok(report_path)
+}
+
+/// Where `write` puts a single point's covariance: `TABLE.covariance.csv`.
+pub fn covariance_path(table: &Path) -> PathBuf {
+    table.with_extension("covariance.csv")
+}
+
+/// The covariance of the only design point in the table, if it has one.
+pub fn single_point_covariance(ingested: &Ingested) -> Option<Vec<crate::base::covariance::CovarianceEntry>> {
+    let ids: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
+    let id = (ids.len() == 1).then(|| *ids.iter().next().unwrap())?;
+    let kept = |o: &str, x: f64| ingested.rows.iter().any(|r| r.observable == o && r.x == x);
+    Some(ingested.covariance.get(&id)?.iter().filter(|e| kept(&e.observable_a, e.x_a) && kept(&e.observable_b, e.x_b)).cloned().collect())
 }
 
 /// Prints what was read, skipped and flagged.

@@ -33,7 +33,7 @@ pub fn ingest_tables(runs_dir: &Path, design: Option<&Path>) -> Result<(Ingested
     }
     let missing_points = missing_points(&folders, design_df.as_ref(), design_path.as_deref())?;
     let prov = Provenance::new(String::new(), String::new(), 0, &format!("ingest tables {}", runs_dir.display()));
-    Ok((Ingested { rows, report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov } }, design_df))
+    Ok((Ingested { rows, covariance: Default::default(), report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov } }, design_df))
 }
 
 fn read_point(id: i64, dir: &Path) -> Result<(String, Vec<IngestedRow>)> {

@@ -578,6 +578,12 @@ impl Runner<'_> {
         let data: Vec<Measurement> = ingested.rows.iter().filter(|r| keep.contains(&r.observable)).map(|r| Measurement::new(&r.observable, r.x, r.value, r.error)).collect();
         let prov = Provenance::new(self.config.hash.clone(), artifacts::measurements_hash(&data), self.opts.seed, &format!("run --stage mock: {mock_events} events, delta-f {mock_delta_f}"));
         artifacts::write_measurements(&self.paths.measurements(), &data, Some(&prov))?;
+        // The bins' jackknife covariance over the same events, for `[data] covariance`.
+        let mut kept = ingested;
+        kept.rows.retain(|r| keep.contains(&r.observable));
+        if let Some(entries) = crate::engine::ingest::single_point_covariance(&kept) {
+            crate::base::covariance::write_covariance_csv(&self.paths.mock().join("covariance.csv"), &entries)?;
+        }
         println!("  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}", data.len(), self.paths.measurements().display());
         Ok(())
     }
