@@ -22,7 +22,7 @@ use crate::engine::calibrate::{self, Overrides, Problem};
 use crate::engine::execute;
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::refine::{self, ObservableRatio};
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use polars::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -46,7 +46,7 @@ fn default_draws() -> usize {
 impl RefineConfig {
     pub(super) fn validate(&self) -> Result<()> {
         if self.points_per_round == 0 || self.draws < 10 {
-            anyhow::bail!("[run.refine]: points_per_round must be at least 1 and draws at least 10");
+            bail!("[run.refine]: points_per_round must be at least 1 and draws at least 10");
         }
         Ok(())
     }
@@ -253,6 +253,9 @@ impl Runner<'_> {
         let report = execute::run(&job, self.opts.executor, self.opts.show_progress)?;
         if !report.failed.is_empty() {
             report.print_failures();
+            if report.failed.len() == ids.len() {
+                bail!("every one of the {} refinement runs failed; see {}", ids.len(), execute::ExecutionReport::path(&runs).display());
+            }
             println!("  warning: {} of {} refinement points failed and are left out (never averaged in)", report.failed.len(), ids.len());
         }
         let table = round_dir.join("training.parquet");
