@@ -150,7 +150,10 @@ impl Problem {
             })
             .collect();
         match (&analysis.covariance, &overrides.data) {
-            (Some(path), None) => data_covariance::attach(&mut blocks, &data_covariance::read(path)?, &measurements, path, &data_path)?,
+            (Some(path), None) => {
+                let entries = data_covariance::read(path).with_context(|| format!("{}: [data] covariance", analysis.config_path.display()))?;
+                data_covariance::attach(&mut blocks, &entries, &measurements, path, &data_path)?
+            }
             (Some(path), Some(_)) => eprintln!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display()),
             (None, _) => {}
         }
