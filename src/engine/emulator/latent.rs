@@ -8,7 +8,7 @@
 //! as a noisy observation, a rank-one downdate:
 //! `Σ ← Σ − Σ[:,a] Σ[a,:] / (Σ[a,a] + σ_n²)`.
 
-use super::{scale_to_unit, Emulator};
+use super::Emulator;
 use crate::engine::gp::scaled_sq_dist;
 
 /// The kept components' latent posterior at a set of points.
@@ -60,24 +60,14 @@ impl Emulator {
         let d = self.n_parameters();
         let n = self.parts.design_ids.len();
         let kc = self.n_components();
-        let b = thetas.len() / d;
-        let mut unit = vec![0.0; b * d];
-        for q in 0..b {
-            scale_to_unit(&self.parts.input_lo, &self.parts.input_hi, &thetas[q * d..(q + 1) * d], &mut unit[q * d..(q + 1) * d]);
-        }
+        let unit = self.unit_rows(thetas);
+        let b = unit.len() / d.max(1);
         let mut means = vec![0.0; b * kc];
         let mut covs = Vec::with_capacity(kc);
         let mut kstar = vec![0.0; n * b];
         for (c, gp) in self.gps.iter().enumerate() {
             let kern = |r2: f64| gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
-            for q in 0..b {
-                let u = &unit[q * d..(q + 1) * d];
-                let col = &mut kstar[q * n..(q + 1) * n];
-                for i in 0..n {
-                    col[i] = kern(scaled_sq_dist(u, &self.unit_inputs[i * d..(i + 1) * d], &gp.inv_l2));
-                }
-                means[q * kc + c] = super::dot(&gp.alpha, col);
-            }
+            self.cross_kernel(gp, &unit, &mut kstar, |q, mean| means[q * kc + c] = mean);
             // W = L⁻¹ K_XC; the covariance is K_CC − WᵀW.
             let l = faer::MatRef::from_column_major_slice(&gp.factor, n, n);
             faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b), faer::Par::Seq);

@@ -207,31 +207,45 @@ impl Emulator {
     /// B × K out). The variances' triangular solves become one matrix solve,
     /// which keeps bulk prediction fast for large designs.
     pub fn predict_components_batch(&self, thetas: &[f64], means: &mut [f64], vars: &mut [f64]) {
-        let d = self.n_parameters();
         let n = self.parts.design_ids.len();
         let kc = self.n_components();
-        let b = thetas.len() / d;
-        let mut unit = vec![0.0; b * d];
-        for q in 0..b {
-            scale_to_unit(&self.parts.input_lo, &self.parts.input_hi, &thetas[q * d..(q + 1) * d], &mut unit[q * d..(q + 1) * d]);
-        }
+        let unit = self.unit_rows(thetas);
+        let b = unit.len() / self.n_parameters().max(1);
         let mut kstar = vec![0.0; n * b];
         for (c, gp) in self.gps.iter().enumerate() {
-            for q in 0..b {
-                let u = &unit[q * d..(q + 1) * d];
-                let col = &mut kstar[q * n..(q + 1) * n];
-                for i in 0..n {
-                    let r2 = scaled_sq_dist(u, &self.unit_inputs[i * d..(i + 1) * d], &gp.inv_l2);
-                    col[i] = gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
-                }
-                means[q * kc + c] = dot(&gp.alpha, col);
-            }
+            self.cross_kernel(gp, &unit, &mut kstar, |q, mean| means[q * kc + c] = mean);
             let l = faer::MatRef::from_column_major_slice(&gp.factor, n, n);
             faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b), faer::Par::Seq);
             for q in 0..b {
                 let w = &kstar[q * n..(q + 1) * n];
                 vars[q * kc + c] = (gp.signal_var + gp.constant + gp.noise_var - dot(w, w)).max(gp.noise_var);
             }
+        }
+    }
+
+    /// θ rows (row-major B × d) scaled to the unit cube of the training inputs.
+    fn unit_rows(&self, thetas: &[f64]) -> Vec<f64> {
+        let d = self.n_parameters();
+        let mut unit = vec![0.0; thetas.len()];
+        for (u, t) in unit.chunks_mut(d).zip(thetas.chunks(d)) {
+            scale_to_unit(&self.parts.input_lo, &self.parts.input_hi, t, u);
+        }
+        unit
+    }
+
+    /// `K(X, C)` of one component (signal and constant, no noise) for unit
+    /// points C, column-major n × B into `kstar`, reporting each point's mean
+    /// `αᵀ k` to `mean_at(q, mean)`.
+    fn cross_kernel(&self, gp: &FittedGp, unit: &[f64], kstar: &mut [f64], mut mean_at: impl FnMut(usize, f64)) {
+        let d = self.n_parameters();
+        let n = self.parts.design_ids.len();
+        for (q, u) in unit.chunks(d).enumerate() {
+            let col = &mut kstar[q * n..(q + 1) * n];
+            for i in 0..n {
+                let r2 = scaled_sq_dist(u, &self.unit_inputs[i * d..(i + 1) * d], &gp.inv_l2);
+                col[i] = gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
+            }
+            mean_at(q, dot(&gp.alpha, col));
         }
     }
 
