@@ -53,6 +53,24 @@ pub struct DataConfig {
     /// Covariance of the measurements beyond their errors (`base::covariance`), relative to the config.
     #[serde(default)]
     pub covariance: Option<PathBuf>,
+    /// Whether the likelihood carries correlations between observables.
+    #[serde(default)]
+    pub between_observables: BetweenObservables,
+}
+
+/// How the likelihood treats correlations between observables.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BetweenObservables {
+    /// Joint when something links them: covariance entries between two
+    /// observables, or a model whose own covariance spans them (an emulator).
+    #[default]
+    Auto,
+    /// One Gaussian over every point, always.
+    Joint,
+    /// One independent block per observable: faster (a move of one
+    /// observable's δ costs one block), and blind to such correlations.
+    Independent,
 }
 
 #[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]

@@ -42,6 +42,16 @@ pub trait Simulator: Send + Sync {
     /// Adds `inv_scale2 ×` the model's predictive covariance at (x, θ) to the
     /// lower triangle of `lower` (column-major n × n).
     fn add_model_covariance(&self, _observable: usize, _x: &[f64], _theta: &[f64], _inv_scale2: f64, _lower: &mut [f64]) {}
+    /// Whether the model's covariance links different observables (an
+    /// emulator's principal components are shared by all of its outputs).
+    fn model_covariance_spans_observables(&self) -> bool {
+        false
+    }
+    /// Adds the model's predictive covariance between every pair of `points`
+    /// (observable index, x), the pair scaled by `inv_scales[i] × inv_scales[j]`,
+    /// to the lower triangle of `lower` (column-major N × N, N = points.len()).
+    /// Only called when `model_covariance_spans_observables`.
+    fn add_joint_model_covariance(&self, _points: &[(usize, f64)], _inv_scales: &[f64], _theta: &[f64], _lower: &mut [f64]) {}
 }
 
 /// Units of the discrepancy input x, of each observable and of each parameter,

@@ -12,11 +12,15 @@ use mdpipe::calibrate::ensemble::{Ensemble, EnsembleSettings};
 use mdpipe::calibrate::smc::{Smc, SmcSettings};
 use mdpipe::calibrate::summary::ParamSummary;
 use mdpipe::calibrate::{diagnostics, Chains};
-use mdpipe::gp::DiscrepancyKernel;
+use mdpipe::gp::{discrepancy_cross_cov, DiscrepancyKernel};
 use mdpipe::progress::Silent;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use mdpipe::artifacts::Measurement;
+use mdpipe::calibrate::{MdLikelihood, ObservableBlock};
+use std::path::Path;
+use std::sync::Arc;
 
 const HYPER: [f64; 3] = [0.5, 0.3, 1.0];
 const THETA_BOX: [(f64, f64); 2] = [(-20.0, 20.0), (-20.0, 20.0)];
@@ -125,4 +129,87 @@ fn cramer_rao_sd_equals_the_linear_models_posterior_sd() {
     let same_x = vec![0.5; 10];
     let lik = linear_likelihood(&measurements(&same_x, &y, &err), None);
     assert!(lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).is_none());
+}
+
+/// Two observables of one line, every point sharing a normalization
+/// uncertainty (covariance 0.05² between any two points, across observables
+/// too), each with its own Kernel II δ pinned at `HYPER`: y ~ N(Aθ, C) with C
+/// the full covariance, so the joint likelihood's θ posterior, evidence and
+/// Fisher information are known exactly. This is also the sampler's path for
+/// a joint likelihood: its Gibbs groups move one observable's φ at the cost
+/// of a whole evaluation.
+#[test]
+fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
+    use mdpipe::base::covariance::CovarianceEntry;
+    let (x, y, err) = data(21);
+    let half = x.len() / 2;
+    let names = ["y1", "y2"];
+    let rows: Vec<Measurement> = (0..x.len()).map(|i| Measurement::new(names[i / half], x[i], y[i], err[i])).collect();
+    let norm = 0.05f64 * 0.05;
+    let mut entries = Vec::new();
+    for i in 0..x.len() {
+        for j in 0..=i {
+            entries.push(CovarianceEntry { observable_a: rows[i].observable.clone(), x_a: x[i], observable_b: rows[j].observable.clone(), x_b: x[j], covariance: norm, line: 0 });
+        }
+    }
+    let mut blocks: Vec<ObservableBlock> = names.iter().map(|n| ObservableBlock::new(n, 0, &rows.iter().filter(|r| &r.observable == n).collect::<Vec<_>>()).unwrap()).collect();
+    let across = mdpipe::calibrate::data_covariance::attach(&mut blocks, &entries, &rows, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
+    assert_eq!(across.len(), half * half);
+    let kernel = DiscrepancyKernel::KernelII;
+    let lik = MdLikelihood::new(Arc::new(LinearModel), blocks, Some(kernel)).joint(&across);
+    assert!(!mdpipe::calibrate::LogLikelihood::term_structure(&lik).unwrap().separable);
+    // C = errors² + normalization + each block's δ (in data units), by hand.
+    let n = x.len();
+    let mut cov = vec![norm; n * n];
+    for i in 0..n {
+        cov[i + i * n] += err[i] * err[i];
+    }
+    for (b, block) in lik.blocks.iter().enumerate() {
+        let mut k = vec![0.0; half * half];
+        discrepancy_cross_cov(kernel, &HYPER, &block.x, &block.x, &mut k);
+        for i in 0..half {
+            for j in 0..half {
+                cov[(b * half + i) + (b * half + j) * n] += k[i + j * half] * block.scale * block.scale;
+            }
+        }
+    }
+    let exact = analytic_linear(&x, &y, &cov);
+    let prior = pinned_prior(THETA_BOX, &[HYPER, HYPER].concat(), lik.parameter_names());
+    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() }).run(&prior, &lik, 3, &Silent).unwrap();
+    check_theta(&out.chains, &exact, "SMC, joint");
+    let log_z_exact = exact.log_integral - (40.0f64 * 40.0).ln();
+    assert!(
+        (out.log_evidence - log_z_exact).abs() < 4.0 * out.log_evidence_err,
+        "log Z {} ± {} vs exact {log_z_exact}",
+        out.log_evidence,
+        out.log_evidence_err
+    );
+    // Without δ the Fisher information is AᵀC⁻¹A, whose inverse is the posterior covariance.
+    let lik = MdLikelihood::new(Arc::new(LinearModel), lik.blocks.clone(), None).joint(&across);
+    let mut data_cov = vec![norm; n * n];
+    for i in 0..n {
+        data_cov[i + i * n] += err[i] * err[i];
+    }
+    let exact = analytic_linear(&x, &y, &data_cov);
+    let sd = lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).unwrap();
+    for p in 0..2 {
+        assert!((sd[p] / exact.sd[p] - 1.0).abs() < 1e-9, "θ{p}: Cramér–Rao sd {} vs posterior sd {}", sd[p], exact.sd[p]);
+    }
+}
+
+/// With nothing linking the observables, the joint form is the sum of the blocks.
+#[test]
+fn joint_likelihood_without_links_is_the_sum_of_the_blocks() {
+    let (x, y, err) = data(22);
+    let half = x.len() / 2;
+    let rows: Vec<Measurement> = (0..x.len()).map(|i| Measurement::new(["y1", "y2"][i / half], x[i], y[i], err[i])).collect();
+    let blocks: Vec<ObservableBlock> = ["y1", "y2"].iter().map(|n| ObservableBlock::new(n, 0, &rows.iter().filter(|r| &r.observable == n).collect::<Vec<_>>()).unwrap()).collect();
+    for kernel in [None, Some(DiscrepancyKernel::KernelI), Some(DiscrepancyKernel::KernelII)] {
+        let blockwise = MdLikelihood::new(Arc::new(LinearModel), blocks.clone(), kernel);
+        let joint = MdLikelihood::new(Arc::new(LinearModel), blocks.clone(), kernel).joint(&[]);
+        let hyper: Vec<f64> = [0.8, 0.4, 1.3, 0.2][..blockwise.n_hyper()].to_vec();
+        let params: Vec<f64> = [vec![0.9, 2.1], hyper.clone(), hyper.iter().map(|h| h * 1.5).collect()].concat();
+        let (a, b) = (blockwise.log_likelihood(&params), joint.log_likelihood(&params));
+        assert!((a - b).abs() < 1e-9 * a.abs().max(1.0), "{kernel:?}: blocks {a} vs joint {b}");
+    }
 }

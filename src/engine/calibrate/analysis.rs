@@ -3,7 +3,7 @@
 //! kernel, sampler settings, units, the true process), built once.
 
 use super::settings::SamplerConfig;
-use crate::base::config::{Config, KernelInput, ParamSpec, PredictionConfig};
+use crate::base::config::{BetweenObservables, Config, KernelInput, ParamSpec, PredictionConfig};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::{CandidateModel, ModelFamily, Registry, Simulator, Units};
 use anyhow::{anyhow, bail, Result};
@@ -35,6 +35,8 @@ pub struct Analysis {
     pub data: PathBuf,
     /// Covariance of those measurements beyond their errors (`[data] covariance`).
     pub covariance: Option<PathBuf>,
+    /// Whether the likelihood carries correlations between observables (`[data] between_observables`).
+    pub between_observables: BetweenObservables,
     /// Observables to calibrate on; all of the model's by default.
     pub observables: Option<Vec<String>>,
     /// The config, read-only, for what the family decodes only when asked
@@ -81,6 +83,7 @@ impl Analysis {
             predictions: config.predictions.clone(),
             data: config.resolve(&config.data.measurements),
             covariance: config.data.covariance.as_ref().map(|c| config.resolve(c)),
+            between_observables: config.data.between_observables,
             observables: config.data.observables.clone(),
             source: Arc::new(config.clone()),
         })

@@ -1,13 +1,13 @@
 //! Puts a measurement covariance file (`base::covariance`) into the
 //! likelihood's observable blocks.
 //!
-//! The likelihood's blocks are per observable, independent of each other, so
-//! entries between two observables are not used: they are counted and a
-//! warning says so (a joint block would carry them; not built yet). Entries
-//! of observables not calibrated on are skipped; entries naming a point that
-//! is not in the measurements are errors.
+//! Entries within one observable go into its block; entries between two
+//! observables are returned for the joint likelihood (`joint`). Entries of
+//! observables not calibrated on are skipped; entries naming a point that is
+//! not in the measurements are errors.
 
-use super::likelihood::ObservableBlock;
+use super::joint::CrossEntry;
+use super::block::ObservableBlock;
 use crate::base::artifacts::Measurement;
 use crate::base::covariance::{read_covariance, CovarianceEntry};
 use crate::engine::gp::CholeskyWorkspace;
@@ -22,9 +22,10 @@ fn same_x(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0)
 }
 
-/// Sets each block's `covariance` from `entries`.
-pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measurements: &[Measurement], path: &Path, data_path: &Path) -> Result<()> {
-    let mut across = 0;
+/// Sets each block's `covariance` from `entries`, and returns the entries
+/// between two blocks.
+pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measurements: &[Measurement], path: &Path, data_path: &Path) -> Result<Vec<CrossEntry>> {
+    let mut across: Vec<(CrossEntry, &CovarianceEntry)> = Vec::new();
     let mut set: Vec<Vec<bool>> = blocks.iter().map(|b| vec![false; b.len() * b.len()]).collect();
     for e in entries {
         for (obs, x, field) in [(&e.observable_a, e.x_a, "a"), (&e.observable_b, e.x_b, "b")] {
@@ -34,14 +35,17 @@ pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measu
         }
         let find = |obs: &str| blocks.iter().position(|b| b.name == obs);
         let (Some(ba), Some(bb)) = (find(&e.observable_a), find(&e.observable_b)) else { continue };
+        let index = |b: usize, x: f64| blocks[b].x.iter().position(|&bx| same_x(bx, x)).expect("checked against the measurements");
+        let (i, j) = (index(ba, e.x_a), index(bb, e.x_b));
         if ba != bb {
-            across += 1;
+            let cross = CrossEntry { block_a: ba, index_a: i, block_b: bb, index_b: j, covariance: e.covariance };
+            if !already_given(&across, &cross, e, path)? {
+                across.push((cross, e));
+            }
             continue;
         }
         let block = &mut blocks[ba];
         let n = block.len();
-        let index = |x: f64| block.x.iter().position(|&bx| same_x(bx, x)).expect("checked against the measurements");
-        let (i, j) = (index(e.x_a), index(e.x_b));
         let c = block.covariance.get_or_insert_with(|| vec![0.0; n * n]);
         if set[ba][j * n + i] && !same_x(c[j * n + i], e.covariance) {
             bail!("{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})", e.location(path), e.covariance, c[j * n + i]);
@@ -51,9 +55,6 @@ pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measu
         set[ba][j * n + i] = true;
         set[ba][i * n + j] = true;
     }
-    if across > 0 {
-        eprintln!("warning: {}: {across} entries between two different observables are not used: the likelihood's blocks are per observable and independent", path.display());
-    }
     for block in blocks.iter().filter(|b| !b.diagonal_data()) {
         let mut chol = CholeskyWorkspace::new(block.len());
         chol.factor.fill(0.0);
@@ -62,7 +63,26 @@ pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measu
             bail!("{}: the covariance of '{}' with its errors² on the diagonal is not positive definite", path.display(), block.name);
         }
     }
-    Ok(())
+    let across: Vec<CrossEntry> = across.into_iter().map(|(c, _)| c).collect();
+    if !across.is_empty() {
+        let whole = super::joint::JointLayout::new(blocks, &across, false);
+        let mut chol = CholeskyWorkspace::new(whole.len());
+        chol.factor.copy_from_slice(&whole.data);
+        if !chol.factorize_exact() {
+            bail!("{}: the covariance of all observables together, with the errors² on the diagonal, is not positive definite", path.display());
+        }
+    }
+    Ok(across)
+}
+
+/// Whether the pair was given before (in either order); if so, it must agree.
+fn already_given(seen: &[(CrossEntry, &CovarianceEntry)], new: &CrossEntry, e: &CovarianceEntry, path: &Path) -> Result<bool> {
+    let same_pair = |c: &CrossEntry| (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_a, new.index_a, new.block_b, new.index_b) || (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_b, new.index_b, new.block_a, new.index_a);
+    match seen.iter().find(|(c, _)| same_pair(c)) {
+        Some((c, _)) if !same_x(c.covariance, new.covariance) => bail!("{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})", e.location(path), e.covariance, c.covariance),
+        Some(_) => Ok(true),
+        None => Ok(false),
+    }
 }
 
 #[cfg(test)]

@@ -1,9 +1,11 @@
-//! The Kennedy–O'Hagan likelihood with one independent block per observable:
+//! The Kennedy–O'Hagan likelihood with one block per observable:
 //!
-//! `y_b - η_b(x, θ) ~ N(0, K_φb(x, x) + diag(σ_b²) [+ C_emu,b(θ)])`, "no MD"
-//! being `K = 0`. `C_emu,b` is an emulator's predictive covariance restricted
-//! to block b (covariance between observables is not used, as the blocks are
-//! independent).
+//! `y_b - η_b(x, θ) ~ N(0, K_φb(x, x) + C_data,b [+ C_emu,b(θ)])`, "no MD"
+//! being `K = 0`, `C_data,b` the errors² and any covariance given beyond them,
+//! `C_emu,b` an emulator's predictive covariance. The blocks are independent
+//! unless something links them (covariance entries between observables, an
+//! emulator's covariance across its outputs); then the likelihood is one
+//! Gaussian over all points (`joint`), with δ still one GP per observable.
 //!
 //! Scaling follows the paper: each observable is standardized by the mean and
 //! population standard deviation of its measured values (so the discrepancy
@@ -12,104 +14,13 @@
 //! of that standardization, so it is the density of the data in their own
 //! units and evidences are comparable with any other analysis of the same data.
 
-use crate::base::artifacts::Measurement;
-use crate::base::config::KernelInput;
-use crate::engine::gp::{gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyGram, DiscrepancyKernel};
+use super::block::ObservableBlock;
+use super::joint::{add_lower_block, JointLayout};
+use crate::engine::gp::{gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
 use crate::engine::model::Simulator;
-use anyhow::{bail, Result};
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
-
-/// Measurements of one observable, standardized.
-#[derive(Clone, Debug)]
-pub struct ObservableBlock {
-    pub name: String,
-    /// Index of this observable in the simulator's `observable_names`.
-    pub model_index: usize,
-    pub x: Vec<f64>,
-    pub y: Vec<f64>,
-    pub error: Vec<f64>,
-    /// Standardization: `y_std = (y - mean) / scale`.
-    pub mean: f64,
-    pub scale: f64,
-    /// How x becomes the discrepancy kernel's input, and those inputs.
-    pub input: KernelInput,
-    pub kernel_x: Vec<f64>,
-    pub gram: DiscrepancyGram,
-    /// Covariance of the measurements beyond their errors (column-major
-    /// n × n, data units, in the block's x order), from `[data] covariance`.
-    pub covariance: Option<Vec<f64>>,
-}
-
-impl ObservableBlock {
-    pub fn new(name: &str, model_index: usize, rows: &[&Measurement]) -> Result<Self> {
-        if rows.len() < 2 {
-            bail!("observable '{name}' has {} measurement(s); at least 2 are needed to standardize it", rows.len());
-        }
-        let mut rows: Vec<&Measurement> = rows.to_vec();
-        rows.sort_by(|a, b| a.x.total_cmp(&b.x));
-        let y: Vec<f64> = rows.iter().map(|m| m.value).collect();
-        let mean = y.iter().sum::<f64>() / y.len() as f64;
-        let var = y.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / y.len() as f64;
-        // A constant observable (e.g. acceleration in a drag-free world) has no
-        // spread; fall back to the typical error so the scale stays meaningful.
-        let mean_err = rows.iter().map(|m| m.error).sum::<f64>() / rows.len() as f64;
-        let scale = if var.sqrt() > 1e-12 * mean.abs().max(1.0) { var.sqrt() } else { mean_err };
-        let x: Vec<f64> = rows.iter().map(|m| m.x).collect();
-        Ok(ObservableBlock {
-            name: name.to_string(),
-            model_index,
-            input: KernelInput::default(),
-            kernel_x: x.clone(),
-            gram: DiscrepancyGram::new(&x),
-            x,
-            y,
-            error: rows.iter().map(|m| m.error).collect(),
-            mean,
-            scale,
-            covariance: None,
-        })
-    }
-
-    /// Adds `scale2 ×` the data's covariance (errors² and any covariance
-    /// beyond them) to the lower triangle of `lower` (column-major n × n).
-    pub fn add_data_covariance(&self, scale2: f64, lower: &mut [f64]) {
-        let n = self.len();
-        for i in 0..n {
-            lower[i * n + i] += scale2 * self.error[i] * self.error[i];
-        }
-        if let Some(c) = &self.covariance {
-            for j in 0..n {
-                for i in j..n {
-                    lower[j * n + i] += scale2 * c[j * n + i];
-                }
-            }
-        }
-    }
-
-    /// Whether the data's covariance is diagonal (errors only).
-    pub fn diagonal_data(&self) -> bool {
-        self.covariance.is_none()
-    }
-
-    /// The block with the kernel's inputs `input.apply(x)` (the paper's x
-    /// itself by default).
-    pub fn with_kernel_input(mut self, input: KernelInput) -> Self {
-        self.kernel_x = self.x.iter().map(|&x| input.apply(x)).collect();
-        self.gram = DiscrepancyGram::new(&self.kernel_x);
-        self.input = input;
-        self
-    }
-
-    pub fn len(&self) -> usize {
-        self.x.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.x.is_empty()
-    }
-}
 
 /// Per-thread scratch so that evaluations allocate nothing.
 struct Workspace {
@@ -118,6 +29,9 @@ struct Workspace {
     resid: Vec<f64>,
     xr: Vec<f64>,
     corr: Vec<f64>,
+    /// The joint covariance's factor and residuals (joint likelihoods only).
+    joint_chol: Option<CholeskyWorkspace>,
+    joint_resid: Vec<f64>,
 }
 
 static NEXT_ID: AtomicU64 = AtomicU64::new(1);
@@ -136,6 +50,8 @@ pub struct MdLikelihood {
     log_jacobian: f64,
     /// The model adds its own predictive covariance (an emulator).
     model_covariance: bool,
+    /// One Gaussian over all points instead of independent blocks.
+    pub joint: Option<JointLayout>,
 }
 
 impl MdLikelihood {
@@ -143,7 +59,18 @@ impl MdLikelihood {
         let n_theta = simulator.parameter_names().len();
         let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
         let model_covariance = simulator.has_model_covariance();
-        MdLikelihood { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), simulator, blocks, kernel, n_theta, log_jacobian, model_covariance }
+        MdLikelihood { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), simulator, blocks, kernel, n_theta, log_jacobian, model_covariance, joint: None }
+    }
+
+    /// This likelihood as one Gaussian over all points, with the data's
+    /// entries between blocks `across` (and the model's covariance across
+    /// observables, when it has one).
+    pub fn joint(mut self, across: &[super::joint::CrossEntry]) -> Self {
+        let spans = self.model_covariance && self.simulator.model_covariance_spans_observables();
+        self.joint = Some(JointLayout::new(&self.blocks, across, spans));
+        // A new id: workspaces of the block form must not be reused.
+        self.id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
+        self
     }
 
     pub fn n_hyper(&self) -> usize {
@@ -181,6 +108,8 @@ impl MdLikelihood {
             resid: vec![0.0; nmax],
             xr: vec![0.0; nmax],
             corr: vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)],
+            joint_chol: self.joint.as_ref().map(|j| CholeskyWorkspace::new(j.len())),
+            joint_resid: vec![0.0; self.joint.as_ref().map_or(0, |j| j.len())],
         }
     }
 
@@ -204,6 +133,9 @@ impl MdLikelihood {
 
     pub fn log_likelihood(&self, params: &[f64]) -> f64 {
         self.with_workspace(|ws| {
+            if let Some(joint) = &self.joint {
+                return self.log_jacobian + self.joint_log_likelihood(joint, params, ws);
+            }
             let mut total = self.log_jacobian;
             for b in 0..self.blocks.len() {
                 total += self.block_log_likelihood(params, b, ws);
@@ -231,41 +163,68 @@ impl MdLikelihood {
     }
 
     /// Fisher information of θ for the model without MD at `theta`,
-    /// `F = Σ_b J_bᵀ diag(σ_b⁻²) J_b` (column-major d × d), with the Jacobian
-    /// by central differences of step `steps[k]` in θ_k. `None` when the model
-    /// carries its own θ-dependent covariance (an emulator): that dependence
-    /// carries information this form leaves out, so it would be no bound.
+    /// `F = Jᵀ C⁻¹ J` (column-major d × d) with C the data's covariance (per
+    /// block, or joint), in standardized units (the scales cancel), with the
+    /// Jacobian by central differences of step `steps[k]` in θ_k. `None` when
+    /// the model carries its own θ-dependent covariance (an emulator): that
+    /// dependence carries information this form leaves out, so it would be no bound.
     pub fn fisher_information(&self, theta: &[f64], steps: &[f64]) -> Option<Vec<f64>> {
         if self.model_covariance {
             return None;
         }
         let d = self.n_theta;
-        let mut fisher = vec![0.0; d * d];
-        let mut shifted = theta.to_vec();
-        for block in &self.blocks {
-            let n = block.len();
-            let (mut up, mut down) = (vec![0.0; n], vec![0.0; n]);
-            let mut jac = vec![0.0; n * d];
-            for k in 0..d {
-                shifted[k] = theta[k] + steps[k];
-                self.simulator.predict(block.model_index, &block.x, &shifted, &mut up);
-                shifted[k] = theta[k] - steps[k];
-                self.simulator.predict(block.model_index, &block.x, &shifted, &mut down);
-                shifted[k] = theta[k];
-                for i in 0..n {
-                    jac[i + k * n] = (up[i] - down[i]) / (2.0 * steps[k] * block.error[i]);
+        let jacobians: Vec<Vec<f64>> = self.blocks.iter().map(|b| self.standardized_jacobian(b, theta, steps)).collect();
+        let whitened: Vec<(Vec<f64>, usize)> = match &self.joint {
+            Some(joint) => {
+                let n = joint.len();
+                let mut whole = vec![0.0; n * d];
+                for (b, jac) in jacobians.iter().enumerate() {
+                    let nb = self.blocks[b].len();
+                    for k in 0..d {
+                        whole[k * n + joint.offsets[b]..k * n + joint.offsets[b] + nb].copy_from_slice(&jac[k * nb..(k + 1) * nb]);
+                    }
                 }
+                vec![(whiten(joint.data.clone(), n, whole, d)?, n)]
             }
-            if !block.diagonal_data() {
-                whiten_by_data_covariance(block, &mut jac, d)?;
+            None => {
+                let mut out = Vec::new();
+                for (block, jac) in self.blocks.iter().zip(jacobians) {
+                    let nb = block.len();
+                    let mut lower = vec![0.0; nb * nb];
+                    block.add_data_covariance(1.0 / (block.scale * block.scale), &mut lower);
+                    out.push((whiten(lower, nb, jac, d)?, nb));
+                }
+                out
             }
+        };
+        let mut fisher = vec![0.0; d * d];
+        for (w, n) in &whitened {
             for a in 0..d {
                 for b in 0..d {
-                    fisher[a + b * d] += (0..n).map(|i| jac[i + a * n] * jac[i + b * n]).sum::<f64>();
+                    fisher[a + b * d] += (0..*n).map(|i| w[i + a * n] * w[i + b * n]).sum::<f64>();
                 }
             }
         }
         Some(fisher)
+    }
+
+    /// `∂η/∂θ_k / scale` at the block's points, column-major n × d.
+    fn standardized_jacobian(&self, block: &ObservableBlock, theta: &[f64], steps: &[f64]) -> Vec<f64> {
+        let (n, d) = (block.len(), self.n_theta);
+        let (mut up, mut down) = (vec![0.0; n], vec![0.0; n]);
+        let mut jac = vec![0.0; n * d];
+        let mut shifted = theta.to_vec();
+        for k in 0..d {
+            shifted[k] = theta[k] + steps[k];
+            self.simulator.predict(block.model_index, &block.x, &shifted, &mut up);
+            shifted[k] = theta[k] - steps[k];
+            self.simulator.predict(block.model_index, &block.x, &shifted, &mut down);
+            shifted[k] = theta[k];
+            for i in 0..n {
+                jac[i + k * n] = (up[i] - down[i]) / (2.0 * steps[k] * block.scale);
+            }
+        }
+        jac
     }
 
     /// Cramér–Rao standard deviations of θ at `theta`: the smallest spread any
@@ -283,6 +242,78 @@ impl MdLikelihood {
         let inv = chol.inverse();
         let sd: Vec<f64> = (0..d).map(|k| inv[k + k * d].sqrt()).collect();
         sd.iter().all(|v| v.is_finite()).then_some(sd)
+    }
+
+    /// The joint form's Gaussian over all points (without the Jacobian).
+    fn joint_log_likelihood(&self, joint: &JointLayout, params: &[f64], ws: &mut Workspace) -> f64 {
+        let mut chol = ws.joint_chol.take().expect("a joint likelihood's workspace has its factor");
+        let mut resid = std::mem::take(&mut ws.joint_resid);
+        self.fill_joint(joint, params, true, ws, &mut chol.factor, &mut resid);
+        let total = match chol.factorize() {
+            Ok(_) => gaussian_logpdf_factored(&chol, &mut resid),
+            Err(_) => f64::NEG_INFINITY,
+        };
+        ws.joint_chol = Some(chol);
+        ws.joint_resid = resid;
+        if total.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            total
+        }
+    }
+
+    /// The joint covariance's lower triangle (column-major N × N) and the
+    /// standardized residuals at `params`: the data's covariance, each
+    /// block's δ (`with_delta`; then `params` holds φ after θ) and the model's
+    /// own covariance within a block, and the model's covariance across observables.
+    fn fill_joint(&self, joint: &JointLayout, params: &[f64], with_delta: bool, ws: &mut Workspace, lower: &mut [f64], resid: &mut [f64]) {
+        let kernel = if with_delta { self.kernel } else { None };
+        let theta = &params[..self.n_theta];
+        let n_all = joint.len();
+        lower.copy_from_slice(&joint.data);
+        for (b, block) in self.blocks.iter().enumerate() {
+            let n = block.len();
+            let at = joint.offsets[b];
+            self.simulator.predict(block.model_index, &block.x, theta, &mut ws.eta[..n]);
+            for i in 0..n {
+                resid[at + i] = (block.y[i] - ws.eta[i]) / block.scale;
+            }
+            let own_model = self.model_covariance && !joint.model_spans;
+            if kernel.is_none() && !own_model {
+                continue;
+            }
+            let factor = &mut ws.chol[b].factor;
+            match kernel {
+                Some(kernel) => block.gram.fill_lower(kernel, self.hyper_of(params, b), factor, &mut ws.xr[..n], &mut ws.corr),
+                None => factor.iter_mut().for_each(|v| *v = 0.0),
+            }
+            if own_model {
+                self.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), factor);
+            }
+            add_lower_block(factor, n, at, lower, n_all);
+        }
+        if joint.model_spans {
+            self.simulator.add_joint_model_covariance(&joint.points, &joint.inv_scales, theta, lower);
+        }
+    }
+
+    /// The joint covariance (lower triangle, standardized) and residuals at
+    /// `params`, for summaries (allocates); `None` for the block form.
+    pub fn joint_system(&self, params: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+        self.joint_system_with(params, true)
+    }
+
+    /// As `joint_system` for the model alone (no δ) at θ.
+    pub fn joint_model_system(&self, theta: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+        self.joint_system_with(theta, false)
+    }
+
+    fn joint_system_with(&self, params: &[f64], with_delta: bool) -> Option<(Vec<f64>, Vec<f64>)> {
+        let joint = self.joint.as_ref()?;
+        let n = joint.len();
+        let (mut lower, mut resid) = (vec![0.0; n * n], vec![0.0; n]);
+        self.with_workspace(|ws| self.fill_joint(joint, params, with_delta, ws, &mut lower, &mut resid));
+        Some((lower, resid))
     }
 
     fn block_log_likelihood(&self, params: &[f64], b: usize, ws: &mut Workspace) -> f64 {
@@ -327,24 +358,19 @@ impl MdLikelihood {
     }
 }
 
-/// Turns the error-scaled Jacobian columns `J/σ` into `L⁻¹J`, with `L L'`
-/// the data's whole covariance, so that `Σ_i` of their products is `J'C⁻¹J`.
-fn whiten_by_data_covariance(block: &ObservableBlock, jac: &mut [f64], d: usize) -> Option<()> {
-    let n = block.len();
+/// `L⁻¹ J` for the d columns of `jac` (column-major n × d), with `L Lᵀ` the
+/// covariance whose lower triangle is `lower`: then `Σ_i` of the products of
+/// two columns is `Jᵀ C⁻¹ J`. `None` if the covariance is not positive definite.
+fn whiten(lower: Vec<f64>, n: usize, mut jac: Vec<f64>, d: usize) -> Option<Vec<f64>> {
     let mut chol = CholeskyWorkspace::new(n);
-    chol.factor.fill(0.0);
-    block.add_data_covariance(1.0, &mut chol.factor);
+    chol.factor.copy_from_slice(&lower);
     if !chol.factorize_exact() {
         return None;
     }
     for k in 0..d {
-        let col = &mut jac[k * n..(k + 1) * n];
-        for i in 0..n {
-            col[i] *= block.error[i];
-        }
-        chol.solve_lower_in_place(col);
+        chol.solve_lower_in_place(&mut jac[k * n..(k + 1) * n]);
     }
-    Some(())
+    Some(jac)
 }
 
 const LN_2PI: f64 = 1.837_877_066_409_345_5;

@@ -6,11 +6,13 @@
 //! resolved once) and data.
 
 pub mod analysis;
+pub mod block;
 pub mod checkpoint;
 pub mod data_covariance;
 pub mod diagnostics;
 pub mod ensemble;
 pub mod guard;
+pub mod joint;
 pub mod likelihood;
 pub mod prior;
 pub mod settings;
@@ -23,7 +25,8 @@ use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::Simulator;
 use anyhow::{anyhow, bail, Context, Result};
 pub use analysis::Analysis;
-pub use likelihood::{MdLikelihood, ObservableBlock};
+pub use block::ObservableBlock;
+pub use likelihood::MdLikelihood;
 pub use settings::{SamplerConfig, SamplerKind};
 pub use prior::UniformPrior;
 use std::path::{Path, PathBuf};
@@ -49,14 +52,18 @@ pub trait LogLikelihood: Sync {
     fn log_likelihood_term(&self, _x: &[f64], _term: usize) -> f64 {
         unreachable!("log_likelihood_term needs a term structure")
     }
+
 }
 
 /// `log L(x) = const + Σ_t L_t(x_shared, x_own(t))`: every term depends on the
 /// shared parameters (θ) and on its own (one observable's φ), and on no other.
+/// When the terms are not `separable` (a joint likelihood), the groups still
+/// make good Gibbs moves, but each costs a whole evaluation.
 #[derive(Clone, Debug)]
 pub struct TermStructure {
     pub shared: Vec<usize>,
     pub own: Vec<Vec<usize>>,
+    pub separable: bool,
 }
 
 impl LogLikelihood for MdLikelihood {
@@ -69,7 +76,7 @@ impl LogLikelihood for MdLikelihood {
             return None;
         }
         let own = (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
-        Some(TermStructure { shared: (0..self.n_theta).collect(), own })
+        Some(TermStructure { shared: (0..self.n_theta).collect(), own, separable: self.joint.is_none() })
     }
     fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64 {
         MdLikelihood::log_likelihood_terms(self, x, terms)
@@ -149,15 +156,25 @@ impl Problem {
                 b.with_kernel_input(input)
             })
             .collect();
-        match (&analysis.covariance, &overrides.data) {
+        let across = match (&analysis.covariance, &overrides.data) {
             (Some(path), None) => {
                 let entries = data_covariance::read(path).with_context(|| format!("{}: [data] covariance", analysis.config_path.display()))?;
                 data_covariance::attach(&mut blocks, &entries, &measurements, path, &data_path)?
             }
-            (Some(path), Some(_)) => eprintln!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display()),
-            (None, _) => {}
+            (Some(path), Some(_)) => {
+                eprintln!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display());
+                Vec::new()
+            }
+            (None, _) => Vec::new(),
+        };
+        let spans = simulator.has_model_covariance() && simulator.model_covariance_spans_observables();
+        if !across.is_empty() && analysis.between_observables == crate::base::config::BetweenObservables::Independent {
+            eprintln!("warning: {} covariance entries between observables are not used: [data] between_observables = \"independent\"", across.len());
         }
-        let likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
+        let mut likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
+        if joint::wanted(analysis.between_observables, likelihood.blocks.len(), across.len(), spans) {
+            likelihood = likelihood.joint(&across);
+        }
         let prior = prior_of(analysis, &likelihood)?;
         let sampler = overrides.sampler.unwrap_or(analysis.sampler.kind);
         let mut analysis = analysis.clone();
@@ -258,8 +275,11 @@ pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
         problem.prior.lower,
         problem.prior.upper,
         problem.analysis.sampler.smc,
-        // The data's covariance beyond the errors changes the likelihood too.
-        problem.likelihood.blocks.iter().map(|b| b.covariance.as_ref().map(|c| c.iter().map(|v| v.to_bits()).collect::<Vec<u64>>())).collect::<Vec<_>>()
+        // The data's covariance beyond the errors, and the joint form, change the likelihood too.
+        (
+            problem.likelihood.blocks.iter().map(|b| b.covariance.as_ref().map(|c| c.iter().map(|v| v.to_bits()).collect::<Vec<u64>>())).collect::<Vec<_>>(),
+            problem.likelihood.joint.as_ref().map(|j| (j.data.iter().map(|v| v.to_bits()).collect::<Vec<u64>>(), j.model_spans))
+        )
     );
     artifacts::sha256_hex(material.as_bytes())
 }

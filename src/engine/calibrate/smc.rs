@@ -422,13 +422,14 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
                     if !prior.contains(&prop_x) {
                         continue;
                     }
+                    // Terms that are not separable (nt = 0) move at the cost of a whole evaluation.
                     let (lp, new_term) = match g.term {
-                        Some(t) => {
+                        Some(t) if nt > 0 => {
                             counts.term_evaluations += 1;
                             let lt = likelihood.log_likelihood_term(&prop_x, t);
                             (*li - ti[t] + lt, lt)
                         }
-                        None => {
+                        _ => {
                             counts.full_evaluations += 1;
                             let lp = if nt > 0 { likelihood.log_likelihood_terms(&prop_x, &mut prop_terms) } else { likelihood.log_likelihood(&prop_x) };
                             (lp, f64::NAN)
@@ -442,8 +443,8 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
                         *li = lp;
                         *pi = lpi;
                         match g.term {
-                            Some(t) => ti[t] = new_term,
-                            None => ti.copy_from_slice(&prop_terms),
+                            Some(t) if nt > 0 => ti[t] = new_term,
+                            _ => ti.copy_from_slice(&prop_terms),
                         }
                         counts.accepted[gi] += 1;
                     }
@@ -604,7 +605,7 @@ impl<'a> Kernel<'a> {
             })
             .collect();
         master.long_jump();
-        let n_terms = self.structure.as_ref().map(|s| s.own.len()).unwrap_or(0);
+        let n_terms = self.structure.as_ref().filter(|s| s.separable).map(|s| s.own.len()).unwrap_or(0);
         let cloud = initial_cloud(self.prior, self.likelihood, &mut rngs, self.n, n_terms);
         ReplicateState {
             cloud,

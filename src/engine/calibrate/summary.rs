@@ -269,9 +269,28 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
         chi2 += c;
         n += b.len();
     }
+    // Joint: the χ² of all points together (the per-observable values stay each block's own).
+    if let Some(total) = joint_chi2(problem, theta) {
+        chi2 = total;
+    }
     let dof = n.saturating_sub(theta.len()).max(1);
     let model_variance_share = if model_var > 0.0 { model_var / (model_var + data_var) } else { 0.0 };
     FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable, model_variance_share }
+}
+
+/// `rᵀ C⁻¹ r` over all points with the joint covariance of the data and the
+/// model (no δ); `None` for the block form.
+fn joint_chi2(problem: &Problem, theta: &[f64]) -> Option<f64> {
+    let (lower, mut r) = problem.likelihood.joint_model_system(theta)?;
+    let mut ws = crate::engine::gp::CholeskyWorkspace::new(r.len());
+    ws.factor.copy_from_slice(&lower);
+    Some(match ws.factorize() {
+        Ok(_) => {
+            ws.solve_lower_in_place(&mut r);
+            r.iter().map(|z| z * z).sum()
+        }
+        Err(_) => f64::INFINITY,
+    })
 }
 
 /// Posterior-predictive bands at one x for one observable.
@@ -336,7 +355,7 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
                 problem.simulator.predict(block.model_index, &xq, theta, &mut eta);
                 let (delta, delta_mean) = match lik.kernel {
                     None => (vec![0.0; m], vec![0.0; m]),
-                    Some(kernel) => conditional_delta(kernel, lik.hyper_of(params, b), block, theta, &xq, problem, &mut rng),
+                    Some(kernel) => conditional_delta(kernel, params, b, &xq, problem, &mut rng),
                 };
                 (eta, delta, delta_mean)
             })
@@ -361,40 +380,42 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
     Ok(rows)
 }
 
-/// One draw of δ(xq) and its conditional mean, given the data residuals.
-fn conditional_delta(
-    kernel: DiscrepancyKernel,
-    hyper: &[f64],
-    block: &super::ObservableBlock,
-    theta: &[f64],
-    xq: &[f64],
-    problem: &Problem,
-    rng: &mut Xoshiro256PlusPlus,
-) -> (Vec<f64>, Vec<f64>) {
-    let n = block.len();
+/// One draw of δ(xq) and its conditional mean, given the data residuals (of
+/// every observable, when the likelihood is joint).
+fn conditional_delta(kernel: DiscrepancyKernel, params: &[f64], b: usize, xq: &[f64], problem: &Problem, rng: &mut Xoshiro256PlusPlus) -> (Vec<f64>, Vec<f64>) {
+    let lik = &problem.likelihood;
+    let (block, hyper) = (&lik.blocks[b], lik.hyper_of(params, b));
     let m = xq.len();
-    let mut eta = vec![0.0; n];
-    problem.simulator.predict(block.model_index, &block.x, theta, &mut eta);
+    // The covariance of the standardized residuals, and where block b sits in it.
+    let (lower, mut alpha, rows) = match lik.joint_system(params) {
+        Some((lower, resid)) => (lower, resid, lik.joint.as_ref().map(|j| j.rows(b)).unwrap_or_default()),
+        None => {
+            let n = block.len();
+            let theta = &params[..lik.n_theta];
+            let mut eta = vec![0.0; n];
+            problem.simulator.predict(block.model_index, &block.x, theta, &mut eta);
+            let mut lower = vec![0.0; n * n];
+            discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &block.kernel_x, &mut lower);
+            problem.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), &mut lower);
+            block.add_data_covariance(1.0 / (block.scale * block.scale), &mut lower);
+            (lower, (0..n).map(|i| (block.y[i] - eta[i]) / block.scale).collect(), 0..n)
+        }
+    };
+    let n = alpha.len();
     let mut ws = CholeskyWorkspace::new(n);
-    discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &block.kernel_x, &mut ws.factor);
-    if problem.simulator.has_model_covariance() {
-        problem.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), &mut ws.factor);
-    }
-    for i in 0..n {
-        let s = block.error[i] / block.scale;
-        ws.factor[i * n + i] += s * s;
-    }
+    ws.factor.copy_from_slice(&lower);
     if ws.factorize().is_err() {
         return (vec![f64::NAN; m], vec![f64::NAN; m]);
     }
-    let mut alpha: Vec<f64> = (0..n).map(|i| (block.y[i] - eta[i]) / block.scale).collect();
     ws.solve_in_place(&mut alpha);
+    // δ_b is correlated with block b's residuals only: zero elsewhere.
     let mut kq = vec![0.0; n];
     let mut draw = vec![0.0; m];
     let mut mean = vec![0.0; m];
     for q in 0..m {
         let kx = block.input.apply(xq[q]);
-        discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &[kx], &mut kq);
+        kq.fill(0.0);
+        discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &[kx], &mut kq[rows.clone()]);
         let mu: f64 = kq.iter().zip(&alpha).map(|(a, b)| a * b).sum();
         ws.solve_lower_in_place(&mut kq);
         let prior_var = {

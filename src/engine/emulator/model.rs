@@ -122,27 +122,121 @@ impl Simulator for EmulatedModel {
         true
     }
     fn add_model_covariance(&self, observable: usize, x: &[f64], theta: &[f64], inv_scale2: f64, lower: &mut [f64]) {
-        let n = x.len();
         self.with_components(theta, |means, vars| {
-            // Indices and Jacobians on the stack for the usual bin counts.
-            let (mut idx_stack, mut jac_stack) = ([0usize; 64], [0.0f64; 64]);
-            let (mut idx_heap, mut jac_heap) = (Vec::new(), Vec::new());
-            let (idx, jac): (&mut [usize], &mut [f64]) = if n <= 64 {
-                (&mut idx_stack[..n], &mut jac_stack[..n])
-            } else {
-                idx_heap.resize(n, 0);
-                jac_heap.resize(n, 0.0);
-                (&mut idx_heap, &mut jac_heap)
-            };
-            for i in 0..n {
-                idx[i] = self.output(observable, x[i]);
-                jac[i] = self.emulator.output_mean_from_components(means, idx[i]).1;
+            with_point_scratch(x.len(), |idx, jac| {
+                for (i, &xi) in x.iter().enumerate() {
+                    idx[i] = self.output(observable, xi);
+                    jac[i] = self.emulator.output_mean_from_components(means, idx[i]).1;
+                }
+                self.add_output_covariance(vars, idx, jac, |_, _| inv_scale2, lower);
+            })
+        })
+    }
+    fn model_covariance_spans_observables(&self) -> bool {
+        self.observables.len() > 1
+    }
+    fn add_joint_model_covariance(&self, points: &[(usize, f64)], inv_scales: &[f64], theta: &[f64], lower: &mut [f64]) {
+        self.with_components(theta, |means, vars| {
+            with_point_scratch(points.len(), |idx, jac| {
+                for (i, &(observable, xi)) in points.iter().enumerate() {
+                    idx[i] = self.output(observable, xi);
+                    jac[i] = self.emulator.output_mean_from_components(means, idx[i]).1;
+                }
+                self.add_output_covariance(vars, idx, jac, |i, j| inv_scales[i] * inv_scales[j], lower);
+            })
+        })
+    }
+}
+
+impl EmulatedModel {
+    /// Adds `weight(i, j) ×` the covariance of outputs `idx` (Jacobians `jac`
+    /// of their transforms) to the lower triangle of `lower` (n × n, n = idx.len()).
+    fn add_output_covariance(&self, vars: &[f64], idx: &[usize], jac: &[f64], weight: impl Fn(usize, usize) -> f64, lower: &mut [f64]) {
+        let n = idx.len();
+        for j in 0..n {
+            for i in j..n {
+                lower[i + j * n] += weight(i, j) * self.emulator.output_cov_from_components(vars, idx[i], idx[j], jac[i], jac[j]);
             }
-            for j in 0..n {
-                for i in j..n {
-                    lower[i + j * n] += inv_scale2 * self.emulator.output_cov_from_components(vars, idx[i], idx[j], jac[i], jac[j]);
+        }
+    }
+}
+
+/// Output indices and Jacobians for `n` points, on the stack for the usual
+/// point counts so that a likelihood evaluation does not allocate.
+fn with_point_scratch<R>(n: usize, f: impl FnOnce(&mut [usize], &mut [f64]) -> R) -> R {
+    const ON_STACK: usize = 256;
+    if n <= ON_STACK {
+        let (mut idx, mut jac) = ([0usize; ON_STACK], [0.0f64; ON_STACK]);
+        f(&mut idx[..n], &mut jac[..n])
+    } else {
+        f(&mut vec![0usize; n], &mut vec![0.0; n])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::engine::emulator::{train, EmulatorSettings, OutputKey, TrainingTable};
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+
+    /// Two observables at two x each (one on a log scale), 3 of 4 components kept.
+    fn emulator() -> Emulator {
+        let n = 30;
+        let unit = crate::engine::design::maximin_lhs(n, 2, 4);
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(3);
+        let noise = rand_distr::Normal::new(0.0, 0.02).unwrap();
+        let mut values = Vec::new();
+        for u in unit.chunks(2) {
+            values.extend([
+                (2.0 * u[0] + u[1]).exp() * (1.0 + noise.sample(&mut rng)),
+                (u[0] - u[1]).exp() * (1.0 + noise.sample(&mut rng)),
+                u[0] * u[1] + noise.sample(&mut rng),
+                u[0] + 0.3 * u[1] * u[1] + noise.sample(&mut rng),
+            ]);
+        }
+        let key = |o: &str, x: f64| OutputKey { observable: o.into(), x };
+        let table = TrainingTable {
+            path: "synthetic".into(),
+            parameter_names: vec!["a".into(), "b".into()],
+            design_ids: (0..n as i64).collect(),
+            inputs: unit.clone(),
+            outputs: vec![key("y", 1.0), key("y", 2.0), key("z", 1.0), key("z", 2.0)],
+            values,
+        };
+        let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 3\nrestarts = 2\nlog_observables = [\"y\"]").unwrap();
+        train(&table, &settings, 1).unwrap().0
+    }
+
+    #[test]
+    fn the_joint_model_covariance_is_the_emulators_predictive_covariance() {
+        let model = EmulatedModel::new(emulator());
+        assert!(model.model_covariance_spans_observables());
+        let theta = [0.4, 0.7];
+        let full = model.emulator.predict(&theta);
+        let points = [(0, 1.0), (0, 2.0), (1, 1.0), (1, 2.0)];
+        let inv_scales = [2.0, 2.0, 0.5, 0.5];
+        let mut lower = vec![0.0; 16];
+        model.add_joint_model_covariance(&points, &inv_scales, &theta, &mut lower);
+        let m = model.emulator.n_outputs();
+        let mut across = 0.0f64;
+        for j in 0..4 {
+            for i in j..4 {
+                let (oi, oj) = (model.output(points[i].0, points[i].1), model.output(points[j].0, points[j].1));
+                let expect = full.cov[oi * m + oj] * inv_scales[i] * inv_scales[j];
+                assert!((lower[i + j * 4] - expect).abs() <= 1e-12 * expect.abs().max(1e-300), "({i}, {j}): {} vs {expect}", lower[i + j * 4]);
+                if points[i].0 != points[j].0 {
+                    across = across.max(expect.abs());
                 }
             }
-        })
+        }
+        // The observables share components, so the covariance between them is not zero.
+        assert!(across > 0.0);
+        // One observable's block is the same as its block of the joint matrix.
+        let mut block = vec![0.0; 4];
+        model.add_model_covariance(1, &[1.0, 2.0], &theta, 0.25, &mut block);
+        for (i, j) in [(0, 0), (1, 0), (1, 1)] {
+            assert!((block[i + 2 * j] - lower[(2 + i) + (2 + j) * 4]).abs() < 1e-15);
+        }
     }
 }
