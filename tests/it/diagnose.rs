@@ -280,6 +280,11 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     let measurements = dir.join("measurements.parquet");
     mdpipe::artifacts::write_measurements(&measurements, &data, None).unwrap();
     cfg.data.measurements = measurements;
+    // The bins are counted from the same events: their jackknife covariance
+    // (within and across observables) goes with the measurements.
+    let covariance = dir.join("covariance.csv");
+    mdpipe::base::covariance::write_covariance_csv(&covariance, &mdpipe::ingest::single_point_covariance(&ingested).unwrap()).unwrap();
+    cfg.data.covariance = Some(covariance);
     let cfg = mdpipe::systems::resolve(&cfg).unwrap();
 
     let run = diagnose::run(&cfg, &Overrides::default(), 3, &DiagnoseSettings::default(), Some(&dir.join("diagnose")), &Silent).unwrap();
@@ -294,16 +299,23 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     }
     assert_eq!(winner.emulator_share > 0.5, d.verdict.statement.contains("Caution: the emulator's uncertainty"), "{}", d.verdict.statement);
     assert!(winner.log_bayes_factor > 3.0 + 3.0 * winner.log_bayes_factor_err);
-    // η/s and ε_sw are pinned to ±0.4% and ±0.25% by the spectra. The likely
-    // limit on that is the mock data's bin-to-bin correlation: each event's
-    // multiplicity factor (sd 0.1) moves all bins together, a 0.18% coherent
-    // normalization over 3000 events, close to the per-bin errors
-    // (0.19–0.28% for CH), and the per-bin likelihood does not carry it.
-    // Measured: η/s 1.2% high (0.1012 [0.1004, 0.1020]), ε_sw 0.8% high; so
-    // ask for 2% and 5%, not coverage. A correlated normalization term in
-    // the likelihood would be the proper fix; it is not done.
-    assert!((winner.parameters["eta_s"].median - 0.1).abs() < 0.002, "{:?}", winner.parameters);
-    assert!((winner.parameters["e_sw"].median - 0.2).abs() < 0.01, "{:?}", winner.parameters);
+    // η/s and ε_sw are pinned to about ±0.5% by the spectra. Asked for:
+    // 95% coverage of both. Measured with the bins' jackknife covariance
+    // (within and across observables) and the emulator's covariance across
+    // observables in the likelihood: η/s 0.1017 [0.1006, 0.1027], which
+    // misses 0.1 (it was 0.1012 [0.1004, 0.1020] with independent bins).
+    // The emulator reproduces the smooth tables at the truth (χ² 0.6 over the
+    // 70 points), so the miss is in the mock data: against the smooth truth,
+    // under the full jackknife covariance, this seed's 3000 events give
+    // χ² 101.5 for 70 points (seeds 8, 9, 10: 58.5, 86.2, 87.9; the
+    // residuals' sign changes with the seed, so no fixed bias in ingest).
+    // One seed cannot test coverage; a multi-seed coverage test is still to
+    // be written, so this keeps the tolerances of 2% and 5%.
+    for (name, truth, tolerance) in [("eta_s", 0.1, 0.002), ("e_sw", 0.2, 0.01)] {
+        let p = &winner.parameters[name];
+        println!("{name}: {:.4} [{:.4}, {:.4}] (truth {truth})", p.median, p.q025, p.q975);
+        assert!((p.median - truth).abs() < tolerance, "{name}: {p:?}");
+    }
     // Without the correction η/s is biased: the reason to diagnose at all.
     let base_eta = &d.improvement.as_ref().unwrap().before[0].parameters["eta_s"];
     assert!(!base_eta.covers(0.1), "{base_eta:?}");
