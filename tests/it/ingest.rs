@@ -190,3 +190,63 @@ fn stand_in_runs_round_trip_through_ingest() {
     assert!((0.7..1.3).contains(&rms), "rms pull {rms}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Goodness of fit of the stand-in's events, through ingest, against their
+/// infinite-statistics limit, under the jackknife covariance that ingest
+/// writes (between bins and across observables). If that covariance is right,
+/// `rᵀ C⁻¹ r` over the 70 rows is Hotelling's T² (C estimated from the same
+/// 3000 events): about χ²₇₀ × (n−1)/(n−p). Four seeds, summed, are tested
+/// two-sided at the 0.2% level (Wilson–Hilferty quantiles of χ²₂₈₀). The
+/// heavy-ion diagnose test's mock data are seed 7.
+#[test]
+fn stand_in_events_fit_their_smooth_limit_under_the_jackknife_covariance() {
+    use mdpipe::systems::heavy_ion::{events, simulate_runs, DeltaF, HeavyIonParams};
+    let p = HeavyIonParams::constant(0.1, 0.2);
+    let settings = IngestSettings::default();
+    let expected = events::SmoothTables::new(&p, DeltaF::Grad).expected(&settings.pt_edges);
+    let (n_events, seeds) = (3000usize, [7u64, 8, 9, 10]);
+    let mut total = 0.0;
+    let mut rows_per_seed = 0;
+    for seed in seeds {
+        let dir = std::env::temp_dir().join(format!("mdpipe-gof-{}-{seed}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        simulate_runs(&[(0, p.clone())], DeltaF::Grad, n_events, 50, seed, events::Layout::Hdf5, &dir).unwrap();
+        let (ingested, _) = ingest::ingest_runs(&dir, None, &settings).unwrap();
+        let rows = by_point(&ingested.rows, 0);
+        let keys: Vec<_> = rows.keys().cloned().collect();
+        let index = |o: &str, x: f64| keys.iter().position(|k| k.0 == o && k.1 == x.to_bits());
+        let n = keys.len();
+        let mut residual = vec![0.0; n];
+        for (name, values) in &expected {
+            for (k, want) in values.iter().enumerate() {
+                let x = 0.5 * (settings.pt_edges[k] + settings.pt_edges[k + 1]);
+                let key = keys.iter().position(|(o, xb)| o == name && (f64::from_bits(*xb) - x).abs() < 1e-9).unwrap();
+                residual[key] = rows[&keys[key]].value - want;
+            }
+        }
+        let mut chol = mdpipe::gp::CholeskyWorkspace::new(n);
+        for (i, k) in keys.iter().enumerate() {
+            chol.factor[i + i * n] = rows[k].error * rows[k].error;
+        }
+        for e in mdpipe::ingest::single_point_covariance(&ingested).unwrap() {
+            let (a, b) = (index(&e.observable_a, e.x_a).unwrap(), index(&e.observable_b, e.x_b).unwrap());
+            if a != b {
+                chol.factor[a.max(b) + a.min(b) * n] = e.covariance;
+            }
+        }
+        assert_eq!(chol.factorize().unwrap(), 0.0, "seed {seed}: the jackknife covariance needed jitter");
+        chol.solve_lower_in_place(&mut residual);
+        let chi2: f64 = residual.iter().map(|z| z * z).sum();
+        eprintln!("seed {seed}: rᵀC⁻¹r = {chi2:.1} over {n} rows");
+        total += chi2;
+        rows_per_seed = n;
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+    let p_rows = rows_per_seed as f64;
+    let hotelling = (n_events as f64 - 1.0) / (n_events as f64 - p_rows);
+    let k = p_rows * seeds.len() as f64;
+    let quantile = |z: f64| k * (1.0 - 2.0 / (9.0 * k) + z * (2.0 / (9.0 * k)).sqrt()).powi(3) * hotelling;
+    let (low, high) = (quantile(-3.09), quantile(3.09));
+    eprintln!("sum {total:.1} for {k} rows; two-sided 0.2% acceptance [{low:.1}, {high:.1}]");
+    assert!((low..high).contains(&total), "sum {total:.1} outside [{low:.1}, {high:.1}]");
+}
