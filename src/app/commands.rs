@@ -174,6 +174,12 @@ pub fn print_summary(s: &Summary) {
         "  {} draws, {:.1} s, {:.0} likelihood evals/s, min ESS/s {:.0}, chi2/dof (model alone) {:.2}",
         d.draws, d.wall_seconds, d.likelihood_evaluations_per_second, d.min_ess_per_second, s.fit.chi2_per_dof
     );
+    if s.fit.emulator_dominates() {
+        eprintln!(
+            "  WARNING: the emulator's uncertainty is {:.1}% of the predictive variance at the data: it, not the physics, absorbs the mismatch; add design points where the posterior lies (mdpipe refine)",
+            100.0 * s.fit.model_variance_share
+        );
+    }
     if d.converged {
         println!("  converged: R-hat <= 1.01 and ESS >= 400 for every parameter");
     } else {

@@ -146,6 +146,17 @@ pub struct FitQuality {
     pub model_variance_share: f64,
 }
 
+/// Past this share of the predictive variance the emulator, rather than the
+/// data, decides much of a fit: `calibrate` warns and `diagnose` cautions.
+pub const EMULATOR_DOMINATES: f64 = 0.5;
+
+impl FitQuality {
+    /// Whether the fit rests mostly on the model's (emulator's) own uncertainty.
+    pub fn emulator_dominates(&self) -> bool {
+        self.model_variance_share > EMULATOR_DOMINATES
+    }
+}
+
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Summary {
     pub name: String,

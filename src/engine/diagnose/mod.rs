@@ -467,8 +467,7 @@ fn named_statement(c: &CandidateResult, model: &CandidateModel, runner_up: Optio
     let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
     let trend = mismatch_phrase(mismatch);
     let runner = runner_up.map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence)).unwrap_or_default();
-    // Past half, the emulator rather than the data decides much of the fit: say so.
-    let caution = if c.emulator_share > 0.5 {
+    let caution = if c.emulator_share > calibrate::summary::EMULATOR_DOMINATES {
         format!(" Caution: the emulator's uncertainty is {:.0}% of this fit's predictive variance at the data, so the verdict rests partly on the emulator; add design points where the posterior lies.", 100.0 * c.emulator_share)
     } else {
         String::new()
