@@ -21,6 +21,8 @@
 //! depend on what the run returns), repeat. Hyperparameters stay fixed
 //! within a batch and are refitted when the emulator is retrained.
 
+pub mod variant;
+
 use crate::base::artifacts::{self, Measurement};
 use crate::engine::emulator::latent::LatentPosterior;
 use crate::engine::emulator::Emulator;

@@ -26,6 +26,14 @@
 //!   Otherwise the verdict is "ambiguous": it names the candidates still
 //!   standing and the measurement that would separate the first two
 //!   (`suggest`);
+//! * a named candidate whose fit rests on its emulator (the emulator's share
+//!   of the predictive variance at the data above one half,
+//!   `EMULATOR_DOMINATES`) is not named: the verdict is "emulator_limited".
+//!   There the emulator's uncertainty, not the data, decides how well the
+//!   variant fits, and a coarse variant emulator can win on its variance
+//!   alone. The verdict lists the variant emulators to refine (the standing
+//!   candidates whose share is above one half) and is decided again after
+//!   refinement (`engine::refine::variant`);
 //! * otherwise the verdict is "unexplained" when the mismatch is significant
 //!   (MD beats the base by more than `strong_log_bf`, or the base χ² has
 //!   p < `min_p_value`), and "none" when it is not.
@@ -35,7 +43,7 @@ mod suggest;
 
 use crate::base::artifacts::{self, Provenance};
 use crate::base::progress::Observer;
-use crate::engine::calibrate::summary::{ParamSummary, PredictionRow, Summary};
+use crate::engine::calibrate::summary::{ParamSummary, PredictionRow, Summary, EMULATOR_DOMINATES};
 use crate::engine::calibrate::{self, Analysis, Calibration, Overrides, Problem};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::CandidateModel;
@@ -119,7 +127,7 @@ pub struct CandidateResult {
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Verdict {
-    /// A candidate name, "ambiguous", "none" or "unexplained".
+    /// A candidate name, "ambiguous", "emulator_limited", "none" or "unexplained".
     pub best: String,
     /// For "ambiguous": the candidates still standing, best evidence first.
     #[serde(default)]
@@ -127,6 +135,10 @@ pub struct Verdict {
     /// For "ambiguous": the measurement that would best separate the first two.
     #[serde(default)]
     pub suggestion: Option<Suggestion>,
+    /// For "emulator_limited": the candidates whose variant emulators must be
+    /// refined (more runs where their posteriors lie) before a verdict.
+    #[serde(default)]
+    pub refine: Vec<String>,
     pub statement: String,
     /// Posterior probability of the verdict's model among the base, MD and
     /// candidate models, with equal prior odds.
@@ -401,8 +413,20 @@ fn decide(
     let lse = crate::engine::calibrate::smc::log_sum_exp(&all_z);
     let prob = |z: f64| (z - lse).exp();
     let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
-    let verdict = |best: &str, statement: String, confidence: f64| Verdict { best: best.into(), standing: Vec::new(), suggestion: None, statement, confidence };
+    let verdict = |best: &str, statement: String, confidence: f64| Verdict { best: best.into(), standing: Vec::new(), suggestion: None, refine: Vec::new(), statement, confidence };
     match named {
+        Some(c) if rests_on_emulator(c) => {
+            let standing: Vec<&CandidateResult> = std::iter::once(c).chain(rivals.iter().copied()).collect();
+            let refine = to_refine(&standing);
+            Verdict {
+                best: "emulator_limited".into(),
+                statement: emulator_limited_statement(c, &refine, mismatch),
+                confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
+                standing: standing.iter().map(|s| s.name.clone()).collect(),
+                suggestion: None,
+                refine,
+            }
+        }
         Some(c) if !rivals.is_empty() => {
             let standing: Vec<&CandidateResult> = std::iter::once(c).chain(rivals.iter().copied()).collect();
             Verdict {
@@ -411,6 +435,7 @@ fn decide(
                 confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
                 standing: standing.iter().map(|s| s.name.clone()).collect(),
                 suggestion,
+                refine: Vec::new(),
             }
         }
         Some(c) => verdict(&c.name, named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), prob(c.log_evidence)),
@@ -454,6 +479,34 @@ fn ambiguous_statement(standing: &[&CandidateResult], suggestion: Option<&Sugges
     )
 }
 
+/// Whether a fit rests on its emulator: the emulator's share of the
+/// predictive variance at the data is above one half.
+fn rests_on_emulator(c: &CandidateResult) -> bool {
+    c.emulator_share > EMULATOR_DOMINATES
+}
+
+/// The standing candidates whose variant emulators must be refined.
+fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
+    standing.iter().filter(|s| rests_on_emulator(s)).map(|s| s.name.clone()).collect()
+}
+
+/// "…the data lead to X, but its emulator carries N% of the variance: refine …".
+fn emulator_limited_statement(c: &CandidateResult, refine: &[String], mismatch: &[ObservableMismatch]) -> String {
+    format!(
+        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data, so the emulator, not the data, decides how well it fits: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (mdpipe refine), then diagnose again.",
+        mismatch_phrase(mismatch),
+        c.name,
+        c.log_bayes_factor,
+        c.log_bayes_factor_err,
+        100.0 * c.emulator_share,
+        if refine.len() > 1 { "s" } else { "" },
+        refine.join(" and "),
+        if refine.len() > 1 { "their" } else { "its" },
+        if refine.len() > 1 { "s" } else { "" },
+        if refine.len() > 1 { "" } else { "s" },
+    )
+}
+
 /// "…the data favour X (what it is), k = … over the runner-up by log BF = …".
 fn named_statement(c: &CandidateResult, model: &CandidateModel, runner_up: Option<&CandidateResult>, mismatch: &[ObservableMismatch]) -> String {
     let fitted: Vec<String> = model
@@ -467,12 +520,7 @@ fn named_statement(c: &CandidateResult, model: &CandidateModel, runner_up: Optio
     let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
     let trend = mismatch_phrase(mismatch);
     let runner = runner_up.map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence)).unwrap_or_default();
-    let caution = if c.emulator_share > calibrate::summary::EMULATOR_DOMINATES {
-        format!(" Caution: the emulator's uncertainty is {:.0}% of this fit's predictive variance at the data, so the verdict rests partly on the emulator; add design points where the posterior lies.", 100.0 * c.emulator_share)
-    } else {
-        String::new()
-    };
-    format!("{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.{caution}", c.name.replace('_', " "), c.description, c.log_bayes_factor)
+    format!("{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.", c.name.replace('_', " "), c.description, c.log_bayes_factor)
 }
 
 /// MD 95% width over the repaired model's Cramér–Rao 95% width, per
@@ -579,6 +627,23 @@ mod tests {
         // The runner-up of a named member is another explanation, not the pair that contains it.
         let r = ranked(&[("a", 0.0), ("a+b", -0.5), ("b+c", -8.0), ("c", -9.0)]);
         assert_eq!(runner_up(&r[0], &r).map(|c| c.name.as_str()), Some("b+c"));
+    }
+
+    #[test]
+    fn a_winner_that_rests_on_its_emulator_is_not_named_and_its_emulator_is_to_be_refined() {
+        let mut r = ranked(&[("a", 0.0), ("b", -1.0), ("c", -9.0)]);
+        r[0].emulator_share = 0.8;
+        r[1].emulator_share = 0.2;
+        r[2].emulator_share = 0.9;
+        assert!(rests_on_emulator(&r[0]) && !rests_on_emulator(&r[1]));
+        // Exactly one half is the emulator and the data in equal parts: not yet resting on it.
+        r[1].emulator_share = EMULATOR_DOMINATES;
+        assert!(!rests_on_emulator(&r[1]));
+        // Of the standing (a and its rival b), only a's emulator needs runs; c is out of the race.
+        let standing: Vec<&CandidateResult> = std::iter::once(&r[0]).chain(rivals(&r[0], &r, &DiagnoseSettings::default())).collect();
+        assert_eq!(to_refine(&standing), ["a"]);
+        let text = emulator_limited_statement(&r[0], &to_refine(&standing), &[]);
+        assert!(text.contains("80%") && text.contains("no candidate is named") && text.contains("emulator of a with runs where its posterior lies"), "{text}");
     }
 
     fn rival_names(r: &[CandidateResult]) -> Vec<&str> {

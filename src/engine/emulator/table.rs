@@ -65,6 +65,21 @@ impl TrainingTable {
         }
     }
 
+    /// Adds the rows of `other`, which must have the same parameters and
+    /// outputs (new runs of the same simulator).
+    pub fn append(&mut self, other: &TrainingTable) -> Result<()> {
+        if other.parameter_names != self.parameter_names || other.outputs != self.outputs {
+            bail!("{}: its parameters or outputs differ from those of {} (new runs must be of the same simulator)", other.path.display(), self.path.display());
+        }
+        if let Some(id) = other.design_ids.iter().find(|id| self.design_ids.contains(id)) {
+            bail!("{}: design id {id} is already in {}", other.path.display(), self.path.display());
+        }
+        self.design_ids.extend_from_slice(&other.design_ids);
+        self.inputs.extend_from_slice(&other.inputs);
+        self.values.extend_from_slice(&other.values);
+        Ok(())
+    }
+
     /// Writes the long table, Parquet or CSV by extension.
     pub fn write(&self, path: &Path, provenance: Option<&crate::base::artifacts::Provenance>) -> Result<()> {
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();

@@ -652,8 +652,15 @@ pub fn design_point(design: &std::path::Path, id: i64) -> anyhow::Result<HeavyIo
 /// v_n), i.e. the limit of `simulate` + `ingest` for infinitely many events,
 /// so that an emulator trained on them compares with ingested data.
 pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Result<crate::engine::emulator::TrainingTable> {
-    use rayon::prelude::*;
     let DesignPoints { ids, names, columns, points } = read_design_points(design)?;
+    let inputs = (0..points.len()).flat_map(|i| columns.iter().map(move |c| c[i])).collect();
+    Ok(smooth_table(design, ids, names, inputs, &points, delta_f))
+}
+
+/// The smooth stand-in's outputs at `points` as a training table (inputs
+/// row-major in the order of `names`).
+fn smooth_table(path: &std::path::Path, ids: Vec<i64>, names: Vec<String>, inputs: Vec<f64>, points: &[HeavyIonParams], delta_f: DeltaF) -> crate::engine::emulator::TrainingTable {
+    use rayon::prelude::*;
     let pts = analysis_pt();
     let edges = crate::engine::ingest::IngestSettings::default().pt_edges;
     let bar = crate::base::progress::bar(points.len() as u64, "heavy-ion stand-in over the design");
@@ -668,14 +675,24 @@ pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Res
     bar.finish_and_clear();
     let outputs: Vec<crate::engine::emulator::OutputKey> = results[0].iter().flat_map(|(n, _)| pts.iter().map(move |&x| crate::engine::emulator::OutputKey { observable: n.clone(), x })).collect();
     let values: Vec<f64> = results.iter().flat_map(|r| r.iter().flat_map(|(_, v)| v.iter().copied())).collect();
-    Ok(crate::engine::emulator::TrainingTable {
-        path: design.to_path_buf(),
-        parameter_names: names,
-        design_ids: ids,
-        inputs: (0..points.len()).flat_map(|i| columns.iter().map(move |c| c[i])).collect(),
-        outputs,
-        values,
-    })
+    crate::engine::emulator::TrainingTable { path: path.to_path_buf(), parameter_names: names, design_ids: ids, inputs, outputs, values }
+}
+
+/// New runs for refinement from the smooth stand-in with a fixed
+/// particlization: the runner of a variant emulator trained on smooth runs.
+pub struct SmoothStandIn {
+    pub delta_f: DeltaF,
+}
+
+impl crate::engine::refine::variant::PointRunner for SmoothStandIn {
+    fn run(&self, names: &[String], points: &[Vec<f64>], first_id: i64, dir: &std::path::Path) -> anyhow::Result<crate::engine::emulator::TrainingTable> {
+        if points.is_empty() {
+            anyhow::bail!("no points to run");
+        }
+        let params: Vec<HeavyIonParams> = points.iter().map(|p| HeavyIonParams::from_named(&names.iter().cloned().zip(p.iter().copied()).collect::<Vec<_>>())).collect::<anyhow::Result<_>>()?;
+        let ids = (first_id..first_id + points.len() as i64).collect();
+        Ok(smooth_table(&dir.join("smooth stand-in runs"), ids, names.to_vec(), points.concat(), &params, self.delta_f))
+    }
 }
 
 #[cfg(test)]
