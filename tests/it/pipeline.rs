@@ -63,12 +63,42 @@ candidate_points = {candidate_points}
 points_per_round = 4
 budget = 8
 draws = 60
+variant_budget = 4
 "#,
         spec.display()
     );
     let path = dir.join("study.toml");
     std::fs::write(&path, text).unwrap();
     path
+}
+
+/// The diagnose stage refines the variant emulators exactly when the first
+/// verdict rests on them (variant_budget is set), and diagnoses again.
+fn check_variant_refinement(out: &Path, last: &serde_json::Value) {
+    let before = out.join("diagnose/refine/diagnosis_before.json");
+    println!("final verdict: {}", last["verdict"]["best"]);
+    if !before.exists() {
+        assert_ne!(last["verdict"]["best"], "emulator_limited", "an emulator-limited verdict was left unrefined");
+        return;
+    }
+    let first: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&before).unwrap()).unwrap();
+    println!("first verdict: {} (refine {})", first["verdict"]["best"], first["verdict"]["refine"]);
+    assert_eq!(first["verdict"]["best"], "emulator_limited");
+    for name in first["verdict"]["refine"].as_array().unwrap() {
+        let rounds: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/refine").join(name.as_str().unwrap()).join("rounds.json")).unwrap()).unwrap();
+        let list = rounds["rounds"].as_array().unwrap();
+        let new_runs: u64 = list.iter().map(|r| r["new_runs"].as_u64().unwrap()).sum();
+        println!("{name}: {} rounds, {new_runs} new runs, stopped: {}", list.len(), rounds["stopped"]);
+        assert!(new_runs <= 4, "{name}: {new_runs} runs past the variant budget");
+        // The diagnosis after refinement declares the refined emulator.
+        let emulator = rounds["emulator"].as_str().unwrap();
+        assert!(std::path::Path::new(emulator).join("emulator.json").exists(), "{emulator}");
+        let fit = last["candidates"].as_array().unwrap().iter().find(|c| &c["name"] == name).unwrap();
+        if new_runs > 0 {
+            assert!(emulator.contains("round_"), "{emulator}");
+        }
+        println!("{name}: emulator share {} → {}", first["candidates"].as_array().unwrap().iter().find(|c| &c["name"] == name).unwrap()["emulator_share"], fit["emulator_share"]);
+    }
 }
 
 /// The refine stage: rounds reported, new runs under fresh ids with their
@@ -178,6 +208,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
     assert_eq!(names.len(), 2);
     assert!(names.contains(&"grad_shear_delta_f") && names.contains(&"proton_annihilation"));
+    check_variant_refinement(&out, &diagnosis);
     // A declared variant whose own parameter has no prior is refused, naming the config and the field.
     let mut declared = config.clone();
     declared.model = mdpipe::emulator::EmulatorFamily::model_table(&out.join("emulator"));

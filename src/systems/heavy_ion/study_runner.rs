@@ -18,7 +18,7 @@
 //! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json (or calibrate/cases.md, cases.json) |
 //! | report      | report.html                                                     |
 //! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator with validation.json) per `[run] candidates` entry |
-//! | diagnose    | diagnose/ (diagnosis.json, report.html and every calibration)  |
+//! | diagnose    | diagnose/ (diagnosis.json, report.html and every calibration; refine/<candidate>/ and refine/diagnosis_before.json when variants were refined) |
 //!
 //! The last two run only when `[run] candidates` names physics from the
 //! stand-in's library (`heavy_ion::CANDIDATES`): each gets a variant
@@ -49,6 +49,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 mod refine_rounds;
+mod variant_runs;
 pub use refine_rounds::{RefineConfig, Rounds};
 
 /// The `[run]` table of an analysis config.
@@ -829,7 +830,9 @@ impl Runner<'_> {
         Ok(())
     }
 
-    /// `mdpipe diagnose` on the mock data with the library variants declared.
+    /// `mdpipe diagnose` on the mock data with the library variants declared;
+    /// when the verdict rests on variant emulators and `[run.refine]
+    /// variant_budget` allows, they are refined and the diagnosis made again.
     fn diagnose(&mut self) -> Result<()> {
         let mut config = self.study_config()?;
         config.candidates = self
@@ -839,9 +842,21 @@ impl Runner<'_> {
             .map(|name| heavy_ion::candidate(name)?.declaration(absolute(&self.paths.candidate(name).join("emulator"))).to_table())
             .collect::<Result<_>>()?;
         let out = self.paths.diagnose();
+        // A previous run's refined variants are of other settings (its runs would mix with new ones).
+        if out.join("refine").exists() {
+            std::fs::remove_dir_all(out.join("refine")).with_context(|| format!("removing the previous variant refinement {}", out.join("refine").display()))?;
+        }
         let overrides = Overrides { observables: Some(self.diagnose_observables()), ..Default::default() };
         let settings = crate::engine::diagnose::DiagnoseSettings::default();
-        let d = crate::engine::diagnose::run(&self.analysis(&config)?, &overrides, self.opts.seed.wrapping_add(77), &settings, Some(&out), observer(self.opts.show_progress))?;
+        let seed = self.opts.seed.wrapping_add(77);
+        let analysis = self.analysis(&config)?;
+        let mut d = crate::engine::diagnose::run(&analysis, &overrides, seed, &settings, Some(&out), observer(self.opts.show_progress))?;
+        if self.refine_variants(&mut config, &analysis, &overrides, &d.diagnosis)? {
+            crate::engine::diagnose::print(&d.diagnosis);
+            artifacts::write_json_atomic(&out.join("refine").join("diagnosis_before.json"), &d.diagnosis)?;
+            println!("  refined the variant emulators the verdict listed; diagnosing again");
+            d = crate::engine::diagnose::run(&self.analysis(&config)?, &overrides, seed, &settings, Some(&out), observer(self.opts.show_progress))?;
+        }
         crate::engine::diagnose::print(&d.diagnosis);
         crate::engine::report::write(std::slice::from_ref(&out), &out.join("report.html"), &format!("mdpipe run: {} (diagnose)", self.config.name), &[&HeavyIonFigures])?;
         println!("  {}", out.join("report.html").display());

@@ -37,6 +37,10 @@ pub struct RefineConfig {
     /// Posterior draws weighed per round (candidate points and where the error is measured).
     #[serde(default = "default_draws")]
     pub draws: usize,
+    /// New runs the diagnose stage may spend on each variant emulator when
+    /// the verdict rests on it ("emulator_limited"); 0: none (runs cost).
+    #[serde(default)]
+    pub variant_budget: usize,
 }
 
 fn default_draws() -> usize {
