@@ -493,7 +493,7 @@ fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
 /// "…the data lead to X, but its emulator carries N% of the variance: refine …".
 fn emulator_limited_statement(c: &CandidateResult, refine: &[String], mismatch: &[ObservableMismatch]) -> String {
     format!(
-        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data, so the emulator, not the data, decides how well it fits: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (mdpipe refine), then diagnose again.",
+        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data, so the emulator, not the data, decides how well it fits: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
         mismatch_phrase(mismatch),
         c.name,
         c.log_bayes_factor,
