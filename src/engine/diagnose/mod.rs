@@ -339,7 +339,9 @@ pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &Dia
     // Repair: refit the winner with MD on top, to show δ shrink.
     let mut improvement = None;
     let mut repaired_md = None;
-    if let (Some(_), true, true) = (named, rivals.is_empty(), settings.repair) {
+    // Only a named candidate is repaired: not one that is ambiguous or rests on its emulator.
+    let named_alone = named.is_some_and(|c| rivals.is_empty() && !rests_on_emulator(c));
+    if named_alone && settings.repair {
         let winner = &runs[0];
         let (rep_md_problem, rep_md) = d.calibrate(&analysis.with_candidate(&winner.candidate), Some(settings.kernel), seed.wrapping_add(99), "repaired_md")?;
         let before = vec![figures("model, no MD", &base_problem, &base), figures("model + MD", &md_problem, &md)];
