@@ -4,8 +4,9 @@
 //! **What is measured.** At posterior draws θ_b and data points j (an output
 //! of the emulator with data error σ_j), the emulator's *latent* variance
 //! var_j(θ_b): its uncertainty about the simulator's mean output, the part
-//! more runs reduce (run noise and dropped PCA components are not reduced by
-//! design points; they are reported beside it). Per observable the ratio
+//! more runs reduce (scatter beyond the runs' reported noise and the dropped
+//! PCA components' signal are not reduced by design points; they are in the
+//! predictive sd reported beside it). Per observable the ratio
 //! `sqrt(mean_{b,j} var_j(θ_b)/σ_j²)` says how the emulator's error compares
 //! with the data's where the posterior lives. Refinement stops when it is
 //! below 1 in every observable.
@@ -61,7 +62,8 @@ pub struct ObservableRatio {
     pub latent: f64,
     /// The largest bin's latent ratio.
     pub latent_max_bin: f64,
-    /// The whole predictive sd the likelihood uses (latent, run noise and dropped components).
+    /// The whole predictive sd the likelihood uses: latent, scatter beyond
+    /// the runs' reported noise, dropped components less their run noise.
     pub predictive: f64,
 }
 
@@ -240,6 +242,7 @@ mod tests {
             design_ids: (0..n as i64).collect(),
             inputs: unit.clone(),
             outputs: vec![OutputKey { observable: "y".into(), x: 1.0 }, OutputKey { observable: "z".into(), x: 1.0 }],
+            errors: vec![0.0; values.len()],
             values,
         };
         let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 2").unwrap();

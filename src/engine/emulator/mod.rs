@@ -14,8 +14,14 @@
 //! the GP variances mapped through the basis, plus the variance of the
 //! dropped components (`Σ_{k>K} S_k²/n V_k V_kᵀ`), then mapped back through
 //! the standardization and, for log outputs, to first order through `exp`.
-//! The white-noise term is part of the predictive variance: the emulator
-//! predicts what the simulator would output, statistical noise included.
+//! The prediction is of the simulator's **mean** output, what measurements
+//! are compared with: the run noise the training runs report (their `error`
+//! column) is taken out of the white-noise term and of the dropped
+//! components (`run_noise`); any scatter beyond it stays. Validation against
+//! held-out runs, which carry their own noise, adds it back
+//! ([`Emulator::predict_run`]). Without run errors the two are the same.
+
+pub mod run_noise;
 
 pub mod family;
 pub mod latent;
@@ -42,6 +48,10 @@ pub struct EmulatorParts {
     pub train_inputs: Vec<f64>,
     /// Raw training outputs, row-major n × m (kept for cross-validation).
     pub train_values: Vec<f64>,
+    /// Each training value's statistical error from its own run, row-major
+    /// n × m (0 where unknown): what separates run noise from the emulator's
+    /// uncertainty about the simulator's mean.
+    pub train_errors: Vec<f64>,
     /// Unit-cube scaling of the inputs: `u = (θ - lo) / (hi - lo)`.
     pub input_lo: Vec<f64>,
     pub input_hi: Vec<f64>,
@@ -81,8 +91,15 @@ pub struct Emulator {
     gps: Vec<FittedGp>,
     /// `σ_k = S_k/√n`, the standard deviation of component k's scores.
     component_sd: Vec<f64>,
-    /// Covariance of the dropped components in standardized space, m × m.
+    /// Covariance of the dropped components in standardized space, run
+    /// noise removed, m × m.
     truncation_cov: Vec<f64>,
+    /// Per kept component, the run-noise variance taken out of its GP's
+    /// white-noise term (whitened units).
+    run_noise: Vec<f64>,
+    /// The run noise removed from every component, in standardized space
+    /// (m × m): what a single held-out run adds to the prediction.
+    run_noise_cov: Vec<f64>,
 }
 
 /// Mean and covariance (row-major m × m) in observable space.
@@ -146,17 +163,19 @@ impl Emulator {
             });
         }
         let component_sd: Vec<f64> = parts.singular_values.iter().map(|s| s / (n as f64).sqrt()).collect();
-        let mut truncation_cov = vec![0.0; m * m];
-        for k in parts.n_components..r {
+        let kept_noise: Vec<f64> = gps.iter().map(|g| g.noise_var).collect();
+        let removed = run_noise::removed_per_component(&parts, &component_sd, &kept_noise);
+        let (mut truncation_cov, mut run_noise_cov) = (vec![0.0; m * m], vec![0.0; m * m]);
+        for k in 0..r {
             let v2 = component_sd[k] * component_sd[k];
-            let col = &parts.basis[k * m..(k + 1) * m];
-            for i in 0..m {
-                for j in 0..m {
-                    truncation_cov[i * m + j] += v2 * col[i] * col[j];
-                }
+            let dropped = k >= parts.n_components;
+            add_outer(&mut run_noise_cov, &parts.basis[k * m..(k + 1) * m], removed[k] * v2);
+            if dropped {
+                add_outer(&mut truncation_cov, &parts.basis[k * m..(k + 1) * m], (1.0 - removed[k]) * v2);
             }
         }
-        Ok(Emulator { parts, unit_inputs, gps, component_sd, truncation_cov })
+        let run_noise = removed[..parts.n_components].to_vec();
+        Ok(Emulator { parts, unit_inputs, gps, component_sd, truncation_cov, run_noise, run_noise_cov })
     }
 
     pub fn n_parameters(&self) -> usize {
@@ -199,7 +218,7 @@ impl Emulator {
                 off += i + 1;
             }
             means[c] = mean;
-            vars[c] = (gp.signal_var + gp.constant + gp.noise_var - quad).max(gp.noise_var);
+            vars[c] = (gp.signal_var + gp.constant + gp.noise_var - quad).max(gp.noise_var) - self.run_noise[c];
         }
     }
 
@@ -218,7 +237,7 @@ impl Emulator {
             faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b), faer::Par::Seq);
             for q in 0..b {
                 let w = &kstar[q * n..(q + 1) * n];
-                vars[q * kc + c] = (gp.signal_var + gp.constant + gp.noise_var - dot(w, w)).max(gp.noise_var);
+                vars[q * kc + c] = (gp.signal_var + gp.constant + gp.noise_var - dot(w, w)).max(gp.noise_var) - self.run_noise[c];
             }
         }
     }
@@ -284,8 +303,18 @@ impl Emulator {
         c * jac_a * jac_b
     }
 
-    /// Full prediction at θ (allocates; for validation and plots).
+    /// Full prediction of the simulator's mean at θ (allocates; for plots).
     pub fn predict(&self, theta: &[f64]) -> Prediction {
+        self.predict_with(theta, false)
+    }
+
+    /// What one more run at θ would output: [`Emulator::predict`] plus the
+    /// run noise the training runs reported (for validation on held-out runs).
+    pub fn predict_run(&self, theta: &[f64]) -> Prediction {
+        self.predict_with(theta, true)
+    }
+
+    fn predict_with(&self, theta: &[f64], with_run_noise: bool) -> Prediction {
         let (kc, m) = (self.n_components(), self.n_outputs());
         let mut scratch = self.scratch();
         let (mut cm, mut cv) = (vec![0.0; kc], vec![0.0; kc]);
@@ -294,7 +323,10 @@ impl Emulator {
         let mut cov = vec![0.0; m * m];
         for a in 0..m {
             for b in 0..=a {
-                let c = self.output_cov_from_components(&cv, a, b, jac[a], jac[b]);
+                let mut c = self.output_cov_from_components(&cv, a, b, jac[a], jac[b]);
+                if with_run_noise {
+                    c += self.run_noise_cov[a * m + b] * jac[a] * jac[b];
+                }
                 cov[a * m + b] = c;
                 cov[b * m + a] = c;
             }
@@ -351,6 +383,7 @@ impl Emulator {
             inputs: self.parts.train_inputs.clone(),
             outputs: self.parts.outputs.clone(),
             values: self.parts.train_values.clone(),
+            errors: self.parts.train_errors.clone(),
         }
     }
 
@@ -369,6 +402,16 @@ impl Emulator {
 /// Dot product with four independent sums, so the compiler can use SIMD
 /// (a plain float `sum()` must keep its order and cannot).
 #[inline]
+/// `acc += w · v vᵀ` for a square row-major `acc`.
+fn add_outer(acc: &mut [f64], v: &[f64], w: f64) {
+    let m = v.len();
+    for i in 0..m {
+        for j in 0..m {
+            acc[i * m + j] += w * v[i] * v[j];
+        }
+    }
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut acc = [0.0; 4];
     let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));

@@ -204,6 +204,7 @@ mod tests {
             design_ids: (0..n as i64).collect(),
             inputs: unit.clone(),
             outputs: vec![key("y", 1.0), key("y", 2.0), key("z", 1.0), key("z", 2.0)],
+            errors: vec![0.0; values.len()],
             values,
         };
         let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 3\nrestarts = 2\nlog_observables = [\"y\"]").unwrap();

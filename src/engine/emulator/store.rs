@@ -1,7 +1,9 @@
 //! The emulator artifact, a folder of Parquet tables plus `emulator.json`:
 //!
-//! - `training.parquet`: long table `design_id, observable, x, value, <parameters…>`
-//!   (the raw training data, kept for cross-validation);
+//! - `training.parquet`: long table `design_id, observable, x, value, error, <parameters…>`
+//!   (the raw training data and each value's run error, kept for
+//!   cross-validation and for separating run noise; older folders without
+//!   `error` load with errors 0, as before);
 //! - `scalings.parquet`: `output, observable, x, transform, mean, std`;
 //! - `pca.parquet`: `component, singular_value, output, loading`
 //!   (every component, kept or not, so the truncation error is known);
@@ -70,6 +72,7 @@ fn write_folder(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report:
         inputs: p.train_inputs.clone(),
         outputs: p.outputs.clone(),
         values: p.train_values.clone(),
+        errors: p.train_errors.clone(),
     };
     artifacts::write_parquet_atomic(&dir.join("training.parquet"), &mut table.to_long_frame()?, prov)?;
 
@@ -220,6 +223,7 @@ pub fn load(dir: &Path) -> Result<Emulator> {
         design_ids: training.design_ids.clone(),
         train_inputs: training.inputs.clone(),
         train_values: training.values.clone(),
+        train_errors: training.errors.clone(),
         input_lo,
         input_hi,
         kernel: meta.kernel,

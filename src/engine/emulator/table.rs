@@ -1,8 +1,10 @@
 //! Training and validation tables: design parameters and simulator outputs
 //! per design point, long or wide, CSV or Parquet.
 //!
-//! Long (what `mdpipe ingest` writes): `design_id, observable, x, value`
-//! plus one column per design parameter (repeated on every row of a point).
+//! Long (what `mdpipe ingest` writes): `design_id, observable, x, value`,
+//! optionally `error` (the run's own statistical error of that value, the
+//! jackknife error of its event average), plus one column per design
+//! parameter (repeated on every row of a point).
 //! Wide: one row per design point, `design_id`, the parameter columns, and
 //! one column per output named `observable[x]` (or just `observable`, x = 0).
 
@@ -35,6 +37,9 @@ pub struct TrainingTable {
     pub outputs: Vec<OutputKey>,
     /// Row-major `n × m`.
     pub values: Vec<f64>,
+    /// Each value's statistical error from its own run (row-major `n × m`;
+    /// 0 where the table has none, as for deterministic simulators).
+    pub errors: Vec<f64>,
 }
 
 impl TrainingTable {
@@ -52,6 +57,10 @@ impl TrainingTable {
         let m = self.outputs.len();
         &self.values[i * m..(i + 1) * m]
     }
+    pub fn row_errors(&self, i: usize) -> &[f64] {
+        let m = self.outputs.len();
+        &self.errors[i * m..(i + 1) * m]
+    }
 
     /// The sub-table of the given rows (for cross-validation folds).
     pub fn subset(&self, rows: &[usize]) -> TrainingTable {
@@ -62,6 +71,7 @@ impl TrainingTable {
             inputs: rows.iter().flat_map(|&i| self.input(i).to_vec()).collect(),
             outputs: self.outputs.clone(),
             values: rows.iter().flat_map(|&i| self.row(i).to_vec()).collect(),
+            errors: rows.iter().flat_map(|&i| self.row_errors(i).to_vec()).collect(),
         }
     }
 
@@ -77,6 +87,7 @@ impl TrainingTable {
         self.design_ids.extend_from_slice(&other.design_ids);
         self.inputs.extend_from_slice(&other.inputs);
         self.values.extend_from_slice(&other.values);
+        self.errors.extend_from_slice(&other.errors);
         Ok(())
     }
 
@@ -90,11 +101,11 @@ impl TrainingTable {
         if let Some(p) = provenance {
             text.push_str(&format!("# mdpipe {} | {} | seed {}\n", p.mdpipe_version, p.command, p.seed));
         }
-        text.push_str(&format!("design_id,observable,x,value,{}\n", self.parameter_names.join(",")));
+        text.push_str(&format!("design_id,observable,x,value,error,{}\n", self.parameter_names.join(",")));
         for i in 0..self.n_points() {
             let params: Vec<String> = self.input(i).iter().map(|v| v.to_string()).collect();
             for (j, o) in self.outputs.iter().enumerate() {
-                text.push_str(&format!("{},{},{},{},{}\n", self.design_ids[i], o.observable, o.x, self.row(i)[j], params.join(",")));
+                text.push_str(&format!("{},{},{},{},{},{}\n", self.design_ids[i], o.observable, o.x, self.row(i)[j], self.row_errors(i)[j], params.join(",")));
             }
         }
         crate::base::artifacts::write_text_atomic(path, &text)
@@ -118,6 +129,7 @@ impl TrainingTable {
             Column::new("observable".into(), obs),
             Column::new("x".into(), xs),
             Column::new("value".into(), self.values.clone()),
+            Column::new("error".into(), self.errors.clone()),
         ];
         let d = self.parameter_names.len();
         for (k, name) in self.parameter_names.iter().enumerate() {
@@ -252,8 +264,8 @@ struct Cells {
     point_order: Vec<i64>,
     point_row: HashMap<i64, usize>,
     outputs: Vec<OutputKey>,
-    /// Value and the row it came from.
-    cells: BTreeMap<(usize, usize), (f64, usize)>,
+    /// Value, its run's statistical error and the row it came from.
+    cells: BTreeMap<(usize, usize), (f64, f64, usize)>,
 }
 
 impl Cells {
@@ -275,9 +287,9 @@ impl Cells {
     }
 
     /// Records one value; a second value for the same cell is an error naming both rows.
-    fn add(&mut self, raw: &RawTable, path: &Path, id: i64, key: OutputKey, value: f64, row: usize) -> Result<()> {
+    fn add(&mut self, raw: &RawTable, path: &Path, id: i64, key: OutputKey, (value, error): (f64, f64), row: usize) -> Result<()> {
         let (point, out) = (self.point(id), self.output(key));
-        if let Some((_, first)) = self.cells.insert((point, out), (value, row)) {
+        if let Some((_, _, first)) = self.cells.insert((point, out), (value, error, row)) {
             bail!("{}: {}: design point {id} has a second value for {} (first at {})", path.display(), raw.location(row), self.outputs[out], raw.location(first));
         }
         Ok(())
@@ -308,8 +320,8 @@ pub fn read_training_table_selected(path: &Path, parameter_names: &[String], obs
     let keep = |o: &str| observables.is_empty() || observables.iter().any(|k| k == o);
     let cells = if raw.has("observable") { read_long(&raw, path, &ids, &keep)? } else { read_wide(&raw, path, &ids, parameter_names, &keep)? };
     let inputs = point_inputs(&raw, path, &ids, &cells, parameter_names, &params)?;
-    let (outputs, values) = ordered_values(path, &cells, observables)?;
-    Ok(TrainingTable { path: path.to_path_buf(), parameter_names: parameter_names.to_vec(), design_ids: cells.point_order, inputs, outputs, values })
+    let (outputs, values, errors) = ordered_values(path, &cells, observables)?;
+    Ok(TrainingTable { path: path.to_path_buf(), parameter_names: parameter_names.to_vec(), design_ids: cells.point_order, inputs, outputs, values, errors })
 }
 
 /// A long table: one row per (design point, observable, x).
@@ -319,13 +331,15 @@ fn read_long(raw: &RawTable, path: &Path, ids: &[i64], keep: &dyn Fn(&str) -> bo
     let values = raw.numbers(path, "value")?;
     check_finite(path, raw, "x", &xs)?;
     check_finite(path, raw, "value", &values)?;
+    let errors = if raw.has("error") { raw.numbers(path, "error")? } else { vec![0.0; raw.height()] };
+    check_run_errors(path, raw, &errors)?;
     let mut cells = Cells::default();
     for i in 0..raw.height() {
         if obs[i].trim().is_empty() {
             bail!("{}: {}, field 'observable': empty observable name", path.display(), raw.location(i));
         }
         if keep(&obs[i]) {
-            cells.add(raw, path, ids[i], OutputKey { observable: obs[i].clone(), x: xs[i] }, values[i], i)?;
+            cells.add(raw, path, ids[i], OutputKey { observable: obs[i].clone(), x: xs[i] }, (values[i], errors[i]), i)?;
         }
     }
     Ok(cells)
@@ -348,7 +362,7 @@ fn read_wide(raw: &RawTable, path: &Path, ids: &[i64], parameter_names: &[String
         let values = raw.numbers(path, c)?;
         check_finite(path, raw, c, &values)?;
         for i in 0..raw.height() {
-            cells.add(raw, path, ids[i], key.clone(), values[i], i)?;
+            cells.add(raw, path, ids[i], key.clone(), (values[i], 0.0), i)?;
         }
     }
     Ok(cells)
@@ -376,7 +390,7 @@ fn point_inputs(raw: &RawTable, path: &Path, ids: &[i64], cells: &Cells, paramet
 
 /// Outputs sorted by observable (first appearance) then x, so bins are in
 /// order, and the `points × outputs` values; every point needs every output.
-fn ordered_values(path: &Path, cells: &Cells, observables: &[String]) -> Result<(Vec<OutputKey>, Vec<f64>)> {
+fn ordered_values(path: &Path, cells: &Cells, observables: &[String]) -> Result<(Vec<OutputKey>, Vec<f64>, Vec<f64>)> {
     let file = path.display();
     let outputs = &cells.outputs;
     let obs_order: Vec<String> = outputs.iter().fold(Vec::new(), |mut acc, o| {
@@ -395,11 +409,11 @@ fn ordered_values(path: &Path, cells: &Cells, observables: &[String]) -> Result<
         oa.cmp(&ob).then(outputs[a].x.total_cmp(&outputs[b].x))
     });
     let (n, m) = (cells.point_order.len(), outputs.len());
-    let mut values = vec![0.0; n * m];
+    let (mut values, mut errors) = (vec![0.0; n * m], vec![0.0; n * m]);
     for p in 0..n {
         for (new_k, &old_k) in perm.iter().enumerate() {
             match cells.cells.get(&(p, old_k)) {
-                Some((v, _)) => values[p * m + new_k] = *v,
+                Some(&(v, e, _)) => (values[p * m + new_k], errors[p * m + new_k]) = (v, e),
                 None => bail!(
                     "{file}: design point {} has no value for {} (every design point needs every output; drop or rerun failed points before training)",
                     cells.point_order[p],
@@ -408,7 +422,16 @@ fn ordered_values(path: &Path, cells: &Cells, observables: &[String]) -> Result<
             }
         }
     }
-    Ok((perm.iter().map(|&k| outputs[k].clone()).collect(), values))
+    Ok((perm.iter().map(|&k| outputs[k].clone()).collect(), values, errors))
+}
+
+/// A run's statistical error must be a finite number ≥ 0 (an `error` column
+/// left empty by a failed jackknife is caught here, not in the likelihood).
+fn check_run_errors(path: &Path, raw: &RawTable, errors: &[f64]) -> Result<()> {
+    match errors.iter().position(|e| !e.is_finite() || *e < 0.0) {
+        Some(i) => bail!("{}: {}, field 'error': {} is not a statistical error (it must be finite and ≥ 0)", path.display(), raw.location(i), errors[i]),
+        None => Ok(()),
+    }
 }
 
 /// Checks a training table against the design it was run from (`design.parquet`

@@ -474,6 +474,7 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
         design_ids: table.design_ids.clone(),
         train_inputs: table.inputs.clone(),
         train_values: table.values.clone(),
+        train_errors: table.errors.clone(),
         input_lo: lo,
         input_hi: hi,
         kernel,

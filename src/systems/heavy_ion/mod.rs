@@ -675,7 +675,9 @@ fn smooth_table(path: &std::path::Path, ids: Vec<i64>, names: Vec<String>, input
     bar.finish_and_clear();
     let outputs: Vec<crate::engine::emulator::OutputKey> = results[0].iter().flat_map(|(n, _)| pts.iter().map(move |&x| crate::engine::emulator::OutputKey { observable: n.clone(), x })).collect();
     let values: Vec<f64> = results.iter().flat_map(|r| r.iter().flat_map(|(_, v)| v.iter().copied())).collect();
-    crate::engine::emulator::TrainingTable { path: path.to_path_buf(), parameter_names: names, design_ids: ids, inputs, outputs, values }
+    // Expected values: no run noise.
+    let errors = vec![0.0; values.len()];
+    crate::engine::emulator::TrainingTable { path: path.to_path_buf(), parameter_names: names, design_ids: ids, inputs, outputs, values, errors }
 }
 
 /// New runs for refinement from the smooth stand-in with a fixed

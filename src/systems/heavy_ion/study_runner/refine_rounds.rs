@@ -85,7 +85,7 @@ pub struct Rounds {
 impl Rounds {
     pub fn markdown(&self) -> String {
         let mut md = format!("# Adaptive design\n\nStopped: {}. The calibrations use `refine/{}`.\n\n", self.stopped, self.emulator);
-        md.push_str("Emulator sd over data error where the pilot posteriors live (root mean square over draws and bins): latent = the emulator's uncertainty about the simulator's mean (what more runs reduce); predictive = what the likelihood adds (latent, one run's noise and the dropped PCA components).\n\n");
+        md.push_str("Emulator sd over data error where the pilot posteriors live (root mean square over draws and bins): latent = the emulator's uncertainty about the simulator's mean (what more runs reduce); predictive = what the likelihood adds (latent, scatter beyond the runs' reported noise and the dropped PCA components' signal; the runs' own noise is not part of it).\n\n");
         md.push_str("| round | training runs | observable | latent | latent, worst bin | predictive |\n|---|---|---|---|---|---|\n");
         for r in &self.rounds {
             for o in &r.ratios {
@@ -109,7 +109,7 @@ impl Rounds {
     pub fn study_section(&self) -> String {
         let (Some(first), Some(last)) = (self.rounds.first(), self.rounds.last()) else { return String::new() };
         let mut md = format!(
-            "\n## Emulator error where the posterior lives (adaptive design)\n\n{} training runs, then {} after {} round(s) of refinement (stopped: {}). Emulator sd over data error at the pilot posteriors' draws (root mean square over draws and bins). Latent: the emulator's uncertainty about the simulator's mean, what design points reduce. Predictive: what the likelihood adds, with one run's noise and the dropped components, which design points do not reduce.\n\n| observable | latent before | latent after | worst bin after | predictive before | predictive after |\n|---|---|---|---|---|---|\n",
+            "\n## Emulator error where the posterior lives (adaptive design)\n\n{} training runs, then {} after {} round(s) of refinement (stopped: {}). Emulator sd over data error at the pilot posteriors' draws (root mean square over draws and bins). Latent: the emulator's uncertainty about the simulator's mean, what design points reduce. Predictive: what the likelihood adds, the latent sd with any scatter beyond the runs' reported noise and the dropped components' signal, which design points do not reduce.\n\n| observable | latent before | latent after | worst bin after | predictive before | predictive after |\n|---|---|---|---|---|---|\n",
             first.training_runs,
             last.training_runs,
             self.rounds.len() - 1,
