@@ -239,16 +239,8 @@ impl Runner<'_> {
         if let Some(command) = self.array_command(false) {
             spec.slurm.command = command;
         }
-        // The design's parameter order may differ from the emulator's.
-        let rows: Vec<Vec<f64>> = points
-            .iter()
-            .map(|p| spec.parameters.iter().map(|sp| names.iter().position(|n| *n == sp.name).map(|k| p[k]).ok_or_else(|| anyhow!("design parameter {} is not an emulator parameter", sp.name))).collect::<Result<Vec<f64>>>())
-            .collect::<Result<_>>()?;
         let prov = Provenance::new(artifacts::sha256_hex(&std::fs::read(&spec_path)?), String::new(), self.opts.seed, &format!("run {} --stage refine", self.config.path.display()));
-        crate::engine::design::write_points(&spec, ids, &rows, &prov, &format!("mdpipe refine ({} points)", ids.len()), &design_dir)?;
-        let runs = design_dir.join("runs");
-        std::fs::create_dir_all(&runs)?;
-        std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
+        let runs = write_new_points(&spec, ids, points, names, &prov, &format!("mdpipe refine ({} points)", ids.len()), &design_dir)?;
         let span = crate::engine::design::span_of(ids);
         let design = design_dir.join("design.parquet");
         let exec_points = crate::engine::design::read_points(&design)?.into_iter().map(|(id, values)| execute::Point { id, param_file: crate::engine::design::parameter_file(&design_dir, id, span), values }).collect();
@@ -313,4 +305,20 @@ fn concat_tables(tables: &[PathBuf], out: &Path) -> Result<()> {
     }
     let mut all = all.ok_or_else(|| anyhow!("no training tables"))?;
     artifacts::write_parquet_atomic(out, &mut all, None)
+}
+
+/// Writes new points (emulator parameter order, `names`) as a design in
+/// `design_dir` (parameter files and a Slurm array over `ids`), and returns
+/// its `runs/` folder, made ready for the simulate stage's runners.
+pub(super) fn write_new_points(spec: &crate::engine::design::DesignSpec, ids: &[i64], points: &[Vec<f64>], names: &[String], prov: &Provenance, label: &str, design_dir: &Path) -> Result<PathBuf> {
+    // The design's parameter order may differ from the emulator's.
+    let rows: Vec<Vec<f64>> = points
+        .iter()
+        .map(|p| spec.parameters.iter().map(|sp| names.iter().position(|n| *n == sp.name).map(|k| p[k]).ok_or_else(|| anyhow!("design parameter {} is not an emulator parameter", sp.name))).collect::<Result<Vec<f64>>>())
+        .collect::<Result<_>>()?;
+    crate::engine::design::write_points(spec, ids, &rows, prov, label, design_dir)?;
+    let runs = design_dir.join("runs");
+    std::fs::create_dir_all(&runs)?;
+    std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
+    Ok(runs)
 }

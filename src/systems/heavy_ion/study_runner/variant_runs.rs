@@ -35,18 +35,11 @@ impl PointRunner for VariantRuns<'_, '_> {
         let spec_path = self.runner.config.resolve(&run.design);
         let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
         spec.parameters.extend(self.candidate.design_parameter());
-        // The design's parameter order may differ from the emulator's.
-        let rows: Vec<Vec<f64>> = points
-            .iter()
-            .map(|p| spec.parameters.iter().map(|sp| names.iter().position(|n| *n == sp.name).map(|k| p[k]).ok_or_else(|| anyhow!("design parameter {} is not a parameter of the variant emulator", sp.name))).collect())
-            .collect::<Result<_>>()?;
         let ids: Vec<i64> = (first_id..first_id + points.len() as i64).collect();
         let prov = Provenance::new(self.runner.config.hash.clone(), String::new(), self.seed, &format!("run {} --stage diagnose (refining {})", self.runner.config.path.display(), self.candidate.name));
-        crate::engine::design::write_points(&spec, &ids, &rows, &prov, &format!("mdpipe refine, variant {} ({} points)", self.candidate.name, ids.len()), &design_dir)?;
+        let label = format!("mdpipe refine, variant {} ({} points)", self.candidate.name, ids.len());
+        let runs = super::refine_rounds::write_new_points(&spec, &ids, points, names, &prov, &label, &design_dir)?;
         let d = heavy_ion::read_design_points(&design_dir.join("design.parquet"))?;
-        let runs = design_dir.join("runs");
-        std::fs::create_dir_all(&runs)?;
-        std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
         let at: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).collect();
         heavy_ion::simulate_runs(&at, self.delta_f, run.events.unwrap_or_default(), run.oversample, self.seed, Layout::Hdf5, &runs)?;
         let table = dir.join("training.parquet");
