@@ -399,9 +399,6 @@ impl Emulator {
     }
 }
 
-/// Dot product with four independent sums, so the compiler can use SIMD
-/// (a plain float `sum()` must keep its order and cannot).
-#[inline]
 /// `acc += w · v vᵀ` for a square row-major `acc`.
 fn add_outer(acc: &mut [f64], v: &[f64], w: f64) {
     let m = v.len();
@@ -412,6 +409,9 @@ fn add_outer(acc: &mut [f64], v: &[f64], w: f64) {
     }
 }
 
+/// Dot product with four independent sums, so the compiler can use SIMD
+/// (a plain float `sum()` must keep its order and cannot).
+#[inline]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut acc = [0.0; 4];
     let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));

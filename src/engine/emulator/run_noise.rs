@@ -28,6 +28,10 @@ pub fn output_noise_var(parts: &super::EmulatorParts) -> Vec<f64> {
     }
     (0..m)
         .map(|j| {
+            // A constant output (std 0) is emulated exactly: no noise to remove.
+            if parts.output_std[j] <= 0.0 {
+                return 0.0;
+            }
             let scale = |i: usize| if parts.log_transform[j] { 1.0 / parts.train_values[i * m + j].abs() } else { 1.0 };
             let mean_sq: f64 = (0..n).map(|i| (parts.train_errors[i * m + j] * scale(i)).powi(2)).sum::<f64>() / n as f64;
             mean_sq / (parts.output_std[j] * parts.output_std[j])
@@ -51,7 +55,8 @@ pub fn removed_per_component(parts: &super::EmulatorParts, component_sd: &[f64],
             let loading = &parts.basis[k * m..(k + 1) * m];
             let nu: f64 = loading.iter().zip(&noise).map(|(v, e2)| v * v * e2).sum::<f64>() / (sd * sd);
             let cap = kept_noise_var.get(k).copied().unwrap_or(1.0);
-            nu.min(cap)
+            // Remove nothing rather than a NaN (which `min` would turn into the cap).
+            if nu.is_finite() { nu.min(cap) } else { 0.0 }
         })
         .collect()
 }
@@ -90,6 +95,9 @@ mod tests {
         let removed = removed_per_component(&parts, &[0.2, 0.2], &[0.3]);
         assert!((removed[0] - 0.3).abs() < 1e-15);
         assert!((removed[1] - 0.40625).abs() < 1e-12);
+        let constant = super::super::EmulatorParts { output_std: vec![0.0, 2.0], ..parts.clone() };
+        assert_eq!(output_noise_var(&constant)[0], 0.0);
+        assert!(removed_per_component(&constant, &[0.2, 0.2], &[0.3]).iter().all(|r| r.is_finite()));
         let none = super::super::EmulatorParts { train_errors: vec![0.0; 4], ..parts };
         assert_eq!(removed_per_component(&none, &[0.2, 0.2], &[0.3]), vec![0.0, 0.0]);
     }
