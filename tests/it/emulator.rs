@@ -217,6 +217,10 @@ fn bad_tables_get_errors_naming_file_row_and_field() {
     let table = read_training_table(&table_path, &params()).unwrap();
     let e = format!("{:#}", emulator::check_against_design(&table, &design).unwrap_err());
     assert!(e.contains("1 of the 4 design points") && e.contains("(2)"), "{e}");
+    // A negative run error.
+    let t = "design_id,observable,x,value,error,a,b,c\n0,flow0,0.5,0.1,0.01,0.0,0.3,0.2\n1,flow0,0.5,0.2,-0.01,0.1,0.5,0.3\n";
+    let e = error_of(t, None);
+    assert!(e.contains("bad.csv") && e.contains("line 3") && e.contains("'error'"), "{e}");
     // A parameter column that is not there.
     let t = "design_id,observable,x,value,a,b\n0,flow0,0.5,0.1,0.1,0.2\n";
     let e = error_of(t, None);
