@@ -33,7 +33,10 @@
 //!   variant fits, and a coarse variant emulator can win on its variance
 //!   alone. The verdict lists the variant emulators to refine (the standing
 //!   candidates whose share is above one half) and is decided again after
-//!   refinement (`engine::refine::variant`);
+//!   refinement (`engine::refine::variant`). The same holds for a leader
+//!   that beats the base model strongly but is not named (its χ² test fails
+//!   or the MD fit beats it) while resting on its emulator: its χ² and
+//!   evidence are then the emulator's, so it is refined, not rejected;
 //! * otherwise the verdict is "unexplained" when the mismatch is significant
 //!   (MD beats the base by more than `strong_log_bf`, or the base χ² has
 //!   p < `min_p_value`), and "none" when it is not.
@@ -416,19 +419,22 @@ fn decide(
     let prob = |z: f64| (z - lse).exp();
     let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
     let verdict = |best: &str, statement: String, confidence: f64| Verdict { best: best.into(), standing: Vec::new(), suggestion: None, refine: Vec::new(), statement, confidence };
-    match named {
-        Some(c) if rests_on_emulator(c) => {
-            let standing: Vec<&CandidateResult> = std::iter::once(c).chain(rivals.iter().copied()).collect();
-            let refine = to_refine(&standing);
-            Verdict {
-                best: "emulator_limited".into(),
-                statement: emulator_limited_statement(c, &refine, mismatch),
-                confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
-                standing: standing.iter().map(|s| s.name.clone()).collect(),
-                suggestion: None,
-                refine,
-            }
+    let emulator_limited = |standing: Vec<&CandidateResult>| {
+        let refine = to_refine(&standing);
+        Verdict {
+            best: "emulator_limited".into(),
+            statement: emulator_limited_statement(standing[0], &refine, mismatch, settings.min_p_value),
+            confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
+            standing: standing.iter().map(|s| s.name.clone()).collect(),
+            suggestion: None,
+            refine,
         }
+    };
+    if let (None, true, Some(standing)) = (named, significant, unnamed_on_emulator(candidates, settings)) {
+        return emulator_limited(standing);
+    }
+    match named {
+        Some(c) if rests_on_emulator(c) => emulator_limited(std::iter::once(c).chain(rivals.iter().copied()).collect()),
         Some(c) if !rivals.is_empty() => {
             let standing: Vec<&CandidateResult> = std::iter::once(c).chain(rivals.iter().copied()).collect();
             Verdict {
@@ -487,15 +493,29 @@ fn rests_on_emulator(c: &CandidateResult) -> bool {
     c.emulator_share > EMULATOR_DOMINATES
 }
 
+/// When the leader beats the base model strongly but was not named (its fit
+/// fails the χ² test or the MD fit beats it) while resting on its emulator:
+/// the leader and every other such candidate within a decisive lead of it.
+/// Their χ² and evidence are then set by the emulator's error, not the data,
+/// so rejecting them would be as unfounded as naming them; only refinement
+/// can decide (a coarse emulator's mean can miss by more than its sd, and a
+/// χ²/dof of 2 at 98% emulator share says exactly that).
+fn unnamed_on_emulator<'c>(candidates: &'c [CandidateResult], settings: &DiagnoseSettings) -> Option<Vec<&'c CandidateResult>> {
+    let leader = candidates.first().filter(|c| c.log_bayes_factor > settings.strong_log_bf && rests_on_emulator(c))?;
+    let trailing = candidates[1..].iter().filter(|c| rests_on_emulator(c) && c.log_bayes_factor > settings.strong_log_bf && leader.log_evidence - c.log_evidence <= decisive_lead(leader, c, settings));
+    Some(std::iter::once(leader).chain(trailing).collect())
+}
+
 /// The standing candidates whose variant emulators must be refined.
 fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
     standing.iter().filter(|s| rests_on_emulator(s)).map(|s| s.name.clone()).collect()
 }
 
 /// "…the data lead to X, but its emulator carries N% of the variance: refine …".
-fn emulator_limited_statement(c: &CandidateResult, refine: &[String], mismatch: &[ObservableMismatch]) -> String {
+fn emulator_limited_statement(c: &CandidateResult, refine: &[String], mismatch: &[ObservableMismatch], min_p_value: f64) -> String {
+    let poor = if c.p_value < min_p_value { format!(" (its χ²/dof of {:.2} cannot yet tell a wrong candidate from a coarse emulator)", c.chi2_per_dof) } else { String::new() };
     format!(
-        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data, so the emulator, not the data, decides how well it fits: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
+        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data, so the emulator, not the data, decides how well it fits{poor}: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
         mismatch_phrase(mismatch),
         c.name,
         c.log_bayes_factor,
@@ -644,8 +664,33 @@ mod tests {
         // Of the standing (a and its rival b), only a's emulator needs runs; c is out of the race.
         let standing: Vec<&CandidateResult> = std::iter::once(&r[0]).chain(rivals(&r[0], &r, &DiagnoseSettings::default())).collect();
         assert_eq!(to_refine(&standing), ["a"]);
-        let text = emulator_limited_statement(&r[0], &to_refine(&standing), &[]);
+        let text = emulator_limited_statement(&r[0], &to_refine(&standing), &[], 1e-3);
         assert!(text.contains("80%") && text.contains("no candidate is named") && text.contains("emulator of a with runs where its posterior lies"), "{text}");
+    }
+
+    #[test]
+    fn an_unnamed_leader_that_rests_on_its_emulator_is_refined_not_rejected() {
+        let settings = DiagnoseSettings::default();
+        // The bundled study's case: the leader beats the base by far but fails the χ² test at 98% emulator share.
+        let mut r = ranked(&[("grad", 1340.0), ("bulk", 296.0), ("annihilation", 1337.5), ("weak", 2.0)]);
+        r.sort_by(|a, b| b.log_evidence.total_cmp(&a.log_evidence));
+        for c in r.iter_mut() {
+            c.p_value = 1e-6;
+            c.chi2_per_dof = 2.01;
+            c.emulator_share = 0.98;
+        }
+        let standing: Vec<&str> = unnamed_on_emulator(&r, &settings).unwrap().iter().map(|c| c.name.as_str()).collect();
+        // bulk trails decisively and weak does not beat the base strongly: neither stands.
+        assert_eq!(standing, ["grad", "annihilation"]);
+        let text = emulator_limited_statement(&r[0], &["grad".into()], &[], settings.min_p_value);
+        assert!(text.contains("χ²/dof of 2.01 cannot yet tell"), "{text}");
+        // Whose emulator is not the larger share of the variance, its failed χ² test is the data's: no refinement.
+        r[0].emulator_share = 0.3;
+        assert!(unnamed_on_emulator(&r, &settings).is_none());
+        // Nor for a leader that does not beat the base model strongly.
+        let mut weak = ranked(&[("a", 2.5)]);
+        weak[0].emulator_share = 0.9;
+        assert!(unnamed_on_emulator(&weak, &settings).is_none());
     }
 
     fn rival_names(r: &[CandidateResult]) -> Vec<&str> {
