@@ -174,6 +174,10 @@ impl Emulator {
                 add_outer(&mut truncation_cov, &parts.basis[k * m..(k + 1) * m], (1.0 - removed[k]) * v2);
             }
         }
+        // The PCA's mean and directions are themselves estimated from noisy runs.
+        for (t, v) in truncation_cov.iter_mut().zip(run_noise::pca_noise_cov(&parts)) {
+            *t += v;
+        }
         let run_noise = removed[..parts.n_components].to_vec();
         Ok(Emulator { parts, unit_inputs, gps, component_sd, truncation_cov, run_noise, run_noise_cov })
     }
