@@ -287,23 +287,20 @@ fn heavy_ion_grad_delta_f_is_located_and_named() {
     // Named, so the fit rests on the data rather than on the emulator.
     assert!(winner.emulator_share <= 0.5, "{}", winner.emulator_share);
     assert!(winner.log_bayes_factor > 3.0 + 3.0 * winner.log_bayes_factor_err);
-    // η/s and ε_sw are pinned to about ±0.5% by the spectra. Asked for:
-    // 95% coverage of both. Measured with the bins' jackknife covariance
-    // (within and across observables) and the emulator's covariance across
-    // observables in the likelihood: η/s 0.1017 [0.1006, 0.1027], which
-    // misses 0.1 (it was 0.1012 [0.1004, 0.1020] with independent bins).
-    // The emulator reproduces the smooth tables at the truth (χ² 0.6 over the
-    // 70 points), so the miss is in the mock data: against the smooth truth,
-    // under the full jackknife covariance, this seed's 3000 events give
-    // χ² 101.5 for 70 points (seeds 8, 9, 10: 58.5, 86.2, 87.9; the
-    // residuals' sign changes with the seed, so no fixed bias in ingest).
-    // One seed cannot test coverage; `heavy_ion_grad_fit_covers_the_truth_over_seeds`
-    // (ignored, about 15 minutes) tests it over 20 seeds. This keeps the
-    // tolerances of 2% and 5% for the one seed run here.
-    for (name, truth, tolerance) in [("eta_s", 0.1, 0.002), ("e_sw", 0.2, 0.01)] {
+    // η/s and ε_sw are pinned to about ±0.5% by the spectra. The issue asks
+    // for 95% coverage of both, which one seed cannot test: a calibrated 95%
+    // interval misses on one seed in twenty, and this seed's η/s interval
+    // does (0.1017 [0.1006, 0.1027]: its 3000 events give χ² 101.5 for 70
+    // points against the smooth truth under their own jackknife covariance).
+    // `heavy_ion_grad_fit_covers_the_truth_over_seeds` tests the coverage
+    // rate over 20 seeds. Here each estimate must lie within 4 posterior sd
+    // of the truth, which a calibrated posterior fails with probability
+    // 6e-5: a gross bias, not bad luck.
+    for (name, truth) in [("eta_s", 0.1), ("e_sw", 0.2)] {
         let p = &winner.parameters[name];
-        println!("{name}: {:.4} [{:.4}, {:.4}] (truth {truth})", p.median, p.q025, p.q975);
-        assert!((p.median - truth).abs() < tolerance, "{name}: {p:?}");
+        let sd = (p.q975 - p.q025) / 3.92;
+        println!("{name}: {:.4} [{:.4}, {:.4}] (truth {truth}, {:.1} sd away)", p.median, p.q025, p.q975, (p.median - truth) / sd);
+        assert!((p.median - truth).abs() < 4.0 * sd, "{name}: {p:?}");
     }
     // Without the correction η/s is biased: the reason to diagnose at all.
     let base_eta = &d.improvement.as_ref().unwrap().before[0].parameters["eta_s"];
@@ -351,10 +348,9 @@ fn grad_event_mock(cfg: &mut Config, dir: &Path, seed: u64) {
 /// 3000-event mock data sets: the same emulators and likelihood as
 /// `heavy_ion_grad_delta_f_is_located_and_named`, one seed per data set.
 /// Asks that the Clopper–Pearson 95% interval of each coverage rate contain
-/// 0.95. About 40 s per data set on 2 cores, so it is not in the default run:
-/// `cargo test --release --test it heavy_ion_grad_fit_covers -- --ignored --nocapture`.
+/// 0.95. Measured: η/s covered in 19 of 20 ([75%, 100%]), ε_sw in 20 of 20
+/// ([83%, 100%]); 409 s on 2 shared cores.
 #[test]
-#[ignore = "about 15 minutes; run with --ignored"]
 fn heavy_ion_grad_fit_covers_the_truth_over_seeds() {
     use mdpipe::calibrate::{self, Problem};
     let dir = std::env::temp_dir().join(format!("mdpipe-coverage-hi-{}", std::process::id()));
