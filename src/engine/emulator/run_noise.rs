@@ -73,7 +73,9 @@ pub fn pca_noise_cov(parts: &super::EmulatorParts) -> Vec<f64> {
     let (n, m, kept) = (parts.design_ids.len().max(1) as f64, parts.outputs.len(), parts.n_components);
     let noise = output_noise_var(parts);
     let mut cov = vec![0.0; m * m];
-    if noise.iter().all(|v| *v == 0.0) {
+    // No errors, or one so large that its square overflowed: add nothing
+    // (as the removal removes nothing for a non-finite projection).
+    if noise.iter().all(|v| *v == 0.0) || noise.iter().any(|v| !v.is_finite()) {
         return cov;
     }
     // P = I − Σ_kept v vᵀ, then P N P.
@@ -168,6 +170,9 @@ mod tests {
         // on each) over the summed variance (0.04 + 0.01), not 0.406 and 1.625 → 1.
         let all_dropped = removed_per_component(&parts, &[0.2, 0.1], &[]);
         assert!(all_dropped.iter().all(|r| (r - 0.65).abs() < 1e-12), "{all_dropped:?}");
+        // An error whose square overflows adds no NaN to the PCA's noise.
+        let huge = super::super::EmulatorParts { train_errors: vec![1e308, 0.3, 0.1, 0.3], ..parts.clone() };
+        assert!(pca_noise_cov(&huge).iter().all(|v| *v == 0.0));
         let none = super::super::EmulatorParts { train_errors: vec![0.0; 4], ..parts };
         assert_eq!(removed_per_component(&none, &[0.2, 0.2], &[0.3]), vec![0.0, 0.0]);
     }
