@@ -48,7 +48,11 @@ pub fn output_noise_var(parts: &super::EmulatorParts) -> Vec<f64> {
             }
             let scale = |i: usize| if parts.log_transform[j] { 1.0 / parts.train_values[i * m + j].abs() } else { 1.0 };
             let mean_sq: f64 = (0..n).map(|i| (parts.train_errors[i * m + j] * scale(i)).powi(2)).sum::<f64>() / n as f64;
-            mean_sq / (parts.output_std[j] * parts.output_std[j])
+            let v = mean_sq / (parts.output_std[j] * parts.output_std[j]);
+            // An error whose square overflows says nothing usable about this
+            // output's noise: remove none here rather than poison every
+            // component's projection (and so every output) with an infinity.
+            if v.is_finite() { v } else { 0.0 }
         })
         .collect()
 }
@@ -73,9 +77,7 @@ pub fn pca_noise_cov(parts: &super::EmulatorParts) -> Vec<f64> {
     let (n, m, kept) = (parts.design_ids.len().max(1) as f64, parts.outputs.len(), parts.n_components);
     let noise = output_noise_var(parts);
     let mut cov = vec![0.0; m * m];
-    // No errors, or one so large that its square overflowed: add nothing
-    // (as the removal removes nothing for a non-finite projection).
-    if noise.iter().all(|v| *v == 0.0) || noise.iter().any(|v| !v.is_finite()) {
+    if noise.iter().all(|v| *v == 0.0) {
         return cov;
     }
     // P = I − Σ_kept v vᵀ, then P N P.
@@ -170,9 +172,13 @@ mod tests {
         // on each) over the summed variance (0.04 + 0.01), not 0.406 and 1.625 → 1.
         let all_dropped = removed_per_component(&parts, &[0.2, 0.1], &[]);
         assert!(all_dropped.iter().all(|r| (r - 0.65).abs() < 1e-12), "{all_dropped:?}");
-        // An error whose square overflows adds no NaN to the PCA's noise.
+        // An error whose square overflows makes its output's noise unknown
+        // (none removed there), and leaves the other output's as it was.
         let huge = super::super::EmulatorParts { train_errors: vec![1e308, 0.3, 0.1, 0.3], ..parts.clone() };
-        assert!(pca_noise_cov(&huge).iter().all(|v| *v == 0.0));
+        let huge_noise = output_noise_var(&huge);
+        assert!(huge_noise[0] == 0.0 && huge_noise[1] == noise[1], "{huge_noise:?}");
+        assert!(pca_noise_cov(&huge).iter().all(|v| v.is_finite()));
+        assert!(removed_per_component(&huge, &[0.2, 0.2], &[0.3]).iter().all(|r| r.is_finite() && *r > 0.0));
         let none = super::super::EmulatorParts { train_errors: vec![0.0; 4], ..parts };
         assert_eq!(removed_per_component(&none, &[0.2, 0.2], &[0.3]), vec![0.0, 0.0]);
     }
