@@ -8,6 +8,12 @@
 //! *added* to the diagonal of their errors² (so a diagonal entry adds
 //! variance, and a file of off-diagonal entries keeps the errors as they are).
 //! A pair may be given in either order or both; if both, they must agree.
+//!
+//! A table of simulator runs may carry `TABLE.noise_correlation.csv` beside
+//! it, in the same layout with the last column `correlation`: the runs'
+//! statistical errors' correlation between outputs, pooled over the runs
+//! (bins of one run share its events). Without it, the errors are taken as
+//! independent between outputs.
 
 use super::artifacts::read_parquet;
 use anyhow::{anyhow, bail, Context, Result};
@@ -15,6 +21,11 @@ use polars::prelude::*;
 use std::path::Path;
 
 pub const COVARIANCE_COLUMNS: [&str; 5] = ["observable_a", "x_a", "observable_b", "x_b", "covariance"];
+
+/// Where the pooled correlation of a run table's errors is kept.
+pub fn noise_correlation_path(table: &Path) -> std::path::PathBuf {
+    table.with_extension("noise_correlation.csv")
+}
 
 /// One entry of a covariance file.
 #[derive(Clone, Debug, PartialEq)]
@@ -37,7 +48,7 @@ impl CovarianceEntry {
 
 pub fn read_covariance(path: &Path) -> Result<Vec<CovarianceEntry>> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    let rows = if ext == "parquet" || ext == "pq" { read_parquet_rows(path)? } else { read_csv_rows(path)? };
+    let rows = if ext == "parquet" || ext == "pq" { read_parquet_rows(path)? } else { read_csv_rows(path, COVARIANCE_COLUMNS)? };
     for e in &rows {
         if !(e.x_a.is_finite() && e.x_b.is_finite() && e.covariance.is_finite()) {
             bail!("{}: x and covariance must be finite numbers", e.location(path));
@@ -46,20 +57,39 @@ pub fn read_covariance(path: &Path) -> Result<Vec<CovarianceEntry>> {
     Ok(rows)
 }
 
-fn read_csv_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
+const CORRELATION_COLUMNS: [&str; 5] = ["observable_a", "x_a", "observable_b", "x_b", "correlation"];
+
+/// A noise-correlation file (CSV); each entry's `covariance` holds the
+/// correlation, checked to be finite and within [-1, 1].
+pub fn read_noise_correlation(path: &Path) -> Result<Vec<CovarianceEntry>> {
+    let rows = read_csv_rows(path, CORRELATION_COLUMNS)?;
+    for e in &rows {
+        if !(e.x_a.is_finite() && e.x_b.is_finite() && e.covariance.abs() <= 1.0 + 1e-9) {
+            bail!("{}, field 'correlation': {} is not a correlation (finite, within [-1, 1])", e.location(path), e.covariance);
+        }
+    }
+    Ok(rows)
+}
+
+/// Entries holding correlations as CSV text, header first.
+pub fn noise_correlation_csv(entries: &[CovarianceEntry]) -> String {
+    pairs_csv(entries, CORRELATION_COLUMNS)
+}
+
+fn read_csv_rows(path: &Path, columns: [&str; 5]) -> Result<Vec<CovarianceEntry>> {
     let file = path.display();
-    let mut reader = csv::ReaderBuilder::new().comment(Some(b'#')).trim(csv::Trim::All).from_path(path).with_context(|| format!("opening covariance file {file}"))?;
+    let mut reader = csv::ReaderBuilder::new().comment(Some(b'#')).trim(csv::Trim::All).from_path(path).with_context(|| format!("opening {file}"))?;
     let headers = reader.headers().with_context(|| format!("{file}: reading header"))?.clone();
     let mut idx = [0usize; 5];
-    for (k, name) in COVARIANCE_COLUMNS.iter().enumerate() {
-        idx[k] = headers.iter().position(|h| h == *name).ok_or_else(|| anyhow!("{file}: line 1: missing column '{name}' (expected: {})", COVARIANCE_COLUMNS.join(", ")))?;
+    for (k, name) in columns.iter().enumerate() {
+        idx[k] = headers.iter().position(|h| h == *name).ok_or_else(|| anyhow!("{file}: line 1: missing column '{name}' (expected: {})", columns.join(", ")))?;
     }
     let mut out = Vec::new();
     for rec in reader.records() {
         let rec = rec.with_context(|| format!("{file}: malformed CSV"))?;
         let line = rec.position().map(|p| p.line() as usize).unwrap_or(0);
         let field = |k: usize| rec.get(idx[k]).unwrap_or("");
-        let num = |k: usize| -> Result<f64> { field(k).parse::<f64>().map_err(|_| anyhow!("{file}: line {line}, field '{}': cannot parse {:?} as a number", COVARIANCE_COLUMNS[k], field(k))) };
+        let num = |k: usize| -> Result<f64> { field(k).parse::<f64>().map_err(|_| anyhow!("{file}: line {line}, field '{}': cannot parse {:?} as a number", columns[k], field(k))) };
         out.push(CovarianceEntry { observable_a: field(0).to_string(), x_a: num(1)?, observable_b: field(2).to_string(), x_b: num(3)?, covariance: num(4)?, line });
     }
     Ok(out)
@@ -90,7 +120,11 @@ fn read_parquet_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
 
 /// Entries as CSV text, header first.
 pub fn covariance_csv(entries: &[CovarianceEntry]) -> String {
-    let mut text = format!("{}\n", COVARIANCE_COLUMNS.join(","));
+    pairs_csv(entries, COVARIANCE_COLUMNS)
+}
+
+fn pairs_csv(entries: &[CovarianceEntry], columns: [&str; 5]) -> String {
+    let mut text = format!("{}\n", columns.join(","));
     for e in entries {
         text.push_str(&format!("{},{},{},{},{:e}\n", e.observable_a, e.x_a, e.observable_b, e.x_b, e.covariance));
     }

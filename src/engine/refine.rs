@@ -243,6 +243,7 @@ mod tests {
             inputs: unit.clone(),
             outputs: vec![OutputKey { observable: "y".into(), x: 1.0 }, OutputKey { observable: "z".into(), x: 1.0 }],
             errors: vec![0.0; values.len()],
+            noise_correlation: None,
             values,
         };
         let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 2").unwrap();

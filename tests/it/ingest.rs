@@ -250,3 +250,38 @@ fn stand_in_events_fit_their_smooth_limit_under_the_jackknife_covariance() {
     eprintln!("sum {total:.1} for {k} rows; two-sided 0.2% acceptance [{low:.1}, {high:.1}]");
     assert!((low..high).contains(&total), "sum {total:.1} outside [{low:.1}, {high:.1}]");
 }
+
+/// Training runs carry their errors' correlation between bins (shared
+/// events), pooled over the design points, beside the table; the training
+/// table reads it, and a copy written elsewhere (an emulator's folder, a
+/// refinement round) keeps it.
+#[test]
+fn a_training_table_carries_its_runs_pooled_error_correlation() {
+    use mdpipe::systems::heavy_ion::{events, simulate_runs, DeltaF, HeavyIonParams};
+    let dir = std::env::temp_dir().join(format!("mdpipe-noisecorr-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let at: Vec<(i64, HeavyIonParams)> = [(1, "eta_s=0.1,e_sw=0.2"), (2, "eta_s=0.2,e_sw=0.3"), (3, "eta_s=0.05,e_sw=0.15")].iter().map(|(id, p)| (*id, HeavyIonParams::parse(p).unwrap())).collect();
+    simulate_runs(&at, DeltaF::None, 200, events::DEFAULT_OVERSAMPLE, 5, events::Layout::Hdf5, &dir.join("runs")).unwrap();
+    let (got, _) = ingest::ingest_runs(&dir.join("runs"), None, &IngestSettings::default()).unwrap();
+    let out = dir.join("training.parquet");
+    ingest::write(&got, None, &out).unwrap();
+    let side = mdpipe::base::covariance::noise_correlation_path(&out);
+    assert!(side.exists(), "{} was not written", side.display());
+    let table = mdpipe::emulator::read_training_table(&out, &[]).unwrap();
+    let m = table.n_outputs();
+    let r = table.noise_correlation.as_ref().expect("the table's noise correlation");
+    let at_x = |o: &str, x: f64| table.outputs.iter().position(|k| k.observable == o && (k.x - x).abs() < 1e-9).unwrap();
+    // A multiplicity fluctuation moves every bin of a spectrum: neighbouring
+    // bins' errors are strongly correlated (0.9 in the 6000-event mock).
+    let (a, b) = (at_x("ch_spectrum", 0.5), at_x("ch_spectrum", 0.7));
+    assert!(r[a * m + b] > 0.5 && r[a * m + b] == r[b * m + a], "ch_spectrum 0.5/0.7: {}", r[a * m + b]);
+    assert!((0..m).all(|i| r[i * m + i] == 1.0) && r.iter().all(|v| v.abs() <= 1.0));
+    // Written elsewhere and read back, the correlation is the same.
+    let copy = dir.join("copy").join("training.parquet");
+    std::fs::create_dir_all(copy.parent().unwrap()).unwrap();
+    table.write(&copy, None).unwrap();
+    let again = mdpipe::emulator::read_training_table(&copy, &[]).unwrap();
+    let (r2, r1) = (again.noise_correlation.unwrap(), r);
+    assert!(r2.iter().zip(r1).all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs().max(1e-300) || x == y), "the copy's correlation differs");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

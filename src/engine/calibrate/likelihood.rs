@@ -32,7 +32,25 @@ struct Workspace {
     /// The joint covariance's factor and residuals (joint likelihoods only).
     joint_chol: Option<CholeskyWorkspace>,
     joint_resid: Vec<f64>,
+    /// The θ-dependent part of the joint covariance at the last θs seen.
+    joint_bases: Vec<JointBase>,
+    clock: u64,
 }
+
+/// The joint covariance without δ (the data's and the model's parts) and the
+/// residuals at one θ. A move of one observable's φ leaves θ unchanged, so
+/// it reuses this and pays only for δ and the factorization: with an
+/// emulator, its covariance across all points is most of an evaluation.
+struct JointBase {
+    theta: Vec<f64>,
+    lower: Vec<f64>,
+    resid: Vec<f64>,
+    last_used: u64,
+}
+
+/// The current θ and a rejected proposal's: after a rejected θ move, the
+/// next φ move is back at the current θ.
+const JOINT_BASES: usize = 2;
 
 static NEXT_ID: AtomicU64 = AtomicU64::new(1);
 
@@ -110,6 +128,8 @@ impl MdLikelihood {
             corr: vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)],
             joint_chol: self.joint.as_ref().map(|j| CholeskyWorkspace::new(j.len())),
             joint_resid: vec![0.0; self.joint.as_ref().map_or(0, |j| j.len())],
+            joint_bases: Vec::new(),
+            clock: 0,
         }
     }
 
@@ -263,38 +283,63 @@ impl MdLikelihood {
     }
 
     /// The joint covariance's lower triangle (column-major N × N) and the
-    /// standardized residuals at `params`: the data's covariance, each
-    /// block's δ (`with_delta`; then `params` holds φ after θ) and the model's
-    /// own covariance within a block, and the model's covariance across observables.
+    /// standardized residuals at `params`: the θ-dependent base (see
+    /// `joint_base`) plus each block's δ (`with_delta`; then `params` holds φ
+    /// after θ).
     fn fill_joint(&self, joint: &JointLayout, params: &[f64], with_delta: bool, ws: &mut Workspace, lower: &mut [f64], resid: &mut [f64]) {
-        let kernel = if with_delta { self.kernel } else { None };
-        let theta = &params[..self.n_theta];
+        let base = self.joint_base(joint, &params[..self.n_theta], ws);
+        lower.copy_from_slice(&ws.joint_bases[base].lower);
+        resid.copy_from_slice(&ws.joint_bases[base].resid);
+        let Some(kernel) = self.kernel.filter(|_| with_delta) else { return };
+        for (b, block) in self.blocks.iter().enumerate() {
+            let n = block.len();
+            let factor = &mut ws.chol[b].factor;
+            block.gram.fill_lower(kernel, self.hyper_of(params, b), factor, &mut ws.xr[..n], &mut ws.corr);
+            add_lower_block(factor, n, joint.offsets[b], lower, joint.len());
+        }
+    }
+
+    /// Index into `ws.joint_bases` of the base at θ, computed unless cached:
+    /// the data's covariance, the model's own covariance (within each block,
+    /// or across observables) and the standardized residuals.
+    fn joint_base(&self, joint: &JointLayout, theta: &[f64], ws: &mut Workspace) -> usize {
+        ws.clock += 1;
+        if let Some(i) = ws.joint_bases.iter().position(|b| b.theta.as_slice() == theta) {
+            ws.joint_bases[i].last_used = ws.clock;
+            return i;
+        }
         let n_all = joint.len();
-        lower.copy_from_slice(&joint.data);
+        let slot = if ws.joint_bases.len() < JOINT_BASES {
+            ws.joint_bases.push(JointBase { theta: Vec::new(), lower: vec![0.0; n_all * n_all], resid: vec![0.0; n_all], last_used: 0 });
+            ws.joint_bases.len() - 1
+        } else {
+            (0..ws.joint_bases.len()).min_by_key(|&i| ws.joint_bases[i].last_used).unwrap_or(0)
+        };
+        let mut base = std::mem::replace(&mut ws.joint_bases[slot], JointBase { theta: Vec::new(), lower: Vec::new(), resid: Vec::new(), last_used: 0 });
+        base.theta.clear();
+        base.theta.extend_from_slice(theta);
+        base.last_used = ws.clock;
+        base.lower.copy_from_slice(&joint.data);
+        let own_model = self.model_covariance && !joint.model_spans;
         for (b, block) in self.blocks.iter().enumerate() {
             let n = block.len();
             let at = joint.offsets[b];
             self.simulator.predict(block.model_index, &block.x, theta, &mut ws.eta[..n]);
             for i in 0..n {
-                resid[at + i] = (block.y[i] - ws.eta[i]) / block.scale;
-            }
-            let own_model = self.model_covariance && !joint.model_spans;
-            if kernel.is_none() && !own_model {
-                continue;
-            }
-            let factor = &mut ws.chol[b].factor;
-            match kernel {
-                Some(kernel) => block.gram.fill_lower(kernel, self.hyper_of(params, b), factor, &mut ws.xr[..n], &mut ws.corr),
-                None => factor.iter_mut().for_each(|v| *v = 0.0),
+                base.resid[at + i] = (block.y[i] - ws.eta[i]) / block.scale;
             }
             if own_model {
+                let factor = &mut ws.chol[b].factor;
+                factor.iter_mut().for_each(|v| *v = 0.0);
                 self.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), factor);
+                add_lower_block(factor, n, at, &mut base.lower, n_all);
             }
-            add_lower_block(factor, n, at, lower, n_all);
         }
         if joint.model_spans {
-            self.simulator.add_joint_model_covariance(&joint.points, &joint.inv_scales, theta, lower);
+            self.simulator.add_joint_model_covariance(&joint.points, &joint.inv_scales, theta, &mut base.lower);
         }
+        ws.joint_bases[slot] = base;
+        slot
     }
 
     /// The joint covariance (lower triangle, standardized) and residuals at

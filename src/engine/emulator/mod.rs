@@ -52,6 +52,8 @@ pub struct EmulatorParts {
     /// n × m (0 where unknown): what separates run noise from the emulator's
     /// uncertainty about the simulator's mean.
     pub train_errors: Vec<f64>,
+    /// Those errors' correlation between outputs (m × m; empty: independent).
+    pub noise_correlation: Vec<f64>,
     /// Unit-cube scaling of the inputs: `u = (θ - lo) / (hi - lo)`.
     pub input_lo: Vec<f64>,
     pub input_hi: Vec<f64>,
@@ -213,14 +215,7 @@ impl Emulator {
                 mean += gp.alpha[i] * ki;
             }
             // |L⁻¹ k|², row by row of the packed inverse.
-            let mut quad = 0.0;
-            let mut off = 0;
-            for i in 0..n {
-                let row = &gp.linv_packed[off..off + i + 1];
-                let w = dot(row, &scratch.k[..=i]);
-                quad += w * w;
-                off += i + 1;
-            }
+            let quad = packed_quadratic(&gp.linv_packed, &scratch.k[..n]);
             means[c] = mean;
             vars[c] = (gp.signal_var + gp.constant + gp.noise_var - quad).max(gp.noise_var) - self.run_noise[c];
         }
@@ -307,6 +302,39 @@ impl Emulator {
         c * jac_a * jac_b
     }
 
+    /// Adds `g_i g_j Cov(idx_i, idx_j)` (standardized, transformed units) to
+    /// the lower triangle of `lower` (column-major n × n, n = idx.len()), for
+    /// the outputs `idx` with per-point factors `g` (Jacobian × weight). The
+    /// same sum as `output_cov_from_components` pair by pair, arranged as the
+    /// gathered truncation covariance plus one rank-one update per kept
+    /// component, so the inner loops run over contiguous memory: with an
+    /// emulator across every observable, this is a likelihood's largest cost.
+    /// `loading` is scratch of length n.
+    pub fn add_points_covariance(&self, comp_var: &[f64], idx: &[usize], g: &[f64], lower: &mut [f64], loading: &mut [f64]) {
+        let (n, m) = (idx.len(), self.n_outputs());
+        for j in 0..n {
+            let row = &self.truncation_cov[idx[j] * m..(idx[j] + 1) * m];
+            let col = &mut lower[j * n..(j + 1) * n];
+            for i in j..n {
+                col[i] += g[j] * g[i] * row[idx[i]];
+            }
+        }
+        for (k, v) in comp_var.iter().enumerate() {
+            let weight = v * self.component_sd[k] * self.component_sd[k];
+            let basis = &self.parts.basis[k * m..(k + 1) * m];
+            for i in 0..n {
+                loading[i] = basis[idx[i]] * g[i];
+            }
+            for j in 0..n {
+                let c = weight * loading[j];
+                let col = &mut lower[j * n..(j + 1) * n];
+                for i in j..n {
+                    col[i] += c * loading[i];
+                }
+            }
+        }
+    }
+
     /// Full prediction of the simulator's mean at θ (allocates; for plots).
     pub fn predict(&self, theta: &[f64]) -> Prediction {
         self.predict_with(theta, false)
@@ -388,6 +416,7 @@ impl Emulator {
             outputs: self.parts.outputs.clone(),
             values: self.parts.train_values.clone(),
             errors: self.parts.train_errors.clone(),
+            noise_correlation: (!self.parts.noise_correlation.is_empty()).then(|| self.parts.noise_correlation.clone()),
         }
     }
 
@@ -415,17 +444,52 @@ fn add_outer(acc: &mut [f64], v: &[f64], w: f64) {
 
 /// Dot product with four independent sums, so the compiler can use SIMD
 /// (a plain float `sum()` must keep its order and cannot).
-#[inline]
+/// Eight partial sums: two AVX registers' worth, so that consecutive
+/// multiply-adds do not wait on each other.
+#[inline(always)]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut acc = [0.0; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let mut acc = [0.0; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
     let tail: f64 = ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| x * y).sum();
     for (x, y) in ca.zip(cb) {
-        for k in 0..4 {
+        for k in 0..8 {
             acc[k] += x[k] * y[k];
         }
     }
-    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7])) + tail
+}
+
+/// `|L⁻¹ k|²` with `L⁻¹` packed row by row (row i holds i + 1 entries): the
+/// predictive variance's cost, n²/2 multiply-adds per component.
+fn packed_quadratic(linv_packed: &[f64], k: &[f64]) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+            // SAFETY: the CPU has the features the function is compiled for.
+            return unsafe { packed_quadratic_avx2(linv_packed, k) };
+        }
+    }
+    packed_quadratic_portable(linv_packed, k)
+}
+
+/// The same loop compiled for AVX2 and FMA, picked at run time: a portable
+/// build vectorizes only two doubles wide, and this loop is most of an
+/// emulated likelihood's cost.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn packed_quadratic_avx2(linv_packed: &[f64], k: &[f64]) -> f64 {
+    packed_quadratic_portable(linv_packed, k)
+}
+
+#[inline(always)]
+fn packed_quadratic_portable(linv_packed: &[f64], k: &[f64]) -> f64 {
+    let (mut quad, mut off) = (0.0, 0);
+    for i in 0..k.len() {
+        let w = dot(&linv_packed[off..off + i + 1], &k[..=i]);
+        quad += w * w;
+        off += i + 1;
+    }
+    quad
 }
 
 fn scale_to_unit(lo: &[f64], hi: &[f64], theta: &[f64], out: &mut [f64]) {

@@ -122,13 +122,14 @@ impl Simulator for EmulatedModel {
         true
     }
     fn add_model_covariance(&self, observable: usize, x: &[f64], theta: &[f64], inv_scale2: f64, lower: &mut [f64]) {
+        let w = inv_scale2.sqrt();
         self.with_components(theta, |means, vars| {
-            with_point_scratch(x.len(), |idx, jac| {
+            with_point_scratch(x.len(), |idx, g, loading| {
                 for (i, &xi) in x.iter().enumerate() {
                     idx[i] = self.output(observable, xi);
-                    jac[i] = self.emulator.output_mean_from_components(means, idx[i]).1;
+                    g[i] = w * self.emulator.output_mean_from_components(means, idx[i]).1;
                 }
-                self.add_output_covariance(vars, idx, jac, |_, _| inv_scale2, lower);
+                self.emulator.add_points_covariance(vars, idx, g, lower, loading);
             })
         })
     }
@@ -137,39 +138,27 @@ impl Simulator for EmulatedModel {
     }
     fn add_joint_model_covariance(&self, points: &[(usize, f64)], inv_scales: &[f64], theta: &[f64], lower: &mut [f64]) {
         self.with_components(theta, |means, vars| {
-            with_point_scratch(points.len(), |idx, jac| {
+            with_point_scratch(points.len(), |idx, g, loading| {
                 for (i, &(observable, xi)) in points.iter().enumerate() {
                     idx[i] = self.output(observable, xi);
-                    jac[i] = self.emulator.output_mean_from_components(means, idx[i]).1;
+                    g[i] = inv_scales[i] * self.emulator.output_mean_from_components(means, idx[i]).1;
                 }
-                self.add_output_covariance(vars, idx, jac, |i, j| inv_scales[i] * inv_scales[j], lower);
+                self.emulator.add_points_covariance(vars, idx, g, lower, loading);
             })
         })
     }
 }
 
-impl EmulatedModel {
-    /// Adds `weight(i, j) ×` the covariance of outputs `idx` (Jacobians `jac`
-    /// of their transforms) to the lower triangle of `lower` (n × n, n = idx.len()).
-    fn add_output_covariance(&self, vars: &[f64], idx: &[usize], jac: &[f64], weight: impl Fn(usize, usize) -> f64, lower: &mut [f64]) {
-        let n = idx.len();
-        for j in 0..n {
-            for i in j..n {
-                lower[i + j * n] += weight(i, j) * self.emulator.output_cov_from_components(vars, idx[i], idx[j], jac[i], jac[j]);
-            }
-        }
-    }
-}
-
-/// Output indices and Jacobians for `n` points, on the stack for the usual
-/// point counts so that a likelihood evaluation does not allocate.
-fn with_point_scratch<R>(n: usize, f: impl FnOnce(&mut [usize], &mut [f64]) -> R) -> R {
+/// Output indices, per-point factors and a loading column for `n` points,
+/// on the stack for the usual point counts so that a likelihood evaluation
+/// does not allocate.
+fn with_point_scratch<R>(n: usize, f: impl FnOnce(&mut [usize], &mut [f64], &mut [f64]) -> R) -> R {
     const ON_STACK: usize = 256;
     if n <= ON_STACK {
-        let (mut idx, mut jac) = ([0usize; ON_STACK], [0.0f64; ON_STACK]);
-        f(&mut idx[..n], &mut jac[..n])
+        let (mut idx, mut g, mut loading) = ([0usize; ON_STACK], [0.0f64; ON_STACK], [0.0f64; ON_STACK]);
+        f(&mut idx[..n], &mut g[..n], &mut loading[..n])
     } else {
-        f(&mut vec![0usize; n], &mut vec![0.0; n])
+        f(&mut vec![0usize; n], &mut vec![0.0; n], &mut vec![0.0; n])
     }
 }
 
@@ -205,6 +194,7 @@ mod tests {
             inputs: unit.clone(),
             outputs: vec![key("y", 1.0), key("y", 2.0), key("z", 1.0), key("z", 2.0)],
             errors: vec![0.0; values.len()],
+            noise_correlation: None,
             values,
         };
         let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 3\nrestarts = 2\nlog_observables = [\"y\"]").unwrap();

@@ -73,8 +73,10 @@ fn write_folder(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report:
         outputs: p.outputs.clone(),
         values: p.train_values.clone(),
         errors: p.train_errors.clone(),
+        noise_correlation: (!p.noise_correlation.is_empty()).then(|| p.noise_correlation.clone()),
     };
     artifacts::write_parquet_atomic(&dir.join("training.parquet"), &mut table.to_long_frame()?, prov)?;
+    table.write_noise_correlation(&dir.join("training.parquet"))?;
 
     let mut df = DataFrame::new(
         m,
@@ -224,6 +226,7 @@ pub fn load(dir: &Path) -> Result<Emulator> {
         train_inputs: training.inputs.clone(),
         train_values: training.values.clone(),
         train_errors: training.errors.clone(),
+        noise_correlation: training.noise_correlation.clone().unwrap_or_default(),
         input_lo,
         input_hi,
         kernel: meta.kernel,

@@ -40,6 +40,9 @@ pub struct TrainingTable {
     /// Each value's statistical error from its own run (row-major `n × m`;
     /// 0 where the table has none, as for deterministic simulators).
     pub errors: Vec<f64>,
+    /// The errors' correlation between outputs (m × m, pooled over the runs),
+    /// from `TABLE.noise_correlation.csv`; `None`: independent.
+    pub noise_correlation: Option<Vec<f64>>,
 }
 
 impl TrainingTable {
@@ -72,6 +75,7 @@ impl TrainingTable {
             outputs: self.outputs.clone(),
             values: rows.iter().flat_map(|&i| self.row(i).to_vec()).collect(),
             errors: rows.iter().flat_map(|&i| self.row_errors(i).to_vec()).collect(),
+            noise_correlation: self.noise_correlation.clone(),
         }
     }
 
@@ -84,6 +88,14 @@ impl TrainingTable {
         if let Some(id) = other.design_ids.iter().find(|id| self.design_ids.contains(id)) {
             bail!("{}: design id {id} is already in {}", other.path.display(), self.path.display());
         }
+        // Pooled over the runs that carry one, weighted by their number.
+        self.noise_correlation = match (self.noise_correlation.take(), &other.noise_correlation) {
+            (Some(a), Some(b)) => {
+                let (na, nb) = (self.n_points() as f64, other.n_points() as f64);
+                Some(a.iter().zip(b).map(|(x, y)| (na * x + nb * y) / (na + nb)).collect())
+            }
+            (a, b) => a.or_else(|| b.clone()),
+        };
         self.design_ids.extend_from_slice(&other.design_ids);
         self.inputs.extend_from_slice(&other.inputs);
         self.values.extend_from_slice(&other.values);
@@ -91,8 +103,10 @@ impl TrainingTable {
         Ok(())
     }
 
-    /// Writes the long table, Parquet or CSV by extension.
+    /// Writes the long table, Parquet or CSV by extension, and its noise
+    /// correlation beside it.
     pub fn write(&self, path: &Path, provenance: Option<&crate::base::artifacts::Provenance>) -> Result<()> {
+        self.write_noise_correlation(path)?;
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
         if ext == "parquet" || ext == "pq" {
             return crate::base::artifacts::write_parquet_atomic(path, &mut self.to_long_frame()?, provenance);
@@ -109,6 +123,22 @@ impl TrainingTable {
             }
         }
         crate::base::artifacts::write_text_atomic(path, &text)
+    }
+
+    /// Writes `TABLE.noise_correlation.csv` for the table at `path`, if it has one.
+    pub fn write_noise_correlation(&self, path: &Path) -> Result<()> {
+        let Some(r) = &self.noise_correlation else { return Ok(()) };
+        let m = self.n_outputs();
+        let mut entries = Vec::new();
+        for a in 0..m {
+            for b in 0..a {
+                if r[a * m + b] != 0.0 {
+                    let (oa, ob) = (&self.outputs[a], &self.outputs[b]);
+                    entries.push(crate::base::covariance::CovarianceEntry { observable_a: oa.observable.clone(), x_a: oa.x, observable_b: ob.observable.clone(), x_b: ob.x, covariance: r[a * m + b], line: 0 });
+                }
+            }
+        }
+        crate::base::artifacts::write_text_atomic(&crate::base::covariance::noise_correlation_path(path), &crate::base::covariance::noise_correlation_csv(&entries))
     }
 
     /// Long-format columns `design_id, observable, x, value`, for storing.
@@ -321,7 +351,33 @@ pub fn read_training_table_selected(path: &Path, parameter_names: &[String], obs
     let cells = if raw.has("observable") { read_long(&raw, path, &ids, &keep)? } else { read_wide(&raw, path, &ids, parameter_names, &keep)? };
     let inputs = point_inputs(&raw, path, &ids, &cells, parameter_names, &params)?;
     let (outputs, values, errors) = ordered_values(path, &cells, observables)?;
-    Ok(TrainingTable { path: path.to_path_buf(), parameter_names: parameter_names.to_vec(), design_ids: cells.point_order, inputs, outputs, values, errors })
+    let noise_correlation = read_noise_correlation_beside(path, &outputs)?;
+    Ok(TrainingTable { path: path.to_path_buf(), parameter_names: parameter_names.to_vec(), design_ids: cells.point_order, inputs, outputs, values, errors, noise_correlation })
+}
+
+/// The correlation matrix (m × m, unit diagonal) of `TABLE.noise_correlation.csv`
+/// over `outputs`, if the file is there; pairs it does not list are
+/// uncorrelated, and entries for outputs not in the table are ignored.
+fn read_noise_correlation_beside(path: &Path, outputs: &[OutputKey]) -> Result<Option<Vec<f64>>> {
+    let side = crate::base::covariance::noise_correlation_path(path);
+    if !side.exists() {
+        return Ok(None);
+    }
+    let m = outputs.len();
+    let find = |o: &str, x: f64| outputs.iter().position(|k| k.observable == o && (k.x - x).abs() <= 1e-9 * x.abs().max(1.0));
+    let mut r = vec![0.0; m * m];
+    for a in 0..m {
+        r[a * m + a] = 1.0;
+    }
+    for e in crate::base::covariance::read_noise_correlation(&side)? {
+        if let (Some(a), Some(b)) = (find(&e.observable_a, e.x_a), find(&e.observable_b, e.x_b)) {
+            if a != b {
+                r[a * m + b] = e.covariance;
+                r[b * m + a] = e.covariance;
+            }
+        }
+    }
+    Ok(Some(r))
 }
 
 /// A long table: one row per (design point, observable, x).

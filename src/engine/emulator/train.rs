@@ -475,6 +475,7 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
         train_inputs: table.inputs.clone(),
         train_values: table.values.clone(),
         train_errors: table.errors.clone(),
+        noise_correlation: table.noise_correlation.clone().unwrap_or_default(),
         input_lo: lo,
         input_hi: hi,
         kernel,

@@ -382,6 +382,11 @@ pub fn write(ingested: &Ingested, design: Option<&DataFrame>, out: &Path) -> Res
     if let Some(entries) = single_point_covariance(ingested) {
         staged.text(&covariance_path(out), &crate::base::covariance::covariance_csv(&entries))?;
     }
+    // Several points are training runs: their errors' correlation goes beside
+    // them, for the emulator to tell run noise from what it does not know.
+    if let Some(entries) = pooled_noise_correlation(ingested) {
+        staged.text(&crate::base::covariance::noise_correlation_path(out), &crate::base::covariance::noise_correlation_csv(&entries))?;
+    }
     staged.commit()?;
     Ok(report_path)
 }
@@ -397,6 +402,50 @@ pub fn single_point_covariance(ingested: &Ingested) -> Option<Vec<crate::base::c
     let id = (ids.len() == 1).then(|| *ids.iter().next().unwrap())?;
     let kept = |o: &str, x: f64| ingested.rows.iter().any(|r| r.observable == o && r.x == x);
     Some(ingested.covariance.get(&id)?.iter().filter(|e| kept(&e.observable_a, e.x_a) && kept(&e.observable_b, e.x_b)).cloned().collect())
+}
+
+/// The runs' error correlation between two outputs, pooled over the design
+/// points of the table: per pair, the mean over the points that measured
+/// both of `C_ab / (e_a e_b)`, their jackknife covariance over their errors.
+/// Bins of one run share its events (a multiplicity fluctuation moves every
+/// bin of a spectrum), so a run's errors are far from independent. `None`
+/// for fewer than two points or without covariances (tables from files).
+pub fn pooled_noise_correlation(ingested: &Ingested) -> Option<Vec<crate::base::covariance::CovarianceEntry>> {
+    type Pair = (String, u64, String, u64);
+    let error: std::collections::HashMap<(i64, &str, u64), f64> = ingested.rows.iter().map(|r| ((r.design_id, r.observable.as_str(), r.x.to_bits()), r.error)).collect();
+    let points = ingested.rows.iter().map(|r| r.design_id).collect::<std::collections::BTreeSet<i64>>();
+    if points.len() < 2 {
+        return None;
+    }
+    let mut sums: std::collections::BTreeMap<Pair, (f64, usize)> = std::collections::BTreeMap::new();
+    for (id, entries) in &ingested.covariance {
+        for e in entries {
+            let ea = error.get(&(*id, e.observable_a.as_str(), e.x_a.to_bits()));
+            let eb = error.get(&(*id, e.observable_b.as_str(), e.x_b.to_bits()));
+            let (Some(&ea), Some(&eb)) = (ea, eb) else { continue };
+            let r = e.covariance / (ea * eb);
+            if r.is_finite() {
+                let s = sums.entry((e.observable_a.clone(), e.x_a.to_bits(), e.observable_b.clone(), e.x_b.to_bits())).or_insert((0.0, 0));
+                s.0 += r;
+                s.1 += 1;
+            }
+        }
+    }
+    if sums.is_empty() {
+        return None;
+    }
+    let entries = sums
+        .into_iter()
+        .map(|((oa, xa, ob, xb), (sum, count))| crate::base::covariance::CovarianceEntry {
+            observable_a: oa,
+            x_a: f64::from_bits(xa),
+            observable_b: ob,
+            x_b: f64::from_bits(xb),
+            covariance: (sum / count as f64).clamp(-1.0, 1.0),
+            line: 0,
+        })
+        .collect();
+    Some(entries)
 }
 
 /// Prints what was read, skipped and flagged.

@@ -677,7 +677,7 @@ fn smooth_table(path: &std::path::Path, ids: Vec<i64>, names: Vec<String>, input
     let values: Vec<f64> = results.iter().flat_map(|r| r.iter().flat_map(|(_, v)| v.iter().copied())).collect();
     // Expected values: no run noise.
     let errors = vec![0.0; values.len()];
-    crate::engine::emulator::TrainingTable { path: path.to_path_buf(), parameter_names: names, design_ids: ids, inputs, outputs, values, errors }
+    crate::engine::emulator::TrainingTable { path: path.to_path_buf(), parameter_names: names, design_ids: ids, inputs, outputs, values, errors, noise_correlation: None }
 }
 
 /// New runs for refinement from the smooth stand-in with a fixed
