@@ -293,8 +293,10 @@ fn relative(path: &Path, base: &Path) -> String {
 /// Stacks ingested training tables (same schema) into one.
 fn concat_tables(tables: &[PathBuf], out: &Path) -> Result<()> {
     let mut all: Option<DataFrame> = None;
+    let mut points = Vec::new();
     for t in tables {
         let df = artifacts::read_parquet(t)?;
+        points.push(df.column("design_id").map_err(|_| anyhow!("{}: missing column 'design_id'", t.display()))?.n_unique()?);
         all = Some(match all {
             None => df,
             Some(mut a) => {
@@ -304,7 +306,35 @@ fn concat_tables(tables: &[PathBuf], out: &Path) -> Result<()> {
         });
     }
     let mut all = all.ok_or_else(|| anyhow!("no training tables"))?;
+    pool_noise_correlations(tables, &points, out)?;
     artifacts::write_parquet_atomic(out, &mut all, None)
+}
+
+/// The tables' run-error correlations (`TABLE.noise_correlation.csv`),
+/// averaged pair by pair with each table's number of design points as its
+/// weight, beside `out`; nothing when no table has one.
+fn pool_noise_correlations(tables: &[PathBuf], points: &[usize], out: &Path) -> Result<()> {
+    use crate::base::covariance::{noise_correlation_csv, noise_correlation_path, read_noise_correlation, CovarianceEntry};
+    let mut sums: std::collections::BTreeMap<(String, u64, String, u64), (f64, f64)> = std::collections::BTreeMap::new();
+    for (t, &n) in tables.iter().zip(points) {
+        let side = noise_correlation_path(t);
+        if !side.exists() {
+            continue;
+        }
+        for e in read_noise_correlation(&side)? {
+            let s = sums.entry((e.observable_a, e.x_a.to_bits(), e.observable_b, e.x_b.to_bits())).or_insert((0.0, 0.0));
+            s.0 += n as f64 * e.covariance;
+            s.1 += n as f64;
+        }
+    }
+    if sums.is_empty() {
+        return Ok(());
+    }
+    let entries: Vec<CovarianceEntry> = sums
+        .into_iter()
+        .map(|((oa, xa, ob, xb), (sum, weight))| CovarianceEntry { observable_a: oa, x_a: f64::from_bits(xa), observable_b: ob, x_b: f64::from_bits(xb), covariance: sum / weight, line: 0 })
+        .collect();
+    artifacts::write_text_atomic(&noise_correlation_path(out), &noise_correlation_csv(&entries))
 }
 
 /// Writes new points (emulator parameter order, `names`) as a design in
@@ -321,4 +351,38 @@ pub(super) fn write_new_points(spec: &crate::engine::design::DesignSpec, ids: &[
     std::fs::create_dir_all(&runs)?;
     std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
     Ok(runs)
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::engine::emulator::{read_training_table, OutputKey, TrainingTable};
+
+    /// A round's training table joins every table so far, and the runs'
+    /// error correlation with it, weighted by each table's number of points
+    /// (one point with correlation 0.2 and three with 0.6 pool to 0.5).
+    #[test]
+    fn joined_tables_pool_their_noise_correlation_by_points() {
+        let dir = std::env::temp_dir().join(format!("mdpipe-concat-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let table = |ids: Vec<i64>, rho: f64| TrainingTable {
+            path: "t".into(),
+            parameter_names: vec!["a".into()],
+            inputs: ids.iter().map(|&i| i as f64).collect(),
+            outputs: vec![OutputKey { observable: "y".into(), x: 0.1 }, OutputKey { observable: "y".into(), x: 0.3 }],
+            values: ids.iter().flat_map(|&i| [i as f64, 2.0 * i as f64]).collect(),
+            errors: vec![0.1; 2 * ids.len()],
+            noise_correlation: Some(vec![1.0, rho, rho, 1.0]),
+            design_ids: ids,
+        };
+        let (first, second, all) = (dir.join("a.parquet"), dir.join("b.parquet"), dir.join("all.parquet"));
+        table(vec![1], 0.2).write(&first, None).unwrap();
+        table(vec![2, 3, 4], 0.6).write(&second, None).unwrap();
+        super::concat_tables(&[first, second], &all).unwrap();
+        let joined = read_training_table(&all, &["a".to_string()]).unwrap();
+        assert_eq!(joined.design_ids, vec![1, 2, 3, 4]);
+        let r = joined.noise_correlation.expect("the pooled correlation");
+        assert!((r[1] - 0.5).abs() < 1e-12 && r[1] == r[2], "{r:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
