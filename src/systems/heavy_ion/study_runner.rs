@@ -601,6 +601,11 @@ impl Runner<'_> {
         c.model = EmulatorFamily::model_table(&absolute(emulator));
         if self.run.stand_in_study() {
             c.data.measurements = absolute(&self.paths.measurements());
+            // The mock's bins are counted from the same events (correlated by
+            // 0.6-0.95 within a spectrum); with errors alone the likelihood
+            // is overconfident and the MD fits excluded ε_sw by 2-3 sd.
+            let covariance = self.paths.mock().join("covariance.csv");
+            c.data.covariance = covariance.exists().then(|| absolute(&covariance));
         }
         c
     }
