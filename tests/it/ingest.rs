@@ -283,5 +283,25 @@ fn a_training_table_carries_its_runs_pooled_error_correlation() {
     let again = mdpipe::emulator::read_training_table(&copy, &[]).unwrap();
     let (r2, r1) = (again.noise_correlation.unwrap(), r);
     assert!(r2.iter().zip(r1).all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs().max(1e-300) || x == y), "the copy's correlation differs");
+    // A table without one, written over the copy, does not inherit its file.
+    let plain = mdpipe::emulator::TrainingTable { noise_correlation: None, ..table.clone() };
+    plain.write(&copy, None).unwrap();
+    assert!(!mdpipe::base::covariance::noise_correlation_path(&copy).exists() && mdpipe::emulator::read_training_table(&copy, &[]).unwrap().noise_correlation.is_none());
+    // A hand-edited file that is not positive definite (ten bins pairwise
+    // anti-correlated by 0.9) is shrunk towards the identity until it is.
+    let mut text = String::from("observable_a,x_a,observable_b,x_b,correlation\n");
+    for a in 0..10 {
+        for b in 0..a {
+            text.push_str(&format!("ch_spectrum,{},ch_spectrum,{},-0.9\n", table.outputs[at_x("ch_spectrum", 0.1 + 0.2 * a as f64)].x, table.outputs[at_x("ch_spectrum", 0.1 + 0.2 * b as f64)].x));
+        }
+    }
+    std::fs::write(&side, text).unwrap();
+    let shrunk = mdpipe::emulator::read_training_table(&out, &[]).unwrap().noise_correlation.unwrap();
+    let mut chol = mdpipe::gp::CholeskyWorkspace::new(m);
+    chol.factor.copy_from_slice(&shrunk);
+    assert!(chol.factorize_exact(), "the shrunk correlation is not positive definite");
+    let (a, b) = (at_x("ch_spectrum", 0.1), at_x("ch_spectrum", 0.3));
+    assert!(shrunk[a * m + b] < 0.0 && shrunk[a * m + b] > -0.9, "{}", shrunk[a * m + b]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+

@@ -207,16 +207,16 @@ impl Emulator {
         let n = self.parts.design_ids.len();
         scale_to_unit(&self.parts.input_lo, &self.parts.input_hi, theta, &mut scratch.unit);
         for (c, gp) in self.gps.iter().enumerate() {
-            let mut mean = 0.0;
             for i in 0..n {
                 let r2 = scaled_sq_dist(&scratch.unit, &self.unit_inputs[i * d..(i + 1) * d], &gp.inv_l2);
-                let ki = gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
-                scratch.k[i] = ki;
-                mean += gp.alpha[i] * ki;
+                scratch.k[i] = gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
             }
+            // The same sum, in the same order, as the batched path: αᵀk
+            // cancels between large terms for a near-interpolating GP, so two
+            // summation orders can differ by more than 1e-10 of the mean.
+            means[c] = dot(&gp.alpha, &scratch.k[..n]);
             // |L⁻¹ k|², row by row of the packed inverse.
             let quad = packed_quadratic(&gp.linv_packed, &scratch.k[..n]);
-            means[c] = mean;
             vars[c] = (gp.signal_var + gp.constant + gp.noise_var - quad).max(gp.noise_var) - self.run_noise[c];
         }
     }

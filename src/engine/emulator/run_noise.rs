@@ -373,7 +373,10 @@ mod tests {
     ///   relative sd √(2/100); 3 of those is 0.42), and the run prediction
     ///   is calibrated against fresh runs.
     /// * Without it, nearly all of the leading component's nugget stays in as
-    ///   uncertainty about the mean, and the mean prediction is far wider.
+    ///   uncertainty about the mean: the diagonal projection sees 1/28 of
+    ///   it, so even a nugget 3 of its sd (0.42) low leaves over 1 − 1/16;
+    ///   the bound is 0.9. The mean prediction is then far wider (its z²
+    ///   falls at least by half; measured 0.072 against 0.561).
     ///
     /// The mean prediction's z² with the correlation (0.56, measured) is not
     /// held to the band: it is that of the kept GPs themselves, which fitted

@@ -104,13 +104,23 @@ impl TrainingTable {
     }
 
     /// Writes the long table, Parquet or CSV by extension, and its noise
-    /// correlation beside it.
+    /// correlation beside it (both or neither; a correlation file left from
+    /// an earlier table at `path` is removed, since it would be read as this
+    /// table's).
     pub fn write(&self, path: &Path, provenance: Option<&crate::base::artifacts::Provenance>) -> Result<()> {
-        self.write_noise_correlation(path)?;
+        let mut staged = crate::base::artifacts::StagedWrites::new();
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
         if ext == "parquet" || ext == "pq" {
-            return crate::base::artifacts::write_parquet_atomic(path, &mut self.to_long_frame()?, provenance);
+            staged.parquet(path, &mut self.to_long_frame()?, provenance)?;
+        } else {
+            staged.text(path, &self.long_csv(provenance))?;
         }
+        self.stage_noise_correlation(path, &mut staged)?;
+        staged.commit()?;
+        self.remove_stale_noise_correlation(path)
+    }
+
+    fn long_csv(&self, provenance: Option<&crate::base::artifacts::Provenance>) -> String {
         let mut text = String::new();
         if let Some(p) = provenance {
             text.push_str(&format!("# mdpipe {} | {} | seed {}\n", p.mdpipe_version, p.command, p.seed));
@@ -122,11 +132,34 @@ impl TrainingTable {
                 text.push_str(&format!("{},{},{},{},{},{}\n", self.design_ids[i], o.observable, o.x, self.row(i)[j], self.row_errors(i)[j], params.join(",")));
             }
         }
-        crate::base::artifacts::write_text_atomic(path, &text)
+        text
     }
 
-    /// Writes `TABLE.noise_correlation.csv` for the table at `path`, if it has one.
+    /// Writes `TABLE.noise_correlation.csv` for the table at `path` (or
+    /// removes a stale one when this table has none).
     pub fn write_noise_correlation(&self, path: &Path) -> Result<()> {
+        let mut staged = crate::base::artifacts::StagedWrites::new();
+        self.stage_noise_correlation(path, &mut staged)?;
+        staged.commit()?;
+        self.remove_stale_noise_correlation(path)
+    }
+
+    /// Without a correlation of its own, a table written at `path` must not
+    /// pick up one left there by an earlier table (removed after the table
+    /// is in place).
+    fn remove_stale_noise_correlation(&self, path: &Path) -> Result<()> {
+        if self.noise_correlation.is_some() {
+            return Ok(());
+        }
+        let side = crate::base::covariance::noise_correlation_path(path);
+        match std::fs::remove_file(&side) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(anyhow!("removing the stale {}: {e}", side.display())),
+            _ => Ok(()),
+        }
+    }
+
+    fn stage_noise_correlation(&self, path: &Path, staged: &mut crate::base::artifacts::StagedWrites) -> Result<()> {
+        let side = crate::base::covariance::noise_correlation_path(path);
         let Some(r) = &self.noise_correlation else { return Ok(()) };
         let m = self.n_outputs();
         let mut entries = Vec::new();
@@ -138,7 +171,7 @@ impl TrainingTable {
                 }
             }
         }
-        crate::base::artifacts::write_text_atomic(&crate::base::covariance::noise_correlation_path(path), &crate::base::covariance::noise_correlation_csv(&entries))
+        staged.text(&side, &crate::base::covariance::noise_correlation_csv(&entries))
     }
 
     /// Long-format columns `design_id, observable, x, value`, for storing.
@@ -377,7 +410,29 @@ fn read_noise_correlation_beside(path: &Path, outputs: &[OutputKey]) -> Result<O
             }
         }
     }
-    Ok(Some(r))
+    Ok(Some(positive_definite(r, m, &side)))
+}
+
+/// The correlation matrix itself if it is positive definite; otherwise
+/// shrunk towards the identity, `(1 − λ) R + λ I`, by the smallest λ of a
+/// ladder that makes it so, with a warning. A projected noise `vᵀ N v` below
+/// zero would add variance where run noise is to be removed, and an
+/// indefinite N could leave the emulator's covariance indefinite. Entries
+/// missing from the file (bins undefined in some runs) or a hand-edited
+/// file can break definiteness even though each run's matrix had it.
+fn positive_definite(r: Vec<f64>, m: usize, file: &Path) -> Vec<f64> {
+    for lambda in [0.0, 1e-6, 1e-4, 1e-3, 1e-2, 0.03, 0.1, 0.2, 0.3, 0.5, 0.7, 0.9, 0.95, 0.99, 1.0] {
+        let shrunk: Vec<f64> = r.iter().enumerate().map(|(ab, v)| if ab % (m + 1) == 0 { 1.0 } else { (1.0 - lambda) * v }).collect();
+        let mut chol = crate::engine::gp::CholeskyWorkspace::new(m);
+        chol.factor.copy_from_slice(&shrunk);
+        if chol.factorize_exact() {
+            if lambda > 0.0 {
+                eprintln!("warning: {}: the correlation matrix is not positive definite; shrunk towards the identity by λ = {lambda} ((1 − λ) R + λ I)", file.display());
+            }
+            return shrunk;
+        }
+    }
+    (0..m * m).map(|ab| if ab % (m + 1) == 0 { 1.0 } else { 0.0 }).collect()
 }
 
 /// A long table: one row per (design point, observable, x).
