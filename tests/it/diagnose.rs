@@ -231,17 +231,73 @@ fn blind_test_confusion_matrix() {
 /// Trains an emulator on the smooth stand-in (the infinite-statistics limit
 /// of simulate + ingest) over a fresh design of `spec`, saved under `dir`.
 fn smooth_emulator(spec: &mdpipe::design::DesignSpec, settings: &mdpipe::emulator::EmulatorSettings, delta_f: mdpipe::systems::heavy_ion::DeltaF, points: usize, seed: u64, dir: &Path) {
+    noisy_emulator(spec, settings, delta_f, points, 0.0, seed, dir)
+}
+
+/// As `smooth_emulator`, from runs with `run_noise` × the data's error of
+/// Gaussian noise in every bin (runs of fewer events than the measurement).
+fn noisy_emulator(spec: &mdpipe::design::DesignSpec, settings: &mdpipe::emulator::EmulatorSettings, delta_f: mdpipe::systems::heavy_ion::DeltaF, points: usize, run_noise: f64, seed: u64, dir: &Path) {
     let design = dir.join("design");
     mdpipe::design::write_design(spec, "test", points, seed, &design).unwrap();
-    let table = mdpipe::systems::heavy_ion::simulate_design(&design.join("design.parquet"), delta_f).unwrap();
+    let mut table = mdpipe::systems::heavy_ion::simulate_design(&design.join("design.parquet"), delta_f).unwrap();
+    if run_noise > 0.0 {
+        add_run_noise(&mut table, run_noise, seed);
+    }
     let training = dir.join("training.parquet");
     table.write(&training, None).unwrap();
     mdpipe::emulator::train_with_settings(settings, "test", "test", &training, None, &dir.join("emulator"), seed).unwrap();
 }
 
+/// The data's error at one bin: the real iEBE-MUSIC table's, relative for
+/// spectra (so it follows the value) and absolute for flow.
+fn data_error(obs: &str, x: f64, value: f64) -> f64 {
+    static REFERENCE: std::sync::OnceLock<Vec<mdpipe::artifacts::Measurement>> = std::sync::OnceLock::new();
+    let reference = REFERENCE.get_or_init(|| {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        mdpipe::artifacts::read_paper_table(&root.join("pipeline/reference/iebe_music_grad_shear0p1_esw0p2.dat")).unwrap()
+    });
+    let r = reference.iter().find(|m| m.observable == obs && (m.x - x).abs() < 1e-6).unwrap();
+    if obs.ends_with("spectrum") { r.error / r.value * value } else { r.error }
+}
+
+/// Gives every run Gaussian noise of `factor` × the data's error in each bin,
+/// and records that error in the table (as ingest does for real runs).
+fn add_run_noise(table: &mut mdpipe::emulator::TrainingTable, factor: f64, seed: u64) {
+    use rand_distr::{Distribution, StandardNormal};
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0x5eed_0f_2025);
+    let n_out = table.outputs.len();
+    for (k, v) in table.values.iter_mut().enumerate() {
+        let o = &table.outputs[k % n_out];
+        let e = factor * data_error(&o.observable, o.x, *v);
+        let z: f64 = StandardNormal.sample(&mut rng);
+        *v += e * z;
+        table.errors[k] = e;
+    }
+}
+
+/// New variant runs for refinement with the same run noise as the variant's first runs.
+struct NoisyStandIn {
+    smooth: mdpipe::systems::heavy_ion::SmoothStandIn,
+    run_noise: f64,
+    seed: u64,
+}
+
+impl mdpipe::refine::variant::PointRunner for NoisyStandIn {
+    fn run(&self, names: &[String], points: &[Vec<f64>], first_id: i64, dir: &Path) -> anyhow::Result<mdpipe::emulator::TrainingTable> {
+        let mut table = self.smooth.run(names, points, first_id, dir)?;
+        add_run_noise(&mut table, self.run_noise, self.seed.wrapping_add(first_id as u64));
+        Ok(table)
+    }
+}
+
 /// The 2-parameter heavy-ion config with the f_eq stand-in (60 smooth runs)
 /// and every library candidate emulated from `variant_runs` smooth runs, under `dir`.
 fn emulated_stand_in(dir: &Path, model_seed: u64, candidate_seed: u64, variant_runs: usize) -> Config {
+    emulated_stand_in_with(dir, model_seed, candidate_seed, variant_runs, 0.0)
+}
+
+/// As `emulated_stand_in`, with the variants' runs carrying `variant_run_noise` × the data's error.
+fn emulated_stand_in_with(dir: &Path, model_seed: u64, candidate_seed: u64, variant_runs: usize, variant_run_noise: f64) -> Config {
     use mdpipe::design::DesignSpec;
     use mdpipe::systems::heavy_ion::{self, DeltaF};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -255,7 +311,7 @@ fn emulated_stand_in(dir: &Path, model_seed: u64, candidate_seed: u64, variant_r
             e.parameters.push(p.name.clone());
             s.parameters.push(p);
         }
-        smooth_emulator(&s, &e, cand.delta_f(DeltaF::None), variant_runs, candidate_seed + k as u64, &dir.join(cand.name));
+        noisy_emulator(&s, &e, cand.delta_f(DeltaF::None), variant_runs, variant_run_noise, candidate_seed + k as u64, &dir.join(cand.name));
         cfg.candidates.push(cand.declaration(dir.join(cand.name).join("emulator")).to_table().unwrap());
     }
     cfg.model = mdpipe::emulator::EmulatorFamily::model_table(&dir.join("model").join("emulator"));
@@ -412,12 +468,6 @@ fn heavy_ion_blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> HeavyIonBli
 fn smooth_mock(b: &HeavyIonBlind, rng: &mut Xoshiro256PlusPlus) -> (Vec<mdpipe::artifacts::Measurement>, Vec<mdpipe::artifacts::Measurement>) {
     use mdpipe::systems::heavy_ion::events::SmoothTables;
     use rand_distr::{Distribution, StandardNormal};
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let reference = mdpipe::artifacts::read_paper_table(&root.join("pipeline/reference/iebe_music_grad_shear0p1_esw0p2.dat")).unwrap();
-    let error_of = |obs: &str, x: f64, value: f64| {
-        let r = reference.iter().find(|m| m.observable == obs && (m.x - x).abs() < 1e-6).unwrap();
-        if obs.ends_with("spectrum") { r.error / r.value * value } else { r.error }
-    };
     let edges = mdpipe::ingest::IngestSettings::default().pt_edges;
     let truth = SmoothTables::new(&b.params, b.delta_f).expected(&edges);
     let (mut data, mut clean) = (Vec::new(), Vec::new());
@@ -426,7 +476,7 @@ fn smooth_mock(b: &HeavyIonBlind, rng: &mut Xoshiro256PlusPlus) -> (Vec<mdpipe::
             let x = 0.5 * (edges[i] + edges[i + 1]);
             let tail = 1.0 + b.hard_tail * x.powi(3);
             let v = if obs.ends_with("spectrum") { v * tail } else { v / tail };
-            let e = error_of(obs, x, v);
+            let e = data_error(obs, x, v);
             let z: f64 = StandardNormal.sample(rng);
             clean.push(mdpipe::artifacts::Measurement::new(obs, x, v, e));
             data.push(mdpipe::artifacts::Measurement::new(obs, x, v + e * z, e));
@@ -505,7 +555,10 @@ fn a_coarse_variant_emulator_is_not_named_until_refined() {
     use mdpipe::systems::heavy_ion::{self, DeltaF, HeavyIonParams, SmoothStandIn};
     let dir = std::env::temp_dir().join(format!("mdpipe-coarse-variant-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let mut cfg = emulated_stand_in(&dir, 41, 50, 12);
+    // Every variant is coarse: 24 runs, each with 3 times the data's error
+    // in every bin (runs of about a ninth of the measurement's events).
+    const RUN_NOISE: f64 = 3.0;
+    let mut cfg = emulated_stand_in_with(&dir, 41, 50, 24, RUN_NOISE);
     let truth = HeavyIonBlind { params: HeavyIonParams::constant(0.1, 0.2), delta_f: DeltaF::Grad, hard_tail: 0.0, expected: "grad_shear_delta_f" };
     let (data, _) = smooth_mock(&truth, &mut Xoshiro256PlusPlus::seed_from_u64(4242));
     let path = dir.join("data.csv");
@@ -539,7 +592,7 @@ fn a_coarse_variant_emulator_is_not_named_until_refined() {
             let candidate = analysis.candidates().unwrap().into_iter().find(|c| c.name == name).unwrap();
             let table = cfg.candidates.iter_mut().find(|t| t["name"].as_str() == Some(name.as_str())).unwrap();
             let current = std::path::PathBuf::from(table["emulator"].as_str().unwrap());
-            let runner = SmoothStandIn { delta_f: heavy_ion::candidate(&name).unwrap().delta_f(DeltaF::None) };
+            let runner = NoisyStandIn { smooth: SmoothStandIn { delta_f: heavy_ion::candidate(&name).unwrap().delta_f(DeltaF::None) }, run_noise: RUN_NOISE, seed: 800 + pass };
             let out = dir.join("refine").join(format!("pass_{pass}")).join(&name);
             let refined = refine_variant(&analysis, &overrides, &candidate, &current, &runner, &rounds, &out, 700 + pass, &Silent).unwrap();
             println!("refined {name}: {} ({} rounds)", refined.stopped, refined.rounds.len());

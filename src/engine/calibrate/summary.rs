@@ -140,10 +140,22 @@ pub struct FitQuality {
     /// χ² per observable.
     pub per_observable: BTreeMap<String, f64>,
     /// The model's own share of the predictive variance at the data points,
-    /// Σ model var / Σ (model var + σ²): 0 for an exact model; for an
-    /// emulator, how much of the fit rests on its uncertainty.
+    /// in the observable where it is largest (`per_observable_share`): 0 for
+    /// an exact model; for an emulator, how much of the fit rests on its
+    /// uncertainty. The worst observable, not an average, because a
+    /// mismatch is local: a variant emulator coarse in just the bins where
+    /// the candidate differs from the model can fit them on its variance
+    /// while every other observable dilutes an average.
     #[serde(default)]
     pub model_variance_share: f64,
+    /// Per observable, `tr(M C⁻¹) / n` with M the model's covariance over its
+    /// n points and C = M + the data's: the mean over the data's whitened
+    /// directions of the model's fraction, which for independent points is
+    /// the mean of m_i / (m_i + σ_i²). Unlike a ratio of summed variances it
+    /// does not change with units, so a spectrum's low-pT bins in thousands
+    /// cannot outvote its high-pT bins.
+    #[serde(default)]
+    pub per_observable_share: BTreeMap<String, f64>,
 }
 
 /// Past this share of the predictive variance the emulator, rather than the
@@ -249,34 +261,39 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
     let mut per_observable = BTreeMap::new();
     let mut chi2 = 0.0;
     let mut n = 0;
-    let (mut model_var, mut data_var) = (0.0, 0.0);
+    let mut per_observable_share = BTreeMap::new();
     for b in &problem.likelihood.blocks {
+        let mut model_share = 0.0;
         let n_b = b.len();
         let mut eta = vec![0.0; n_b];
         problem.simulator.predict(b.model_index, &b.x, theta, &mut eta);
         let mut r: Vec<f64> = (0..n_b).map(|i| b.y[i] - eta[i]).collect();
         let c = if problem.simulator.has_model_covariance() || !b.diagonal_data() {
+            let mut model = vec![0.0; n_b * n_b];
+            problem.simulator.add_model_covariance(b.model_index, &b.x, theta, 1.0, &mut model);
             let mut ws = crate::engine::gp::CholeskyWorkspace::new(n_b);
             ws.factor.fill(0.0);
             b.add_data_covariance(1.0, &mut ws.factor);
             let data_diag: Vec<f64> = (0..n_b).map(|i| ws.factor[i * n_b + i]).collect();
-            problem.simulator.add_model_covariance(b.model_index, &b.x, theta, 1.0, &mut ws.factor);
-            for i in 0..n_b {
-                data_var += data_diag[i];
-                model_var += ws.factor[i * n_b + i] - data_diag[i];
+            for (f, m) in ws.factor.iter_mut().zip(&model) {
+                *f += m;
             }
             match ws.factorize() {
                 Ok(_) => {
+                    model_share += trace_of_product(&model, &ws.inverse(), n_b);
                     ws.solve_lower_in_place(&mut r);
                     r.iter().map(|z| z * z).sum()
                 }
-                Err(_) => f64::INFINITY,
+                Err(_) => {
+                    model_share += (0..n_b).map(|i| model[i * n_b + i] / (model[i * n_b + i] + data_diag[i])).sum::<f64>();
+                    f64::INFINITY
+                }
             }
         } else {
-            data_var += b.error.iter().map(|e| e * e).sum::<f64>();
             (0..n_b).map(|i| (r[i] / b.error[i]).powi(2)).sum()
         };
         per_observable.insert(b.name.clone(), c);
+        per_observable_share.insert(b.name.clone(), model_share / n_b.max(1) as f64);
         chi2 += c;
         n += b.len();
     }
@@ -285,8 +302,21 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
         chi2 = total;
     }
     let dof = n.saturating_sub(theta.len()).max(1);
-    let model_variance_share = if model_var > 0.0 { model_var / (model_var + data_var) } else { 0.0 };
-    FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable, model_variance_share }
+    let model_variance_share = per_observable_share.values().copied().fold(0.0, f64::max);
+    FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable, model_variance_share, per_observable_share }
+}
+
+/// `tr(A B)` for symmetric n × n matrices, A given by its lower triangle and
+/// B in full (both column-major).
+fn trace_of_product(a_lower: &[f64], b: &[f64], n: usize) -> f64 {
+    let mut t = 0.0;
+    for j in 0..n {
+        t += a_lower[j * n + j] * b[j * n + j];
+        for i in j + 1..n {
+            t += 2.0 * a_lower[j * n + i] * b[j * n + i];
+        }
+    }
+    t
 }
 
 /// `rᵀ C⁻¹ r` over all points with the joint covariance of the data and the
@@ -461,4 +491,58 @@ pub fn predictions_frame(rows: &[PredictionRow]) -> Result<DataFrame> {
     cols.push(Column::new("delta_mean".into(), rows.iter().map(|r| r.delta_mean).collect::<Vec<_>>()));
     cols.push(Column::new("truth".into(), rows.iter().map(|r| r.truth).collect::<Vec<_>>()));
     Ok(DataFrame::new(rows.len(), cols)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::trace_of_product;
+    use crate::engine::gp::CholeskyWorkspace;
+
+    /// tr(M (M + D)⁻¹) from a lower triangle and a full inverse.
+    fn share(model_lower: &[f64], data_diag: &[f64]) -> f64 {
+        let n = data_diag.len();
+        let mut ws = CholeskyWorkspace::new(n);
+        ws.factor.copy_from_slice(model_lower);
+        for i in 0..n {
+            ws.factor[i * n + i] += data_diag[i];
+        }
+        ws.factorize().unwrap();
+        trace_of_product(model_lower, &ws.inverse(), n)
+    }
+
+    #[test]
+    fn independent_points_share_is_the_sum_of_their_fractions() {
+        let (m, d) = ([4.0, 1.0, 0.25], [1.0, 1.0, 4.0]);
+        let mut lower = vec![0.0; 9];
+        for i in 0..3 {
+            lower[i * 3 + i] = m[i];
+        }
+        let want: f64 = (0..3).map(|i| m[i] / (m[i] + d[i])).sum();
+        assert!((share(&lower, &d) - want).abs() < 1e-12);
+    }
+
+    #[test]
+    fn correlated_share_does_not_change_with_the_units_of_the_data() {
+        // M = a aᵀ + 0.1 I (a fully shared component plus a little of each point's own).
+        let a = [1.0, 0.5, -0.3];
+        let mut lower = vec![0.0; 9];
+        for j in 0..3 {
+            for i in j..3 {
+                lower[j * 3 + i] = a[i] * a[j] + if i == j { 0.1 } else { 0.0 };
+            }
+        }
+        let d = [0.2, 0.3, 0.5];
+        let base = share(&lower, &d);
+        // Each point in its own units (a map S = diag(s)): M → S M S, D → S D S.
+        let s = [1.0, 1e3, 1e-2];
+        let scaled: Vec<f64> = (0..9).map(|k| lower[k] * s[k / 3] * s[k % 3]).collect();
+        let d_scaled: Vec<f64> = (0..3).map(|i| d[i] * s[i] * s[i]).collect();
+        assert!((share(&scaled, &d_scaled) - base).abs() < 1e-9 * base);
+        // A ratio of summed variances is not invariant: the point in large
+        // units outvotes the others (0.621 becomes 0.538, its own fraction).
+        let summed = |m: &[f64], d: &[f64]| (0..3).map(|i| m[i * 3 + i]).sum::<f64>() / (0..3).map(|i| m[i * 3 + i] + d[i]).sum::<f64>();
+        assert!((summed(&lower, &d) - 1.64 / 2.64).abs() < 1e-12);
+        assert!((summed(&scaled, &d_scaled) - 0.35 / 0.65).abs() < 1e-3);
+        assert!(base > 0.0 && base < 3.0, "{base}");
+    }
 }

@@ -123,9 +123,13 @@ pub struct CandidateResult {
     pub chi2_per_dof: f64,
     pub p_value: f64,
     pub converged: bool,
-    /// The model's (an emulator's) share of the fit's predictive variance at the data.
+    /// The model's (an emulator's) share of the fit's predictive variance at
+    /// the data, in the observable where it is largest (`FitQuality`).
     #[serde(default)]
     pub emulator_share: f64,
+    /// That observable ("" for an exact model).
+    #[serde(default)]
+    pub emulator_share_observable: String,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -277,6 +281,7 @@ impl Diagnoser<'_> {
                 p_value: p_value(calibration.summary.fit.chi2, calibration.summary.fit.dof),
                 converged: calibration.summary.diagnostics.converged,
                 emulator_share: calibration.summary.fit.model_variance_share,
+                emulator_share_observable: worst_share_observable(&calibration.summary.fit),
             };
             runs.push(CandidateRun { result, candidate, problem, calibration });
         }
@@ -511,16 +516,22 @@ fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
     standing.iter().filter(|s| rests_on_emulator(s)).map(|s| s.name.clone()).collect()
 }
 
+/// The observable where the emulator carries the largest share ("" when none does).
+fn worst_share_observable(fit: &crate::engine::calibrate::summary::FitQuality) -> String {
+    fit.per_observable_share.iter().filter(|(_, v)| **v > 0.0).max_by(|a, b| a.1.total_cmp(b.1)).map(|(k, _)| k.clone()).unwrap_or_default()
+}
+
 /// "…the data lead to X, but its emulator carries N% of the variance: refine …".
 fn emulator_limited_statement(c: &CandidateResult, refine: &[String], mismatch: &[ObservableMismatch], min_p_value: f64) -> String {
     let poor = if c.p_value < min_p_value { format!(" (its χ²/dof of {:.2} cannot yet tell a wrong candidate from a coarse emulator)", c.chi2_per_dof) } else { String::new() };
     format!(
-        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data, so the emulator, not the data, decides how well it fits{poor}: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
+        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data{}, so the emulator, not the data, decides how well it fits{poor}: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
         mismatch_phrase(mismatch),
         c.name,
         c.log_bayes_factor,
         c.log_bayes_factor_err,
         100.0 * c.emulator_share,
+        if c.emulator_share_observable.is_empty() { String::new() } else { format!(" in {}", c.emulator_share_observable) },
         if refine.len() > 1 { "s" } else { "" },
         refine.join(" and "),
         if refine.len() > 1 { "their" } else { "its" },
@@ -589,7 +600,7 @@ pub fn print(d: &Diagnosis) {
     }
     println!("Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):", d.md_log_evidence - d.base_log_evidence);
     for c in &d.candidates {
-        let share = if c.emulator_share > 0.0 { format!("   emulator share {:.0}%", 100.0 * c.emulator_share) } else { String::new() };
+        let share = if c.emulator_share > 0.0 { format!("   emulator share {:.0}% ({})", 100.0 * c.emulator_share, c.emulator_share_observable) } else { String::new() };
         println!("  {:<16} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof);
     }
     println!("Verdict: {} (confidence {:.2})", d.verdict.best, d.verdict.confidence);
@@ -627,6 +638,7 @@ mod tests {
                 p_value: 0.5,
                 converged: true,
                 emulator_share: 0.0,
+                emulator_share_observable: String::new(),
             })
             .collect()
     }

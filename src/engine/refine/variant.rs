@@ -3,7 +3,11 @@
 //!
 //! A round: calibrate the variant without MD on the diagnosis' data, measure
 //! its emulator's error over the data error at the posterior draws
-//! (`ratios`), stop when the latent ratio is below 1 in every observable,
+//! (`ratios`), stop when the latent ratio is below 1 in every observable
+//! and the emulator's share of the fit's predictive variance is at most one
+//! half (the rule `diagnose` names a candidate by: a latent sd below the
+//! data error can still leave a predictive floor, the dropped components'
+//! run noise, that keeps the verdict "emulator_limited"),
 //! else choose `points_per_round` runs among the draws (`select`), run them
 //! with the variant's physics (a `PointRunner`, which the system that owns
 //! the simulator gives), and retrain on every run so far with the settings
@@ -116,9 +120,15 @@ pub fn refine_variant(
         let worst = round.ratios.iter().map(|o| o.latent).fold(0.0, f64::max);
         println!("  {} round {r} ({} runs): worst latent sd / data error {worst:.2}, emulator share {:.0}%", candidate.name, round.training_runs, 100.0 * round.emulator_share);
         let k = settings.points_per_round.min(settings.budget.saturating_sub(spent));
-        if worst < 1.0 || k == 0 {
+        let done = worst < 1.0 && !cal.summary.fit.emulator_dominates();
+        if done || k == 0 {
+            let share = 100.0 * round.emulator_share;
             rounds.push(round);
-            break if worst < 1.0 { "below the data error".to_string() } else { format!("budget spent ({} new runs), latent ratio still {worst:.2} in the worst observable", settings.budget) };
+            break if done {
+                "below the data error".to_string()
+            } else {
+                format!("budget spent ({} new runs), latent ratio {worst:.2} in the worst observable and emulator share {share:.0}%", settings.budget)
+            };
         }
         let chosen = select(emu, &draws, &targets, k).points;
         let first_id = emu.parts.design_ids.iter().max().map_or(0, |m| m + 1);
