@@ -176,7 +176,7 @@ pub fn print_summary(s: &Summary) {
     );
     if s.fit.emulator_dominates() {
         eprintln!(
-            "  WARNING: the emulator's uncertainty is {:.1}% of the predictive variance at the data: it, not the physics, absorbs the mismatch; add design points where the posterior lies (mdpipe refine)",
+            "  WARNING: the emulator's uncertainty is {:.1}% of the predictive variance at the data in its worst observable: it, not the physics, absorbs the mismatch there; add design points where the posterior lies (mdpipe refine)",
             100.0 * s.fit.model_variance_share
         );
     }

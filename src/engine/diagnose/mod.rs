@@ -27,7 +27,8 @@
 //!   standing and the measurement that would separate the first two
 //!   (`suggest`);
 //! * a named candidate whose fit rests on its emulator (the emulator's share
-//!   of the predictive variance at the data above one half,
+//!   of the predictive variance at the data above one half in some
+//!   observable, see `FitQuality::model_variance_share`,
 //!   `EMULATOR_DOMINATES`) is not named: the verdict is "emulator_limited".
 //!   There the emulator's uncertainty, not the data, decides how well the
 //!   variant fits, and a coarse variant emulator can win on its variance
