@@ -485,10 +485,10 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
     figure(html, "Candidate corrections ranked by SMC evidence; the MD fit for comparison.", &bayes_factor_chart(diag)?);
     // For emulated models, how much of each fit's predictive variance is the emulator's own.
     let emulated = diag.candidates.iter().any(|c| c.emulator_share > 0.0);
-    let share_head = if emulated { "<th>emulator share of variance</th>" } else { "" };
+    let share_head = if emulated { "<th>emulator share of variance (worst observable)</th>" } else { "" };
     html.push_str(&format!("<table><tr><th>candidate</th><th>log BF</th><th>χ²/dof</th>{share_head}<th>parameters (median [95%])</th></tr>\n"));
     for c in &diag.candidates {
-        let share = if emulated { format!("<td>{:.0}%</td>", 100.0 * c.emulator_share) } else { String::new() };
+        let share = if emulated { format!("<td>{:.0}% {}</td>", 100.0 * c.emulator_share, c.emulator_share_observable) } else { String::new() };
         html.push_str(&format!("<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td>{share}<td>{}</td></tr>\n", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof, intervals(&c.parameters)));
     }
     html.push_str("</table>\n");
