@@ -542,8 +542,10 @@ fn heavy_ion_blind_test_confusion_matrix() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The coarse-variant case. Every variant emulator comes from only 12
-/// smooth runs (a first pass at the candidates), the model's from 60; the
+/// The coarse-variant case. Every variant emulator comes from only 24
+/// runs with 3 times the data's error in each bin (a first pass at the
+/// candidates with few events; smooth runs this few are already fine by the
+/// unit-free share), the model's from 60 smooth runs; the
 /// data are the smooth stand-in with the Grad shear δf at η/s = 0.1,
 /// ε_sw = 0.2 and the real table's errors. The leading candidate's fit then
 /// rests on its emulator's variance, so mdpipe must not name it; refining

@@ -302,8 +302,15 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
         chi2 = total;
     }
     let dof = n.saturating_sub(theta.len()).max(1);
-    let model_variance_share = per_observable_share.values().copied().fold(0.0, f64::max);
+    let model_variance_share = worst_share(per_observable_share.values().copied());
     FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable, model_variance_share, per_observable_share }
+}
+
+/// The largest share; one that is not a number (an emulator whose variance
+/// is NaN or infinite) counts as 1, since nothing shows the fit rests on the
+/// data (`f64::max` would silently drop it and call the fit data-driven).
+fn worst_share(shares: impl Iterator<Item = f64>) -> f64 {
+    shares.map(|v| if v.is_finite() { v } else { 1.0 }).fold(0.0, f64::max)
 }
 
 /// `tr(A B)` for symmetric n × n matrices, A given by its lower triangle and
@@ -495,7 +502,7 @@ pub fn predictions_frame(rows: &[PredictionRow]) -> Result<DataFrame> {
 
 #[cfg(test)]
 mod tests {
-    use super::trace_of_product;
+    use super::{trace_of_product, worst_share};
     use crate::engine::gp::CholeskyWorkspace;
 
     /// tr(M (M + D)⁻¹) from a lower triangle and a full inverse.
@@ -508,6 +515,14 @@ mod tests {
         }
         ws.factorize().unwrap();
         trace_of_product(model_lower, &ws.inverse(), n)
+    }
+
+    #[test]
+    fn a_share_that_is_not_a_number_counts_as_the_emulator_deciding() {
+        assert_eq!(worst_share([0.2, 0.4].into_iter()), 0.4);
+        assert_eq!(worst_share([0.2, f64::NAN].into_iter()), 1.0);
+        assert_eq!(worst_share([f64::INFINITY].into_iter()), 1.0);
+        assert_eq!(worst_share(std::iter::empty()), 0.0);
     }
 
     #[test]
