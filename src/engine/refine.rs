@@ -4,12 +4,18 @@
 //! **What is measured.** At posterior draws θ_b and data points j (an output
 //! of the emulator with data error σ_j), the emulator's *latent* variance
 //! var_j(θ_b): its uncertainty about the simulator's mean output, the part
-//! more runs reduce (scatter beyond the runs' reported noise and the dropped
-//! PCA components' signal are not reduced by design points; they are in the
-//! predictive sd reported beside it). Per observable the ratio
+//! well-placed runs reduce. Beside it, the *predictive* variance the
+//! likelihood uses adds the PCA's own estimation noise (its mean and
+//! directions come from noisy runs; it falls as 1/n with any new run) and a
+//! *floor* that placing runs does not lower: white noise beyond the runs'
+//! reported noise and the dropped components' signal
+//! (`Emulator::variance_budget`; retraining on more runs may lower the
+//! fitted white noise). Per observable the ratio
 //! `sqrt(mean_{b,j} var_j(θ_b)/σ_j²)` says how the emulator's error compares
-//! with the data's where the posterior lives. Refinement stops when it is
-//! below 1 in every observable.
+//! with the data's where the posterior lives. Refinement stops when the
+//! *predictive* ratio is below 1 in every observable: what the likelihood
+//! sees, so what decides whether the data or the emulator drives the
+//! posterior.
 //!
 //! **Where to run.** Candidates are the posterior draws themselves. A run at
 //! `a` lowers `U = Σ_b Σ_j var_j(θ_b)/σ_j²` by
@@ -62,9 +68,14 @@ pub struct ObservableRatio {
     pub latent: f64,
     /// The largest bin's latent ratio.
     pub latent_max_bin: f64,
-    /// The whole predictive sd the likelihood uses: latent, scatter beyond
-    /// the runs' reported noise, dropped components less their run noise.
+    /// The whole predictive sd the likelihood uses: latent, the PCA's
+    /// estimation noise, scatter beyond the runs' reported noise, dropped
+    /// components less their run noise.
     pub predictive: f64,
+    /// The part of it placing runs does not reduce: white noise beyond the
+    /// runs' reported noise and the dropped components' signal.
+    #[serde(default)]
+    pub floor: f64,
 }
 
 /// Per observable, the emulator's error over the data error at the draws.
@@ -72,7 +83,8 @@ pub fn ratios(emulator: &Emulator, draws: &[f64], targets: &[Target]) -> Vec<Obs
     let post = emulator.latent_posterior(draws);
     let latent = latent_ratio_terms(emulator, &post, targets);
     let predictive = predictive_ratio_terms(emulator, draws, targets);
-    summarize(targets, post.points, &latent, &predictive)
+    let floor = floor_ratio_terms(emulator, draws, targets);
+    summarize(targets, post.points, &latent, &predictive, &floor)
 }
 
 /// `var_j(θ_b)/σ_j²` (row-major draws × targets) from a latent posterior.
@@ -109,7 +121,19 @@ fn predictive_ratio_terms(emulator: &Emulator, draws: &[f64], targets: &[Target]
     out
 }
 
-fn summarize(targets: &[Target], draws: usize, latent: &[f64], predictive: &[f64]) -> Vec<ObservableRatio> {
+/// The same with the floor alone (scatter and dropped signal).
+fn floor_ratio_terms(emulator: &Emulator, draws: &[f64], targets: &[Target]) -> Vec<f64> {
+    let d = emulator.n_parameters();
+    draws
+        .chunks(d)
+        .flat_map(|theta| {
+            let budget = emulator.variance_budget(theta);
+            targets.iter().map(move |t| budget[t.output].floor() / (t.error * t.error)).collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+fn summarize(targets: &[Target], draws: usize, latent: &[f64], predictive: &[f64], floor: &[f64]) -> Vec<ObservableRatio> {
     let mut names: Vec<String> = Vec::new();
     for t in targets {
         if !names.contains(&t.observable) {
@@ -123,7 +147,7 @@ fn summarize(targets: &[Target], draws: usize, latent: &[f64], predictive: &[f64
             let cols: Vec<usize> = (0..nt).filter(|&t| targets[t].observable == name).collect();
             let rms = |terms: &[f64], cols: &[usize]| (cols.iter().map(|&t| (0..draws).map(|b| terms[b * nt + t]).sum::<f64>()).sum::<f64>() / (draws * cols.len()) as f64).sqrt();
             let latent_max_bin = cols.iter().map(|&t| rms(latent, &[t])).fold(0.0, f64::max);
-            ObservableRatio { latent: rms(latent, &cols), latent_max_bin, predictive: rms(predictive, &cols), observable: name }
+            ObservableRatio { latent: rms(latent, &cols), latent_max_bin, predictive: rms(predictive, &cols), floor: rms(floor, &cols), observable: name }
         })
         .collect()
 }
@@ -154,9 +178,12 @@ pub fn select(emulator: &Emulator, draws: &[f64], targets: &[Target], k: usize) 
         points.push(draws[best * d..(best + 1) * d].to_vec());
     }
     let after = latent_ratio_terms(emulator, &post, targets);
+    // The predictive and floor columns of the forecast are today's: the
+    // forecast is of the latent part only.
     let predictive = predictive_ratio_terms(emulator, draws, targets);
+    let floor = floor_ratio_terms(emulator, draws, targets);
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    Selection { points, mean_ratio2_before: mean(&before), mean_ratio2_after: mean(&after), forecast: summarize(targets, b, &after, &predictive) }
+    Selection { points, mean_ratio2_before: mean(&before), mean_ratio2_after: mean(&after), forecast: summarize(targets, b, &after, &predictive, &floor) }
 }
 
 /// `w_c(b)`: how much a unit of component c's latent variance at draw b

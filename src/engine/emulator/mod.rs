@@ -23,6 +23,7 @@
 
 pub mod run_noise;
 
+pub mod budget;
 pub mod family;
 pub mod latent;
 pub mod model;
