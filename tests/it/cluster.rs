@@ -154,7 +154,13 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
     // Unchanged, a rerun skips every stage; failed points are not retried behind the user's back.
     let again = run(&config, &out, &[]);
     let stdout = String::from_utf8_lossy(&again.stdout);
-    assert!(again.status.success() && stdout.contains("[simulate] up to date, skipped"), "{stdout}");
+    assert!(again.status.success() && stdout.contains("[simulate] up to date, skipped") && stdout.contains("[calibrate] up to date, skipped"), "{stdout}");
+    // A stage forced to run again with the same settings reruns what follows
+    // (the calibrations must not keep the previous emulator's results).
+    assert!(run(&config, &out, &["--stage", "emulator", "--force"]).status.success());
+    let after = run(&config, &out, &[]);
+    let stdout = String::from_utf8_lossy(&after.stdout);
+    assert!(after.status.success() && stdout.contains("[ingest] up to date, skipped") && stdout.contains("[calibrate] running"), "{stdout}");
 
     // The cause mended, `--stage simulate --force` runs only the failed points
     // again (the finished ones are kept), and ingest takes them in.

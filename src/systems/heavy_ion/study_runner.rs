@@ -252,9 +252,22 @@ impl RunPaths {
 #[derive(serde::Serialize, serde::Deserialize)]
 struct Stamp {
     stage: String,
+    /// Hash of the stage's settings and upstream keys: unchanged, the stage is skipped.
     key: String,
+    /// What later stages key on: new each time the stage runs, so a stage
+    /// run again with the same settings (`--force`) reruns what follows.
+    /// (Keyed on `key`, a forced refine once left the calibrations of the
+    /// previous emulator in place.) Empty in stamps from before it existed.
+    #[serde(default)]
+    output_key: String,
     seconds: f64,
     provenance: Provenance,
+}
+
+impl Stamp {
+    fn downstream_key(&self) -> String {
+        if self.output_key.is_empty() { self.key.clone() } else { self.output_key.clone() }
+    }
 }
 
 /// What happened to each stage.
@@ -354,7 +367,7 @@ impl Runner<'_> {
         if self.opts.stage.as_deref().is_some_and(|s| s != name) {
             // Not this stage: later stages key on what it left on disk.
             if let Some(s) = read_stamp(&self.paths.stamp(name)) {
-                self.keys.insert(name.into(), s.key);
+                self.keys.insert(name.into(), s.downstream_key());
             }
             return Ok(());
         }
@@ -364,11 +377,11 @@ impl Runner<'_> {
             material[format!("upstream_{u}")] = serde_json::Value::String(key);
         }
         let key = artifacts::sha256_hex(material.to_string().as_bytes());
-        let up_to_date = read_stamp(&self.paths.stamp(name)).is_some_and(|s| s.key == key) && outputs.iter().all(|p| p.exists());
-        if up_to_date && !self.opts.force {
+        let done = read_stamp(&self.paths.stamp(name)).filter(|s| s.key == key && outputs.iter().all(|p| p.exists()));
+        if let Some(done) = done.filter(|_| !self.opts.force) {
             println!("[{name}] up to date, skipped");
             self.outcomes.push(StageOutcome { stage: name.into(), ran: false, seconds: 0.0 });
-            self.keys.insert(name.into(), key);
+            self.keys.insert(name.into(), done.downstream_key());
             return Ok(());
         }
         println!("[{name}] running");
@@ -379,10 +392,11 @@ impl Runner<'_> {
             return Ok(());
         }
         let seconds = start.elapsed().as_secs_f64();
-        let stamp = Stamp { stage: name.into(), key: key.clone(), seconds, provenance: Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage {name}", self.config.path.display())) };
+        let output_key = artifacts::sha256_hex(format!("{key} ran at {:?} in process {}", std::time::SystemTime::now(), std::process::id()).as_bytes());
+        let stamp = Stamp { stage: name.into(), key, output_key: output_key.clone(), seconds, provenance: Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage {name}", self.config.path.display())) };
         artifacts::write_json_atomic(&self.paths.stamp(name), &stamp)?;
         println!("[{name}] done in {seconds:.1} s");
-        self.keys.insert(name.into(), key);
+        self.keys.insert(name.into(), output_key);
         self.outcomes.push(StageOutcome { stage: name.into(), ran: true, seconds });
         Ok(())
     }
@@ -652,7 +666,7 @@ impl Runner<'_> {
         let cal = calibrate::run_and_write(&problem, c.seed, observer(self.opts.show_progress), &checkpoint, &c.dir)?;
         let seconds = cal.summary.diagnostics.wall_seconds;
         let prov = Provenance::new(self.config.hash.clone(), String::new(), c.seed, &format!("run {} --stage calibrate ({})", self.config.path.display(), c.name));
-        artifacts::write_json_atomic(&c.stamp, &Stamp { stage: format!("calibrate/{}", c.name), key: c.key.clone(), seconds, provenance: prov })?;
+        artifacts::write_json_atomic(&c.stamp, &Stamp { stage: format!("calibrate/{}", c.name), key: c.key.clone(), output_key: String::new(), seconds, provenance: prov })?;
         println!("  {:<60} {seconds:>6.1} s", c.name);
         Ok(())
     }
