@@ -123,14 +123,7 @@ fn predictive_ratio_terms(emulator: &Emulator, draws: &[f64], targets: &[Target]
 
 /// The same with the floor alone (scatter and dropped signal).
 fn floor_ratio_terms(emulator: &Emulator, draws: &[f64], targets: &[Target]) -> Vec<f64> {
-    let d = emulator.n_parameters();
-    draws
-        .chunks(d)
-        .flat_map(|theta| {
-            let budget = emulator.variance_budget(theta);
-            targets.iter().map(move |t| budget[t.output].floor() / (t.error * t.error)).collect::<Vec<_>>()
-        })
-        .collect()
+    emulator.variance_budgets(draws).into_iter().flat_map(|budget| targets.iter().map(move |t| budget[t.output].floor() / (t.error * t.error)).collect::<Vec<_>>()).collect()
 }
 
 fn summarize(targets: &[Target], draws: usize, latent: &[f64], predictive: &[f64], floor: &[f64]) -> Vec<ObservableRatio> {

@@ -36,13 +36,23 @@ impl Emulator {
     /// Every output's predictive variance at θ, split by source; the parts
     /// sum to the diagonal of [`Emulator::predict`]'s covariance.
     pub fn variance_budget(&self, theta: &[f64]) -> Vec<VarianceBudget> {
+        self.variance_budgets(theta).pop().unwrap_or_default()
+    }
+
+    /// The same at many θ (row-major B × d): the PCA's noise covariance,
+    /// O(m³), is computed once rather than per point.
+    pub fn variance_budgets(&self, thetas: &[f64]) -> Vec<Vec<VarianceBudget>> {
+        let pca = super::run_noise::pca_noise_cov(&self.parts);
+        thetas.chunks(self.n_parameters().max(1)).map(|theta| self.budget_with(theta, &pca)).collect()
+    }
+
+    fn budget_with(&self, theta: &[f64], pca: &[f64]) -> Vec<VarianceBudget> {
         let (kc, m) = (self.n_components(), self.n_outputs());
         let mut scratch = self.scratch();
         let (mut means, mut vars) = (vec![0.0; kc], vec![0.0; kc]);
         self.predict_components(theta, &mut means, &mut vars, &mut scratch);
         let excess: Vec<f64> = self.gps.iter().zip(&self.run_noise).map(|(g, r)| (g.noise_var - r).max(0.0)).collect();
         let latent: Vec<f64> = vars.iter().zip(&excess).map(|(v, e)| (v - e).max(0.0)).collect();
-        let pca = super::run_noise::pca_noise_cov(&self.parts);
         (0..m)
             .map(|j| {
                 let jac = self.output_mean_from_components(&means, j).1;
