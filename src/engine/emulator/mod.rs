@@ -27,6 +27,7 @@ pub mod budget;
 pub mod family;
 pub mod latent;
 pub mod model;
+pub mod nugget;
 pub mod store;
 pub mod table;
 pub mod train;

@@ -1,6 +1,7 @@
 //! Training: transform, standardize, PCA by SVD, then one GP per component
 //! with hyperparameters from L-BFGS (argmin) over several parallel restarts.
 
+use super::nugget::ExcessScatterTest;
 use super::{Emulator, EmulatorParts, TrainingTable};
 use crate::engine::gp::{ard_log_marginal_likelihood, ArdHyper, ArdKernel};
 use anyhow::{anyhow, bail, Context, Result};
@@ -198,6 +199,9 @@ pub struct TrainingReport {
     pub failures: usize,
     /// Best log marginal likelihood per component.
     pub log_marginal_likelihood: Vec<f64>,
+    /// Per kept component whose fitted white noise exceeds its runs'
+    /// reported noise: whether the runs show that excess ([`super::nugget`]).
+    pub excess_scatter: Vec<ExcessScatterTest>,
     pub training_seconds: f64,
 }
 
@@ -214,6 +218,55 @@ fn optimize(kernel: ArdKernel, x: &[f64], y: &[f64], start: Vec<f64>, max_iters:
     let d = start.len() - 3;
     let evaluations = std::cell::Cell::new(0);
     let problem = NegLogMarginal { kernel, x, y, bounds: log_bounds(d), cache: RefCell::new(None), evaluations: &evaluations };
+    minimize(problem, start, max_iters, &evaluations)
+}
+
+/// The same fit with the white-noise variance held at `exp(log_noise)`:
+/// `start` is every other log-hyperparameter, and the optimum's parameters
+/// come back with the fixed one appended.
+fn optimize_fixed_noise(kernel: ArdKernel, x: &[f64], y: &[f64], start: Vec<f64>, log_noise: f64, max_iters: u64) -> Result<Optimum> {
+    let d = start.len() - 2;
+    let evaluations = std::cell::Cell::new(0);
+    let full = NegLogMarginal { kernel, x, y, bounds: log_bounds(d), cache: RefCell::new(None), evaluations: &evaluations };
+    let mut optimum = minimize(FixedNoise { full, log_noise }, start, max_iters, &evaluations)?;
+    optimum.log_params.push(log_noise);
+    Ok(optimum)
+}
+
+/// The marginal likelihood over every log-hyperparameter but the noise's.
+struct FixedNoise<'a> {
+    full: NegLogMarginal<'a>,
+    log_noise: f64,
+}
+impl FixedNoise<'_> {
+    fn evaluate(&self, p: &[f64]) -> (f64, Vec<f64>) {
+        let mut q = p.to_vec();
+        q.push(self.log_noise);
+        let (cost, mut grad) = self.full.evaluate(&q);
+        grad.pop();
+        (cost, grad)
+    }
+}
+impl CostFunction for FixedNoise<'_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, p: &Self::Param) -> Result<f64, argmin::core::Error> {
+        Ok(self.evaluate(p).0)
+    }
+}
+impl Gradient for FixedNoise<'_> {
+    type Param = Vec<f64>;
+    type Gradient = Vec<f64>;
+    fn gradient(&self, p: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
+        Ok(self.evaluate(p).1)
+    }
+}
+
+/// L-BFGS on a negative log marginal likelihood from `start`.
+fn minimize<P>(problem: P, start: Vec<f64>, max_iters: u64, evaluations: &std::cell::Cell<u64>) -> Result<Optimum>
+where
+    P: CostFunction<Param = Vec<f64>, Output = f64> + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>,
+{
     let solver = LBFGS::new(MoreThuenteLineSearch::new(), 10).with_tolerance_grad(1e-5)?.with_tolerance_cost(COST_TOLERANCE)?;
     let res = Executor::new(problem, solver).configure(|s| s.param(start).max_iters(max_iters)).timer(false).run()?;
     let state = res.state();
@@ -225,8 +278,39 @@ fn optimize(kernel: ArdKernel, x: &[f64], y: &[f64], start: Vec<f64>, max_iters:
         Some(TerminationReason::SolverExit(s)) => format!("exit: {s}"),
         _ => "converged".to_string(),
     };
-    let evaluations = evaluations.get();
-    Ok(Optimum { log_params: best, log_marginal_likelihood: -state.get_best_cost(), iterations: state.get_iter(), evaluations, outcome })
+    Ok(Optimum { log_params: best, log_marginal_likelihood: -state.get_best_cost(), iterations: state.get_iter(), evaluations: evaluations.get(), outcome })
+}
+
+/// Tests each kept component's white noise against what its runs report
+/// ([`super::nugget`]) and gives a component whose excess the runs do not
+/// show its fit with the noise held at the reported level.
+fn drop_unsupported_excess(kernel: ArdKernel, unit: &[f64], parts: &mut EmulatorParts, free_lml: &mut [f64], max_iters: u64) -> Vec<ExcessScatterTest> {
+    let n = parts.design_ids.len();
+    let kept = parts.n_components;
+    let component_sd: Vec<f64> = parts.singular_values.iter().map(|s| s / (n as f64).sqrt()).collect();
+    let reported = super::run_noise::removed_per_component(parts, &component_sd, &vec![f64::INFINITY; kept]);
+    let jobs: Vec<usize> = (0..kept).filter(|&k| super::nugget::has_excess(parts.hypers[k].noise_var(), reported[k])).collect();
+    let null_fits: Vec<(usize, Result<Optimum>)> = jobs
+        .par_iter()
+        .map(|&k| {
+            let mut start = parts.hypers[k].log_params.clone();
+            start.pop();
+            let log_noise = reported[k].max(NOISE_BOUNDS.0).ln();
+            (k, optimize_fixed_noise(kernel, unit, &parts.scores[k * n..(k + 1) * n], start, log_noise, max_iters))
+        })
+        .collect();
+    let mut tests = Vec::new();
+    for (k, fit) in null_fits {
+        // A null fit that fails leaves the free fit, and its excess, in place.
+        let Ok(null) = fit.map_err(|e| eprintln!("warning: component {k}: the fit with the reported run noise failed ({e}); its fitted excess is kept")) else { continue };
+        let test = ExcessScatterTest::decide(k, parts.hypers[k].noise_var(), reported[k], free_lml[k], null.log_marginal_likelihood);
+        if !test.excess_kept {
+            parts.hypers[k] = ArdHyper { log_params: null.log_params };
+            free_lml[k] = null.log_marginal_likelihood;
+        }
+        tests.push(test);
+    }
+    tests
 }
 
 fn random_start(d: usize, rng: &mut impl Rng) -> Vec<f64> {
@@ -455,21 +539,10 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
             unit[i * d + p] = (table.input(i)[p] - lo[p]) / (hi[p] - lo[p]);
         }
     }
-    let fitted = fit_components(kernel, &unit, &pca, n, settings, seed)?;
+    let mut fitted = fit_components(kernel, &unit, &pca, n, settings, seed)?;
     let n_components = pca.n_components;
-    let report = TrainingReport {
-        n_points: n,
-        n_outputs: m,
-        n_components,
-        explained_variance: pca.singular_values[..n_components].iter().map(|s| s * s / pca.total_variance).collect(),
-        kernel,
-        restarts: settings.restarts,
-        runs: fitted.runs,
-        failures: fitted.failures,
-        log_marginal_likelihood: fitted.log_marginal_likelihood,
-        training_seconds: 0.0,
-    };
-    let parts = EmulatorParts {
+    let explained_variance = pca.singular_values[..n_components].iter().map(|s| s * s / pca.total_variance).collect();
+    let mut parts = EmulatorParts {
         parameter_names: table.parameter_names.clone(),
         design_ids: table.design_ids.clone(),
         train_inputs: table.inputs.clone(),
@@ -488,6 +561,20 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
         n_components,
         scores: pca.scores,
         hypers: fitted.hypers,
+    };
+    let excess_scatter = drop_unsupported_excess(kernel, &unit, &mut parts, &mut fitted.log_marginal_likelihood, settings.max_iters);
+    let report = TrainingReport {
+        n_points: n,
+        n_outputs: m,
+        n_components,
+        explained_variance,
+        kernel,
+        restarts: settings.restarts,
+        runs: fitted.runs,
+        failures: fitted.failures,
+        log_marginal_likelihood: fitted.log_marginal_likelihood,
+        excess_scatter,
+        training_seconds: 0.0,
     };
     let emulator = Emulator::from_parts(parts)?;
     Ok((emulator, TrainingReport { training_seconds: started.elapsed().as_secs_f64(), ..report }))
