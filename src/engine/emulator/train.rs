@@ -299,16 +299,20 @@ fn drop_unsupported_excess(kernel: ArdKernel, unit: &[f64], parts: &mut Emulator
             (k, optimize_fixed_noise(kernel, unit, &parts.scores[k * n..(k + 1) * n], start, log_noise, max_iters))
         })
         .collect();
-    let mut tests = Vec::new();
+    let mut tested: Vec<(ExcessScatterTest, Vec<f64>, f64)> = Vec::new();
     for (k, fit) in null_fits {
         // A null fit that fails leaves the free fit, and its excess, in place.
         let Ok(null) = fit.map_err(|e| eprintln!("warning: component {k}: the fit with the reported run noise failed ({e}); its fitted excess is kept")) else { continue };
-        let test = ExcessScatterTest::decide(k, parts.hypers[k].noise_var(), reported[k], free_lml[k], null.log_marginal_likelihood);
+        let test = ExcessScatterTest::new(k, parts.hypers[k].noise_var(), reported[k], free_lml[k], null.log_marginal_likelihood);
+        tested.push((test, null.log_params, null.log_marginal_likelihood));
+    }
+    let mut tests: Vec<ExcessScatterTest> = tested.iter().map(|t| t.0.clone()).collect();
+    super::nugget::decide_by_holm(&mut tests);
+    for (test, (_, null_params, null_lml)) in tests.iter().zip(tested) {
         if !test.excess_kept {
-            parts.hypers[k] = ArdHyper { log_params: null.log_params };
-            free_lml[k] = null.log_marginal_likelihood;
+            parts.hypers[test.component] = ArdHyper { log_params: null_params };
+            free_lml[test.component] = null_lml;
         }
-        tests.push(test);
     }
     tests
 }
