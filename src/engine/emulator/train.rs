@@ -101,6 +101,29 @@ fn log_bounds(d: usize) -> Vec<(f64, f64)> {
     v
 }
 
+/// A negative log marginal likelihood and its gradient from one evaluation;
+/// [`Lbfgs`] hands it to argmin.
+trait CostAndGradient {
+    fn evaluate(&self, p: &[f64]) -> (f64, Vec<f64>);
+}
+
+/// Any [`CostAndGradient`] as an argmin problem.
+struct Lbfgs<P>(P);
+impl<P: CostAndGradient> CostFunction for Lbfgs<P> {
+    type Param = Vec<f64>;
+    type Output = f64;
+    fn cost(&self, p: &Self::Param) -> Result<f64, argmin::core::Error> {
+        Ok(self.0.evaluate(p).0)
+    }
+}
+impl<P: CostAndGradient> Gradient for Lbfgs<P> {
+    type Param = Vec<f64>;
+    type Gradient = Vec<f64>;
+    fn gradient(&self, p: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
+        Ok(self.0.evaluate(p).1)
+    }
+}
+
 /// Negative log marginal likelihood, with a quadratic wall outside the
 /// bounds so that L-BFGS (unconstrained) stays in the box.
 struct NegLogMarginal<'a> {
@@ -122,7 +145,7 @@ const COST_TOLERANCE: f64 = 1e-5;
 /// How far (in log units) outside the bounds the likelihood is still evaluated.
 const CLAMP_MARGIN: f64 = 2.0;
 
-impl NegLogMarginal<'_> {
+impl CostAndGradient for NegLogMarginal<'_> {
     fn evaluate(&self, p: &[f64]) -> (f64, Vec<f64>) {
         if let Some((q, c, g)) = self.cache.borrow().as_ref() {
             if q.as_slice() == p {
@@ -157,21 +180,7 @@ impl NegLogMarginal<'_> {
     }
 }
 
-impl CostFunction for NegLogMarginal<'_> {
-    type Param = Vec<f64>;
-    type Output = f64;
-    fn cost(&self, p: &Self::Param) -> Result<f64, argmin::core::Error> {
-        Ok(self.evaluate(p).0)
-    }
-}
 
-impl Gradient for NegLogMarginal<'_> {
-    type Param = Vec<f64>;
-    type Gradient = Vec<f64>;
-    fn gradient(&self, p: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
-        Ok(self.evaluate(p).1)
-    }
-}
 
 /// How one optimizer start ended.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -238,7 +247,7 @@ struct FixedNoise<'a> {
     full: NegLogMarginal<'a>,
     log_noise: f64,
 }
-impl FixedNoise<'_> {
+impl CostAndGradient for FixedNoise<'_> {
     fn evaluate(&self, p: &[f64]) -> (f64, Vec<f64>) {
         let mut q = p.to_vec();
         q.push(self.log_noise);
@@ -247,28 +256,11 @@ impl FixedNoise<'_> {
         (cost, grad)
     }
 }
-impl CostFunction for FixedNoise<'_> {
-    type Param = Vec<f64>;
-    type Output = f64;
-    fn cost(&self, p: &Self::Param) -> Result<f64, argmin::core::Error> {
-        Ok(self.evaluate(p).0)
-    }
-}
-impl Gradient for FixedNoise<'_> {
-    type Param = Vec<f64>;
-    type Gradient = Vec<f64>;
-    fn gradient(&self, p: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
-        Ok(self.evaluate(p).1)
-    }
-}
 
 /// L-BFGS on a negative log marginal likelihood from `start`.
-fn minimize<P>(problem: P, start: Vec<f64>, max_iters: u64, evaluations: &std::cell::Cell<u64>) -> Result<Optimum>
-where
-    P: CostFunction<Param = Vec<f64>, Output = f64> + Gradient<Param = Vec<f64>, Gradient = Vec<f64>>,
-{
+fn minimize<P: CostAndGradient>(problem: P, start: Vec<f64>, max_iters: u64, evaluations: &std::cell::Cell<u64>) -> Result<Optimum> {
     let solver = LBFGS::new(MoreThuenteLineSearch::new(), 10).with_tolerance_grad(1e-5)?.with_tolerance_cost(COST_TOLERANCE)?;
-    let res = Executor::new(problem, solver).configure(|s| s.param(start).max_iters(max_iters)).timer(false).run()?;
+    let res = Executor::new(Lbfgs(problem), solver).configure(|s| s.param(start).max_iters(max_iters)).timer(false).run()?;
     let state = res.state();
     let best = state.get_best_param().cloned().ok_or_else(|| anyhow!("no parameters returned"))?;
     let outcome = match state.get_termination_reason() {
