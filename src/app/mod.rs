@@ -28,8 +28,8 @@ pub fn run(cli: Cli) -> Result<()> {
             bench::command(bench::BenchArgs { config, evaluations, likelihood_only, sampler, out, seed, emulator, heavy_ion_events, diagnose })
         }
         Command::Ingest { runs, pt_bins, design, min_events, format, out } => commands::ingest(&runs, pt_bins, design.as_deref(), min_events, &format, &out),
-        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, only, point_folder, delta_f, events, oversample, seed, layout, relative_error, out } } => {
-            simulate::heavy_ion(simulate::HeavyIonArgs { point, design, only, point_folder, delta_f, events, oversample, seed, layout, relative_error, out })
+        Command::Simulate { system: SimulateSystem::HeavyIon { point, design, only, point_folder, delta_f, events, oversample, seed, layout, relative_error, errors_from, out } } => {
+            simulate::heavy_ion(simulate::HeavyIonArgs { point, design, only, point_folder, delta_f, events, oversample, seed, layout, relative_error, errors_from, out })
         }
         Command::Simulate { system: SimulateSystem::BallDrop { seed, out, k, g, v0, h0, points, t_max, sigma } } => simulate::ball_drop(seed, &out, k, g, v0, h0, points, t_max, &sigma),
     }

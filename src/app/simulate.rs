@@ -19,6 +19,7 @@ pub struct HeavyIonArgs {
     pub seed: u64,
     pub layout: String,
     pub relative_error: f64,
+    pub errors_from: Option<PathBuf>,
     pub out: PathBuf,
 }
 
@@ -53,8 +54,12 @@ pub fn heavy_ion(a: HeavyIonArgs) -> Result<()> {
         return Ok(());
     }
     let point = a.point.unwrap_or_default();
-    let data = mock::smooth_measurements(&heavy_ion::HeavyIonParams::parse(&point)?, df, a.relative_error);
-    let prov = Provenance::new(String::new(), artifacts::measurements_hash(&data), 0, &format!("simulate heavy-ion --point {point} --delta-f {}", a.delta_f));
+    let mut data = mock::smooth_measurements(&heavy_ion::HeavyIonParams::parse(&point)?, df, a.relative_error);
+    if let Some(source) = &a.errors_from {
+        mock::take_errors_from(&mut data, source)?;
+    }
+    let errors = a.errors_from.as_ref().map(|p| format!(" --errors-from {}", p.display())).unwrap_or_default();
+    let prov = Provenance::new(String::new(), artifacts::measurements_hash(&data), 0, &format!("simulate heavy-ion --point {point} --delta-f {}{errors}", a.delta_f));
     artifacts::write_measurements(&a.out, &data, Some(&prov))?;
     let bins = heavy_ion::analysis_pt().len();
     println!("wrote {} values ({} observables x {bins} pT bins) to {}", data.len(), data.len() / bins, a.out.display());

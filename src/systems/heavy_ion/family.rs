@@ -3,6 +3,11 @@
 //! as the process that made mock data. Studies calibrate an emulator of the
 //! stand-in instead (`kind = "emulator"`); this family gives them the truth
 //! curve and the units, and lets a small calibration use the stand-in directly.
+//! It evaluates the observables at the points x themselves, not averaged over
+//! the analysis bins as runs, ingest and `simulate heavy-ion --out FILE` are
+//! (`events::SmoothTables::expected`); the two differ most in the lowest bin
+//! (v2 at 0.1 GeV by a factor 2, where v2 grows as pT²), so calibrate binned
+//! data with an emulator of binned runs, not with this family.
 
 use super::{observables, DeltaF, HeavyIonParams};
 use crate::base::config::Config;

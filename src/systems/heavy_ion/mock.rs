@@ -1,7 +1,8 @@
 //! What `mdpipe simulate heavy-ion` makes: event-by-event runs at design
 //! points or at one named point, and smooth mock measurements.
 
-use super::{analysis_pt, observables, DeltaF, HeavyIonParams};
+use super::events::SmoothTables;
+use super::{DeltaF, HeavyIonParams};
 use crate::base::artifacts::{self, Measurement};
 use anyhow::{anyhow, Context, Result};
 use std::path::Path;
@@ -38,17 +39,60 @@ pub fn named_point(point: &str, seed: u64, out: &Path) -> Result<Vec<(i64, Heavy
     Ok(vec![(0, params)])
 }
 
-/// The stand-in's smooth observables at `params` in the analysis bins, each
-/// with a relative 1σ error; flow coefficients near zero get an absolute
-/// floor of 1e-4 so that errors stay positive.
+/// Replaces each value's error by the error of the same (observable, x) in the
+/// measurements file `source`: smooth values with a real measurement's errors
+/// are the Asimov data set, on which a fit lands where it would without noise.
+pub fn take_errors_from(data: &mut [Measurement], source: &Path) -> Result<()> {
+    let errors = artifacts::read_measurements(source)?;
+    for m in data.iter_mut() {
+        let same = |e: &&Measurement| e.observable == m.observable && (e.x - m.x).abs() <= 1e-9 * m.x.abs().max(1.0);
+        let found = errors.iter().find(same).ok_or_else(|| anyhow!("{}: no measurement of {} at x = {} to take its error from", source.display(), m.observable, m.x))?;
+        m.error = found.error;
+    }
+    Ok(())
+}
+
+/// The stand-in's expected observables at `params` in the analysis bins, as
+/// `mdpipe ingest` measures them from runs (histogram spectra, count-weighted
+/// v_n, charged hadrons in their η window): the limit of `simulate` + `ingest`
+/// for infinitely many events, like `simulate_design`'s training tables. Each
+/// value gets a relative 1σ error; flow coefficients near zero get an
+/// absolute floor of 1e-4 so that errors stay positive.
 pub fn smooth_measurements(params: &HeavyIonParams, delta_f: DeltaF, relative_error: f64) -> Vec<Measurement> {
-    let pts = analysis_pt();
+    let edges = crate::engine::ingest::IngestSettings::default().pt_edges;
     let mut data = Vec::new();
-    for (name, values) in observables(params, delta_f, &pts) {
-        for (&x, &v) in pts.iter().zip(&values) {
+    for (name, values) in SmoothTables::new(params, delta_f).expected(&edges) {
+        for (w, &v) in edges.windows(2).zip(&values) {
             let err = if name.ends_with("spectrum") { relative_error * v.abs() } else { (relative_error * v.abs()).max(1e-4) };
-            data.push(Measurement::new(name, x, v, err));
+            data.push(Measurement::new(&name, 0.5 * (w[0] + w[1]), v, err));
         }
     }
     data
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_are_taken_by_observable_and_x_and_a_missing_point_is_named() {
+        let params = HeavyIonParams::parse("eta_s=0.1,e_sw=0.2").unwrap();
+        let smooth = smooth_measurements(&params, DeltaF::Grad, 0.01);
+        // A source with every point's error set to a known function of its place.
+        let source: Vec<Measurement> = smooth.iter().enumerate().map(|(i, m)| Measurement::new(&m.observable, m.x, -1.0, 0.5 + i as f64)).collect();
+        let dir = std::env::temp_dir().join(format!("mdpipe_errors_from_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("source.csv");
+        artifacts::write_measurements(&path, &source, None).unwrap();
+        let mut data = smooth.clone();
+        take_errors_from(&mut data, &path).unwrap();
+        for (i, (d, s)) in data.iter().zip(&smooth).enumerate() {
+            assert_eq!((d.value, d.error), (s.value, 0.5 + i as f64), "{} at {}", d.observable, d.x);
+        }
+        // A source that lacks one point (the last p_v2 bin): that point is named.
+        artifacts::write_measurements(&path, &source[..source.len() - 1], None).unwrap();
+        let err = take_errors_from(&mut data, &path).unwrap_err().to_string();
+        assert!(err.contains("source.csv") && err.contains("p_v2"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
