@@ -37,21 +37,4 @@ for s in 0 1 2; do
   done
 done
 
-python3 - "$out" <<'EOF'
-import json, sys
-out = sys.argv[1]
-names = ["CH spectra", "+ CH v2, v3", "all 7"]
-print("| observables | kernel | η/s | ε_sw | max R̂ | min bulk ESS | converged | χ²/dof (model alone) | emulator share | wall s |")
-print("|---|---|---|---|---|---|---|---|---|---|")
-for s in range(3):
-    for k in ["none", "I", "II"]:
-        d = json.load(open(f"{out}/set{s}_{k}/summary.json"))
-        p = d["parameters"]
-        cell = lambda n: f"{p[n]['median']:.3f} [{p[n]['q025']:.3f}, {p[n]['q975']:.3f}]"
-        diag = d["diagnostics"]
-        rhat = max(q["rhat"] for q in diag["parameters"])
-        ess = min(q["ess_bulk"] for q in diag["parameters"])
-        conv = "yes" if diag["converged"] else "**no**"
-        fit = d["fit"]
-        print(f"| {names[s]} | {k} | {cell('eta_s')} | {cell('e_sw')} | {rhat:.3f} | {ess:.0f} | {conv} | {fit['chi2_per_dof']:.0f} | {100 * fit['model_variance_share']:.1f}% | {diag['wall_seconds']:.0f} |")
-EOF
+python3 "$root/bench/grid_table.py" "$out"
