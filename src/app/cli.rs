@@ -251,12 +251,12 @@ pub enum SimulateSystem {
         #[arg(long, default_value = "both")]
         layout: String,
         /// Smooth --point output only: relative 1σ error attached to every value
-        #[arg(long, default_value_t = 0.01, conflicts_with = "errors_from")]
+        #[arg(long, default_value_t = 0.01)]
         relative_error: f64,
         /// Smooth --point output only: take each value's 1σ error from this measurements file
         /// (matched by observable and x), e.g. a study's mock/measurements.parquet. The result is
         /// the Asimov data set: the expected data, no fluctuation, with the real errors
-        #[arg(long, requires = "point")]
+        #[arg(long, conflicts_with_all = ["design", "events", "relative_error"])]
         errors_from: Option<PathBuf>,
         /// Runs folder, or a .csv/.parquet file for smooth values
         #[arg(long)]

@@ -26,6 +26,9 @@ pub struct HeavyIonArgs {
 pub fn heavy_ion(a: HeavyIonArgs) -> Result<()> {
     let df: heavy_ion::DeltaF = a.delta_f.parse()?;
     let smooth = a.events.is_none() && a.out.extension().is_some_and(|e| e == "csv" || e == "parquet");
+    if a.errors_from.is_some() && !smooth {
+        bail!("--errors-from gives smooth values their errors: --out must be a .csv or .parquet file (got {})", a.out.display());
+    }
     if let (true, Some(design), Some(id)) = (a.point_folder, &a.design, a.only) {
         let n_events = a.events.unwrap_or(100);
         let params = heavy_ion::design_point(design, id)?;

@@ -46,7 +46,7 @@ pub fn take_errors_from(data: &mut [Measurement], source: &Path) -> Result<()> {
     let errors = artifacts::read_measurements(source)?;
     for m in data.iter_mut() {
         let same = |e: &&Measurement| e.observable == m.observable && (e.x - m.x).abs() <= 1e-9 * m.x.abs().max(1.0);
-        let found = errors.iter().find(same).ok_or_else(|| anyhow!("{}: no measurement of {} at x = {} to take its error from", source.display(), m.observable, m.x))?;
+        let found = errors.iter().find(same).ok_or_else(|| anyhow!("{}: no measurement of {} at x = {:.4} to take its error from", source.display(), m.observable, m.x))?;
         m.error = found.error;
     }
     Ok(())
