@@ -7,6 +7,7 @@ case). Each interval is the 95% one; a cross marks an interval that excludes the
 parameter's true value (eta/s = 0.1, e_sw = 0.2), with (median - truth)/sd.
 """
 import json
+import os
 import sys
 
 TRUTH = {"eta_s": 0.1, "e_sw": 0.2}
@@ -26,7 +27,11 @@ def main(out):
     print("|---|---|---|---|---|---|---|---|---|---|")
     for s, set_name in enumerate(SETS):
         for k in ["none", "I", "II"]:
-            d = json.load(open(f"{out}/set{s}_{k}/summary.json"))
+            path = f"{out}/set{s}_{k}/summary.json"
+            if not os.path.exists(path):  # a grid still running, or stopped
+                print(f"| {set_name} | {k} | not run | | | | | | | |")
+                continue
+            d = json.load(open(path))
             diag, fit = d["diagnostics"], d["fit"]
             rhat = max(q["rhat"] for q in diag["parameters"])
             ess = min(q["ess_bulk"] for q in diag["parameters"])
