@@ -180,8 +180,6 @@ impl CostAndGradient for NegLogMarginal<'_> {
     }
 }
 
-
-
 /// How one optimizer start ended.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct OptimizerRun {

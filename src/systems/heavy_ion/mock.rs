@@ -4,7 +4,7 @@
 use super::events::SmoothTables;
 use super::{DeltaF, HeavyIonParams};
 use crate::base::artifacts::{self, Measurement};
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use std::path::Path;
 
 /// The points of `design` (or only `only`) to run, with the design copied
@@ -46,8 +46,13 @@ pub fn take_errors_from(data: &mut [Measurement], source: &Path) -> Result<()> {
     let errors = artifacts::read_measurements(source)?;
     for m in data.iter_mut() {
         let same = |e: &&Measurement| e.observable == m.observable && (e.x - m.x).abs() <= 1e-9 * m.x.abs().max(1.0);
-        let found = errors.iter().find(same).ok_or_else(|| anyhow!("{}: no measurement of {} at x = {:.4} to take its error from", source.display(), m.observable, m.x))?;
-        m.error = found.error;
+        let mut found = errors.iter().filter(same);
+        let first = found.next().ok_or_else(|| anyhow!("{}: no measurement of {} at x = {:.4} to take its error from", source.display(), m.observable, m.x))?;
+        // Two rows for one point leave its error ambiguous.
+        if let Some(second) = found.next() {
+            bail!("{}: lines {} and {} both measure {} at x = {:.4}; which error to take is ambiguous", source.display(), first.line, second.line, m.observable, m.x);
+        }
+        m.error = first.error;
     }
     Ok(())
 }
@@ -93,6 +98,11 @@ mod tests {
         artifacts::write_measurements(&path, &source[..source.len() - 1], None).unwrap();
         let err = take_errors_from(&mut data, &path).unwrap_err().to_string();
         assert!(err.contains("source.csv") && err.contains("p_v2"), "{err}");
+        // A source that measures one point twice: both lines are named.
+        let doubled: Vec<Measurement> = source.iter().chain(&source[..1]).cloned().collect();
+        artifacts::write_measurements(&path, &doubled, None).unwrap();
+        let err = take_errors_from(&mut data, &path).unwrap_err().to_string();
+        assert!(err.contains("ambiguous") && err.contains("ch_spectrum"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
