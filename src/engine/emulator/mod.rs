@@ -28,6 +28,7 @@ pub mod family;
 pub mod latent;
 pub mod model;
 pub mod nugget;
+pub mod panels;
 pub mod store;
 pub mod table;
 pub mod train;
@@ -78,8 +79,8 @@ pub struct EmulatorParts {
 #[derive(Clone, Debug)]
 struct FittedGp {
     alpha: Vec<f64>,
-    /// `L⁻¹` packed by rows (row i holds columns 0..=i), for single predictions.
-    linv_packed: Vec<f64>,
+    /// `L⁻¹` in panels of four rows, for single predictions.
+    linv: panels::InversePanels,
     /// The Cholesky factor `L` (column-major), for batched predictions.
     factor: Vec<f64>,
     signal_var: f64,
@@ -148,17 +149,11 @@ impl Emulator {
             chol.factorize().map_err(|e| anyhow::anyhow!("component {k}: {e}"))?;
             let mut alpha = y.to_vec();
             chol.solve_in_place(&mut alpha);
-            let linv = chol.lower_inverse();
+            let linv = panels::InversePanels::new(&chol.lower_inverse(), n);
             let factor = chol.factor.clone();
-            let mut linv_packed = Vec::with_capacity(n * (n + 1) / 2);
-            for i in 0..n {
-                for j in 0..=i {
-                    linv_packed.push(linv[i + j * n]);
-                }
-            }
             gps.push(FittedGp {
                 alpha,
-                linv_packed,
+                linv,
                 factor,
                 signal_var: hyper.signal_var(),
                 constant: hyper.constant(),
@@ -217,8 +212,7 @@ impl Emulator {
             // cancels between large terms for a near-interpolating GP, so two
             // summation orders can differ by more than 1e-10 of the mean.
             means[c] = dot(&gp.alpha, &scratch.k[..n]);
-            // |L⁻¹ k|², row by row of the packed inverse.
-            let quad = packed_quadratic(&gp.linv_packed, &scratch.k[..n]);
+            let quad = gp.linv.quadratic(&scratch.k[..n]);
             vars[c] = (gp.signal_var + gp.constant + gp.noise_var - quad).max(gp.noise_var) - self.run_noise[c];
         }
     }
@@ -444,10 +438,9 @@ fn add_outer(acc: &mut [f64], v: &[f64], w: f64) {
     }
 }
 
-/// Dot product with four independent sums, so the compiler can use SIMD
-/// (a plain float `sum()` must keep its order and cannot).
-/// Eight partial sums: two AVX registers' worth, so that consecutive
-/// multiply-adds do not wait on each other.
+/// Dot product with eight independent partial sums (two AVX registers'
+/// worth), so the compiler can use SIMD (a plain float `sum()` must keep its
+/// order and cannot) and consecutive additions do not wait on each other.
 #[inline(always)]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut acc = [0.0; 8];
@@ -459,39 +452,6 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         }
     }
     ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7])) + tail
-}
-
-/// `|L⁻¹ k|²` with `L⁻¹` packed row by row (row i holds i + 1 entries): the
-/// predictive variance's cost, n²/2 multiply-adds per component.
-fn packed_quadratic(linv_packed: &[f64], k: &[f64]) -> f64 {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
-            // SAFETY: the CPU has the features the function is compiled for.
-            return unsafe { packed_quadratic_avx2(linv_packed, k) };
-        }
-    }
-    packed_quadratic_portable(linv_packed, k)
-}
-
-/// The same loop compiled for AVX2 and FMA, picked at run time: a portable
-/// build vectorizes only two doubles wide, and this loop is most of an
-/// emulated likelihood's cost.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn packed_quadratic_avx2(linv_packed: &[f64], k: &[f64]) -> f64 {
-    packed_quadratic_portable(linv_packed, k)
-}
-
-#[inline(always)]
-fn packed_quadratic_portable(linv_packed: &[f64], k: &[f64]) -> f64 {
-    let (mut quad, mut off) = (0.0, 0);
-    for i in 0..k.len() {
-        let w = dot(&linv_packed[off..off + i + 1], &k[..=i]);
-        quad += w * w;
-        off += i + 1;
-    }
-    quad
 }
 
 fn scale_to_unit(lo: &[f64], hi: &[f64], theta: &[f64], out: &mut [f64]) {
