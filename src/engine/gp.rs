@@ -502,6 +502,14 @@ impl std::fmt::Display for NotPositiveDefinite {
 }
 impl std::error::Error for NotPositiveDefinite {}
 
+/// Copies the lower triangle (diagonal included) of a column-major n × n
+/// matrix; the strictly upper triangle of `dst` is left as it is.
+pub fn copy_lower(src: &[f64], dst: &mut [f64], n: usize) {
+    for j in 0..n {
+        dst[j * n + j..(j + 1) * n].copy_from_slice(&src[j * n + j..(j + 1) * n]);
+    }
+}
+
 impl CholeskyWorkspace {
     pub fn new(n: usize) -> Self {
         let req = cholesky_in_place_scratch::<f64>(n, Par::Seq, Spec::<LltParams, f64>::default());
@@ -517,11 +525,13 @@ impl CholeskyWorkspace {
     /// jitter and counts the event; it returns the jitter used.
     pub fn factorize(&mut self) -> Result<f64, NotPositiveDefinite> {
         let n = self.n;
-        self.backup.copy_from_slice(&self.factor);
+        // Only the lower triangle is read, so only it is kept for a retry:
+        // for the joint likelihood's N × N matrix this copy is per evaluation.
+        copy_lower(&self.factor, &mut self.backup, n);
         let mean_diag = (0..n).map(|i| self.backup[i * n + i]).sum::<f64>() / n.max(1) as f64;
         for (attempt, &rel) in JITTER_LADDER.iter().enumerate() {
             if attempt > 0 {
-                self.factor.copy_from_slice(&self.backup);
+                copy_lower(&self.backup, &mut self.factor, n);
                 for i in 0..n {
                     self.factor[i * n + i] += rel * mean_diag.abs().max(f64::MIN_POSITIVE);
                 }

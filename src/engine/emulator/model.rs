@@ -124,7 +124,7 @@ impl Simulator for EmulatedModel {
     fn add_model_covariance(&self, observable: usize, x: &[f64], theta: &[f64], inv_scale2: f64, lower: &mut [f64]) {
         let w = inv_scale2.sqrt();
         self.with_components(theta, |means, vars| {
-            with_point_scratch(x.len(), |idx, g, loading| {
+            with_point_scratch(x.len(), self.emulator.n_components(), |idx, g, loading| {
                 for (i, &xi) in x.iter().enumerate() {
                     idx[i] = self.output(observable, xi);
                     g[i] = w * self.emulator.output_mean_from_components(means, idx[i]).1;
@@ -138,7 +138,7 @@ impl Simulator for EmulatedModel {
     }
     fn add_joint_model_covariance(&self, points: &[(usize, f64)], inv_scales: &[f64], theta: &[f64], lower: &mut [f64]) {
         self.with_components(theta, |means, vars| {
-            with_point_scratch(points.len(), |idx, g, loading| {
+            with_point_scratch(points.len(), self.emulator.n_components(), |idx, g, loading| {
                 for (i, &(observable, xi)) in points.iter().enumerate() {
                     idx[i] = self.output(observable, xi);
                     g[i] = inv_scales[i] * self.emulator.output_mean_from_components(means, idx[i]).1;
@@ -149,17 +149,25 @@ impl Simulator for EmulatedModel {
     }
 }
 
-/// Output indices, per-point factors and a loading column for `n` points,
-/// on the stack for the usual point counts so that a likelihood evaluation
-/// does not allocate.
-fn with_point_scratch<R>(n: usize, f: impl FnOnce(&mut [usize], &mut [f64], &mut [f64]) -> R) -> R {
-    const ON_STACK: usize = 256;
-    if n <= ON_STACK {
-        let (mut idx, mut g, mut loading) = ([0usize; ON_STACK], [0.0f64; ON_STACK], [0.0f64; ON_STACK]);
-        f(&mut idx[..n], &mut g[..n], &mut loading[..n])
-    } else {
-        f(&mut vec![0usize; n], &mut vec![0.0; n], &mut vec![0.0; n])
+/// Output indices, per-point factors and loadings scratch (2 n K) for `n`
+/// points, from a per-thread buffer that grows to the largest size asked
+/// for, so that a likelihood evaluation does not allocate.
+fn with_point_scratch<R>(n: usize, components: usize, f: impl FnOnce(&mut [usize], &mut [f64], &mut [f64]) -> R) -> R {
+    thread_local! {
+        static SCRATCH: RefCell<(Vec<usize>, Vec<f64>)> = const { RefCell::new((Vec::new(), Vec::new())) };
     }
+    SCRATCH.with(|cell| {
+        let (idx, values) = &mut *cell.borrow_mut();
+        let need = n + 2 * n * components;
+        if idx.len() < n {
+            idx.resize(n, 0);
+        }
+        if values.len() < need {
+            values.resize(need, 0.0);
+        }
+        let (g, loadings) = values[..need].split_at_mut(n);
+        f(&mut idx[..n], g, loadings)
+    })
 }
 
 #[cfg(test)]
