@@ -8,7 +8,9 @@
 //! blocks of the covariance; the data's and the model's covariances fill the
 //! rest. The cost is one factorization of N × N (N points in all) per
 //! evaluation instead of one per observable block, and a move of one
-//! observable's hyperparameters costs a whole evaluation.
+//! observable's hyperparameters costs a whole evaluation, paid only when the
+//! block's own marginal does not already reject it (the sampler's delayed
+//! acceptance, `MdLikelihood::screening_term`).
 
 use super::block::ObservableBlock;
 use crate::base::config::BetweenObservables;

@@ -16,7 +16,7 @@
 
 use super::block::ObservableBlock;
 use super::joint::{add_lower_block, JointLayout};
-use crate::engine::gp::{gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
+use crate::engine::gp::{copy_lower, gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
 use crate::engine::model::Simulator;
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -182,6 +182,16 @@ impl MdLikelihood {
         self.with_workspace(|ws| self.block_log_likelihood(params, b, ws))
     }
 
+    /// For the joint form: block `b`'s marginal, its points' Gaussian with
+    /// their own covariance (δ_b, the data's and the model's within the
+    /// block), which is the block form's term. A move of φ_b changes the
+    /// joint likelihood mostly through it, at the cost of an n_b × n_b
+    /// factorization instead of N × N. `None` for the block form (its terms
+    /// are exact) and without δ.
+    pub fn screening_term(&self, params: &[f64], b: usize) -> Option<f64> {
+        (self.joint.is_some() && self.kernel.is_some()).then(|| self.with_workspace(|ws| self.block_log_likelihood(params, b, ws)))
+    }
+
     /// Fisher information of θ for the model without MD at `theta`,
     /// `F = Jᵀ C⁻¹ J` (column-major d × d) with C the data's covariance (per
     /// block, or joint), in standardized units (the scales cancel), with the
@@ -288,7 +298,7 @@ impl MdLikelihood {
     /// after θ).
     fn fill_joint(&self, joint: &JointLayout, params: &[f64], with_delta: bool, ws: &mut Workspace, lower: &mut [f64], resid: &mut [f64]) {
         let base = self.joint_base(joint, &params[..self.n_theta], ws);
-        lower.copy_from_slice(&ws.joint_bases[base].lower);
+        copy_lower(&ws.joint_bases[base].lower, lower, joint.len());
         resid.copy_from_slice(&ws.joint_bases[base].resid);
         let Some(kernel) = self.kernel.filter(|_| with_delta) else { return };
         for (b, block) in self.blocks.iter().enumerate() {

@@ -53,6 +53,14 @@ pub trait LogLikelihood: Sync {
         unreachable!("log_likelihood_term needs a term structure")
     }
 
+    /// For terms that are not separable: a cheap, fixed function of `x` whose
+    /// change with term `term`'s own parameters tracks the likelihood's. A
+    /// sampler may screen a move of those parameters with it before paying
+    /// for a whole evaluation (delayed acceptance, Christen & Fox 2005),
+    /// which leaves the target exact. `None`: no screen.
+    fn screening_term(&self, _x: &[f64], _term: usize) -> Option<f64> {
+        None
+    }
 }
 
 /// `log L(x) = const + Σ_t L_t(x_shared, x_own(t))`: every term depends on the
@@ -83,6 +91,9 @@ impl LogLikelihood for MdLikelihood {
     }
     fn log_likelihood_term(&self, x: &[f64], term: usize) -> f64 {
         MdLikelihood::log_likelihood_term(self, x, term)
+    }
+    fn screening_term(&self, x: &[f64], term: usize) -> Option<f64> {
+        MdLikelihood::screening_term(self, x, term)
     }
 }
 
