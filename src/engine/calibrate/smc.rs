@@ -97,7 +97,8 @@ pub struct ReplicateOutput {
     pub relative_variance: f64,
     pub steps: Vec<SmcStep>,
     pub likelihood_evaluations: u64,
-    /// Evaluations of a single likelihood term (one observable's block).
+    /// Evaluations of a single likelihood term (one observable's block), or
+    /// of a term's screen for a joint likelihood.
     pub term_evaluations: u64,
     /// Fraction of distinct particles after the final resampling.
     #[serde(with = "f64_bit")]

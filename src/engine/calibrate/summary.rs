@@ -57,7 +57,8 @@ pub enum SamplerDetails {
         /// Schedule of the first replicate.
         schedule: Vec<SmcStepRecord>,
         unique_fraction: Vec<f64>,
-        /// Evaluations of one observable's term alone (its own φ moves), all replicates;
+        /// Evaluations of one observable's term alone (its own φ moves, or,
+        /// for a joint likelihood, their screens), all replicates;
         /// `likelihood_evaluations` counts whole-likelihood evaluations only.
         #[serde(default)]
         term_evaluations: u64,
