@@ -715,8 +715,10 @@ mod tests {
 
     #[test]
     fn every_factorization_path_reproduces_the_matrix() {
-        // n = 3, 10: fixed-size; 20: unblocked; 30: faer. L Lᵀ must give A back.
-        for n in [3usize, 10, 20, 30] {
+        // n = 3, 10: fixed-size; 20: unblocked; 30, 70: faer. L Lᵀ must give A
+        // back, from the lower triangle alone: the upper holds NaN (callers copy
+        // only the lower triangle, and leave whatever the last factor left above).
+        for (n, exact) in [3usize, 10, 20, 30, 70].into_iter().flat_map(|n| [(n, true), (n, false)]) {
             let x: Vec<f64> = (0..n).map(|i| 0.1 + 0.07 * i as f64 + 0.01 * (i as f64).sin()).collect();
             let mut a = vec![0.0; n * n];
             discrepancy_cross_cov(DiscrepancyKernel::KernelI, &[1.1, 0.3, 0.8, 0.4], &x, &x, &mut a);
@@ -725,7 +727,16 @@ mod tests {
             }
             let mut ws = CholeskyWorkspace::new(n);
             ws.factor.copy_from_slice(&a);
-            assert!(ws.factorize_exact(), "n = {n}");
+            for j in 0..n {
+                for i in 0..j {
+                    ws.factor[i + j * n] = f64::NAN;
+                }
+            }
+            if exact {
+                assert!(ws.factorize_exact(), "n = {n}");
+            } else {
+                assert_eq!(ws.factorize().ok(), Some(0.0), "n = {n}: no jitter needed");
+            }
             for j in 0..n {
                 for i in j..n {
                     let llt: f64 = (0..=j).map(|k| ws.factor[i + k * n] * ws.factor[j + k * n]).sum();
