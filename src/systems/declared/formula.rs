@@ -1,13 +1,11 @@
 //! Formulas a user writes in a config (`"h0 - v0*t - 0.5*g*t^2"`), parsed
-//! once by exmex and evaluated against a fixed vector of named variables.
-//!
-//! exmex sorts a formula's variables by name; a [`Formula`] keeps, for each
-//! of them, its index in the caller's [`Scope`], so evaluation gathers the
-//! values into a stack buffer and never allocates (exmex itself evaluates on
-//! the stack for formulas of up to 32 numbers and variables).
+//! once by the mathematical conventions (`notation`: `-w^2*x` is −(w²)·x)
+//! and compiled (`tape`) to evaluate against the caller's vector of named
+//! values in place, without allocation.
 
+use super::notation;
+use super::tape::Tape;
 use anyhow::{bail, Result};
-use exmex::prelude::*;
 
 /// The names a formula may use, in the order of the value vectors passed to
 /// [`Formula::eval`].
@@ -38,15 +36,12 @@ impl Scope {
     }
 }
 
-/// The most variables one formula may use (the stack buffer's size).
-const MAX_VARIABLES: usize = 32;
-
 /// A parsed formula bound to a scope.
 #[derive(Clone, Debug)]
 pub struct Formula {
     text: String,
-    expr: FlatEx<f64>,
-    /// For each of exmex's variables (sorted by name), its index in the scope.
+    tape: Tape,
+    /// The scope's indices of the variables the formula uses.
     slots: Vec<usize>,
 }
 
@@ -57,21 +52,21 @@ impl Formula {
         if text.trim().is_empty() {
             bail!("{place} = {text:?}: the formula is empty");
         }
-        let expr = match exmex::parse::<f64>(text) {
+        let expr = match notation::parse(text) {
             Ok(e) => e,
             Err(e) => bail!("{place} = {text:?}: not a formula ({e})"),
         };
-        let mut slots = Vec::new();
-        for name in expr.var_names() {
-            match scope.index(name) {
-                Some(i) => slots.push(i),
-                None => bail!("{place} = {text:?}: unknown name '{name}' (known here: {})", scope.names().join(", ")),
-            }
+        let mut names = Vec::new();
+        expr.names(&mut names);
+        if let Some(unknown) = names.iter().find(|n| scope.index(n).is_none() && Tape::constant(n).is_none()) {
+            bail!("{place} = {text:?}: unknown name '{unknown}' (known here: {})", scope.names().join(", "));
         }
-        if slots.len() > MAX_VARIABLES {
-            bail!("{place} = {text:?}: uses {} names; at most {MAX_VARIABLES} are allowed in one formula", slots.len());
-        }
-        Ok(Formula { text: text.to_string(), expr, slots })
+        let tape = match Tape::compile(&expr, &|n| scope.index(n)) {
+            Ok(t) => t,
+            Err(e) => bail!("{place} = {text:?}: not a formula ({e})"),
+        };
+        let slots = names.iter().filter(|n| Tape::constant(n).is_none()).filter_map(|n| scope.index(n)).collect();
+        Ok(Formula { text: text.to_string(), tape, slots })
     }
 
     pub fn text(&self) -> &str {
@@ -87,11 +82,7 @@ impl Formula {
     /// it is undefined.
     #[inline]
     pub fn eval(&self, values: &[f64]) -> f64 {
-        let mut gathered = [0.0; MAX_VARIABLES];
-        for (g, &s) in gathered.iter_mut().zip(&self.slots) {
-            *g = values[s];
-        }
-        self.expr.eval(&gathered[..self.slots.len()]).unwrap_or(f64::NAN)
+        self.tape.eval(values)
     }
 }
 
@@ -127,6 +118,66 @@ mod tests {
         let e = Formula::parse("g*(t", &scope(), "m.toml: [model.rates] v").unwrap_err().to_string();
         assert!(e.contains("[model.rates] v") && e.contains("not a formula"), "{e}");
         assert!(Formula::parse("  ", &scope(), "p").unwrap_err().to_string().contains("empty"));
+    }
+
+    /// Each formula against the meaning a physicist gives it, written in Rust.
+    #[test]
+    fn formulas_mean_what_mathematics_says() {
+        let (t, g, v0, h0) = (1.5, 2.0, -0.7, 3.0);
+        let at = [t, g, v0, h0];
+        let table: [(&str, f64); 12] = [
+            ("-g^2*t", -(g * g) * t),
+            ("-g^2", -(g * g)),
+            ("g^t^h0", g.powf(t.powf(h0))),
+            ("g^-t", g.powf(-t)),
+            ("-g^-t^2", -(g.powf(-(t * t)))),
+            ("2 - g^2", 2.0 - g * g),
+            ("t*-g", t * -g),
+            ("h0/g*t", h0 / g * t),
+            ("h0/g/t", h0 / g / t),
+            ("h0 - g - t", h0 - g - t),
+            ("max(v0, -g^2) + min(t, 1)", v0.max(-(g * g)) + t.min(1.0)),
+            ("-exp(-t^2/2)", -(-(t * t) / 2.0).exp()),
+        ];
+        for (text, want) in table {
+            let got = Formula::parse(text, &scope(), "p").unwrap().eval(&at);
+            assert!((got - want).abs() < 1e-12 * want.abs().max(1.0), "{text}: {got} against {want}");
+        }
+        let e = Formula::parse("2g*t", &scope(), "p").unwrap_err().to_string();
+        assert!(e.contains("write the multiplication out"), "{e}");
+    }
+
+    /// The compiled tape against exmex, an independent evaluator, given the
+    /// same grouping (exmex's own precedence differs: see `notation`).
+    #[test]
+    fn the_tape_agrees_with_exmex() {
+        use exmex::prelude::*;
+        let scope = scope();
+        let at = [0.37, 9.81, -1.3, 62.0];
+        for text in [
+            "h0 - v0*t - 0.5*g*t^2",
+            "-g*v0*abs(v0) + h0^-1.5 - t^3 + t^-2 + 2^t^2",
+            "(1 - exp(-1/(2*0.25))) * (1000*g*t^3 + 1900*t^2 + 2092*t + 60) / (100*v0*t^3 + 500*t^2 + 4*t + 20)",
+            "g*(10*t^2 + 4*0.25^2)/(50*t*0.25 + 10)",
+            "v0*g - v0*g/(1 + h0*g) + sin(PI*t) - cos(2*π*t/TAU) + e^t",
+            "atan2(v0, t) + min(g, h0) * max(-t, t) + tanh(v0) + log(g) + sqrt(h0) + signum(v0)",
+            "-t^0.5 + cbrt(g) - log10(h0) * ln(g) / log2(h0)",
+        ] {
+            let expr = notation::parse(text).unwrap();
+            let flat = exmex::parse::<f64>(&expr.explicit()).unwrap();
+            let vals: Vec<f64> = flat.var_names().iter().map(|n| at[scope.index(n).unwrap_or_else(|| panic!("{text}: exmex sees a variable {n}"))]).collect();
+            let want = flat.eval(&vals).unwrap();
+            let got = Formula::parse(text, &scope, "p").unwrap().eval(&at);
+            assert!((got - want).abs() <= 1e-13 * want.abs().max(1.0), "{text}: tape {got}, exmex {want}");
+        }
+    }
+
+    #[test]
+    fn unknown_functions_and_wrong_arities_are_named() {
+        let e = Formula::parse("foo(t)", &scope(), "p").unwrap_err().to_string();
+        assert!(e.contains("unknown function 'foo'"), "{e}");
+        let e = Formula::parse("max(t)", &scope(), "p").unwrap_err().to_string();
+        assert!(e.contains("max takes two arguments"), "{e}");
     }
 
     #[test]

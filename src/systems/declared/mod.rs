@@ -11,14 +11,16 @@
 //! terms from outside the library). `diagnose` weighs each candidate and,
 //! unless `[model] candidate_pairs = false`, each pair of them.
 //!
-//! Formulas are parsed once (exmex) and evaluated without allocation;
-//! `formula` wraps the parser, `declaration` reads the tables, and
+//! Formulas are parsed once (`notation`: mathematical precedence) and
+//! compiled (`tape`) to evaluate without allocation; `formula` binds them to names, `declaration` reads the tables, and
 //! `expression` and `ode` compile a declaration into a `Simulator`.
 
 mod declaration;
 pub mod expression;
 pub mod formula;
+mod notation;
 pub mod ode;
+mod tape;
 
 use crate::base::config::Config;
 use crate::engine::model::{CandidateModel, ModelFamily, Simulator, Units};

@@ -1,0 +1,304 @@
+//! A formula as a physicist writes it, parsed into an expression tree by
+//! the mathematical conventions: `-a^b = -(a^b)`, `a^b^c = a^(b^c)`,
+//! `a^-b = a^(-b)`, `+ -` below `* /` below a sign below `^` (precedence
+//! climbing). Implicit multiplication (`2a`, `2(a+b)`, `a b`) is refused
+//! rather than guessed.
+//!
+//! Why not exmex's own parser: it gives unary minus priority over `^`, so
+//! `-w^2*x` meant `(-w)^2*x = +w^2*x`, and it reads `a^b^c` from the left.
+//! The tree also prints itself fully parenthesized ([`Expr::explicit`]),
+//! which the tests hand to exmex as an independent evaluator.
+
+use anyhow::{bail, Result};
+
+/// A parsed formula.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Expr {
+    Number(f64),
+    Name(String),
+    Neg(Box<Expr>),
+    /// `+ - * / ^` and its two operands.
+    Binary(char, Box<Expr>, Box<Expr>),
+    /// A function and its arguments: `max(a, b)`.
+    Call(String, Vec<Expr>),
+}
+
+impl Expr {
+    /// The formula with every operation in parentheses: `-w^2` → `(-(w^2))`.
+    #[cfg(test)]
+    pub fn explicit(&self) -> String {
+        match self {
+            Expr::Number(v) => format!("{v:?}"),
+            Expr::Name(n) => n.clone(),
+            Expr::Neg(a) => format!("(-{})", a.explicit()),
+            Expr::Binary(op, a, b) => format!("({}{op}{})", a.explicit(), b.explicit()),
+            Expr::Call(f, args) => format!("{f}({})", args.iter().map(Expr::explicit).collect::<Vec<_>>().join(", ")),
+        }
+    }
+
+    /// Every name the formula uses outside function position, each once.
+    pub fn names(&self, out: &mut Vec<String>) {
+        match self {
+            Expr::Number(_) => {}
+            Expr::Name(n) => {
+                if !out.contains(n) {
+                    out.push(n.clone())
+                }
+            }
+            Expr::Neg(a) => a.names(out),
+            Expr::Binary(_, a, b) => {
+                a.names(out);
+                b.names(out);
+            }
+            Expr::Call(_, args) => args.iter().for_each(|a| a.names(out)),
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+enum Token {
+    Number(String),
+    Name(String),
+    Op(char),
+    Open,
+    Close,
+    Comma,
+}
+
+/// The expression tree of `text`; an error says what is wrong.
+pub fn parse(text: &str) -> Result<Expr> {
+    let tokens = tokenize(text)?;
+    let mut parser = Parser { tokens: &tokens, at: 0 };
+    let out = parser.sum()?;
+    if let Some(t) = parser.peek() {
+        bail!("unexpected {} after a complete expression", describe(t));
+    }
+    Ok(out)
+}
+
+fn tokenize(text: &str) -> Result<Vec<Token>> {
+    let chars: Vec<char> = text.chars().collect();
+    let mut tokens = Vec::new();
+    let mut i = 0;
+    while i < chars.len() {
+        let c = chars[i];
+        if c.is_whitespace() {
+            i += 1;
+            continue;
+        }
+        let token = if c.is_ascii_digit() || (c == '.' && chars.get(i + 1).is_some_and(|d| d.is_ascii_digit())) {
+            let (number, next) = read_number(&chars, i);
+            i = next;
+            Token::Number(number)
+        } else if c.is_alphabetic() || c == '_' {
+            let start = i;
+            while i < chars.len() && (chars[i].is_alphanumeric() || chars[i] == '_') {
+                i += 1;
+            }
+            Token::Name(chars[start..i].iter().collect())
+        } else {
+            i += 1;
+            match c {
+                '+' | '-' | '*' | '/' | '^' => Token::Op(c),
+                '(' => Token::Open,
+                ')' => Token::Close,
+                ',' => Token::Comma,
+                _ => bail!("unexpected character '{c}'"),
+            }
+        };
+        if let (Some(prev), true) = (tokens.last(), starts_operand(&token)) {
+            // A name before '(' is a function call: `sin(t)`.
+            let call = matches!((prev, &token), (Token::Name(_), Token::Open));
+            if ends_operand(prev) && !call {
+                bail!(
+                    "{} directly after {}: write the multiplication out, e.g. 2*a",
+                    describe(&token),
+                    describe(prev)
+                );
+            }
+        }
+        tokens.push(token);
+    }
+    Ok(tokens)
+}
+
+/// Digits, an optional fraction and an optional exponent (`1.5e-3`).
+fn read_number(chars: &[char], mut i: usize) -> (String, usize) {
+    let start = i;
+    while i < chars.len() && (chars[i].is_ascii_digit() || chars[i] == '.') {
+        i += 1;
+    }
+    if i < chars.len() && (chars[i] == 'e' || chars[i] == 'E') {
+        let mut j = i + 1;
+        if j < chars.len() && (chars[j] == '+' || chars[j] == '-') {
+            j += 1;
+        }
+        if j < chars.len() && chars[j].is_ascii_digit() {
+            while j < chars.len() && chars[j].is_ascii_digit() {
+                j += 1;
+            }
+            i = j;
+        }
+    }
+    (chars[start..i].iter().collect(), i)
+}
+
+fn starts_operand(t: &Token) -> bool {
+    matches!(t, Token::Number(_) | Token::Name(_) | Token::Open)
+}
+
+fn ends_operand(t: &Token) -> bool {
+    matches!(t, Token::Number(_) | Token::Name(_) | Token::Close)
+}
+
+fn describe(t: &Token) -> String {
+    match t {
+        Token::Number(n) => format!("number {n}"),
+        Token::Name(n) => format!("name '{n}'"),
+        Token::Op(c) => format!("'{c}'"),
+        Token::Open => "'('".into(),
+        Token::Close => "')'".into(),
+        Token::Comma => "','".into(),
+    }
+}
+
+struct Parser<'a> {
+    tokens: &'a [Token],
+    at: usize,
+}
+
+impl Parser<'_> {
+    fn peek(&self) -> Option<&Token> {
+        self.tokens.get(self.at)
+    }
+
+    fn next(&mut self) -> Option<&Token> {
+        self.at += 1;
+        self.tokens.get(self.at - 1)
+    }
+
+    fn eat_op(&mut self, ops: &[char]) -> Option<char> {
+        match self.peek() {
+            Some(Token::Op(c)) if ops.contains(c) => {
+                let c = *c;
+                self.at += 1;
+                Some(c)
+            }
+            _ => None,
+        }
+    }
+
+    /// `a + b - c`, left to right.
+    fn sum(&mut self) -> Result<Expr> {
+        let mut out = self.product()?;
+        while let Some(op) = self.eat_op(&['+', '-']) {
+            out = Expr::Binary(op, Box::new(out), Box::new(self.product()?));
+        }
+        Ok(out)
+    }
+
+    /// `a * b / c`, left to right.
+    fn product(&mut self) -> Result<Expr> {
+        let mut out = self.signed()?;
+        while let Some(op) = self.eat_op(&['*', '/']) {
+            out = Expr::Binary(op, Box::new(out), Box::new(self.signed()?));
+        }
+        Ok(out)
+    }
+
+    /// A leading sign applies to the whole power after it: `-a^b = -(a^b)`.
+    fn signed(&mut self) -> Result<Expr> {
+        match self.eat_op(&['-', '+']) {
+            Some('-') => Ok(Expr::Neg(Box::new(self.signed()?))),
+            Some(_) => self.signed(),
+            None => self.power(),
+        }
+    }
+
+    /// `a ^ b`, right to left, the exponent may carry a sign: `a^-b^c = a^(-(b^c))`.
+    fn power(&mut self) -> Result<Expr> {
+        let base = self.atom()?;
+        if self.eat_op(&['^']).is_some() {
+            return Ok(Expr::Binary('^', Box::new(base), Box::new(self.signed()?)));
+        }
+        Ok(base)
+    }
+
+    fn atom(&mut self) -> Result<Expr> {
+        match self.next().cloned() {
+            Some(Token::Number(n)) => match n.parse::<f64>() {
+                Ok(v) => Ok(Expr::Number(v)),
+                Err(_) => bail!("'{n}' is not a number"),
+            },
+            Some(Token::Name(name)) if self.peek() == Some(&Token::Open) => {
+                self.at += 1;
+                let mut args = vec![self.sum()?];
+                while self.peek() == Some(&Token::Comma) {
+                    self.at += 1;
+                    args.push(self.sum()?);
+                }
+                self.expect_close(&format!("the arguments of {name}"))?;
+                Ok(Expr::Call(name, args))
+            }
+            Some(Token::Name(name)) => Ok(Expr::Name(name)),
+            Some(Token::Open) => {
+                let inner = self.sum()?;
+                self.expect_close("a parenthesis")?;
+                Ok(inner)
+            }
+            Some(t) => bail!("expected a number, a name or '(' but found {}", describe(&t)),
+            None => bail!("the formula ends where a number, a name or '(' was expected"),
+        }
+    }
+
+    fn expect_close(&mut self, what: &str) -> Result<()> {
+        match self.next() {
+            Some(Token::Close) => Ok(()),
+            Some(t) => bail!("{what} is not closed: found {} where ')' was expected", describe(t)),
+            None => bail!("{what} is not closed: ')' is missing"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn groups_by_mathematical_precedence() {
+        for (text, want) in [
+            ("-w^2*x", "((-(w^2.0))*x)"),
+            ("a^b^c", "(a^(b^c))"),
+            ("a^-b", "(a^(-b))"),
+            ("-a^-b^c", "(-(a^(-(b^c))))"),
+            ("a - b - c", "((a-b)-c)"),
+            ("a / b / c", "((a/b)/c)"),
+            ("a/b*c", "((a/b)*c)"),
+            ("2.5e-3*x^2", "(0.0025*(x^2.0))"),
+            ("max(a, -b^2)", "max(a, (-(b^2.0)))"),
+            ("--a", "(-(-a))"),
+            ("+a", "a"),
+            ("(a+b)^2", "((a+b)^2.0)"),
+        ] {
+            assert_eq!(parse(text).unwrap().explicit(), want, "{text}");
+        }
+    }
+
+    #[test]
+    fn refuses_implicit_products_and_broken_syntax() {
+        for (text, says) in [
+            ("2a", "write the multiplication out"),
+            ("2(a+b)", "write the multiplication out"),
+            ("(a)(b)", "write the multiplication out"),
+            ("a b", "write the multiplication out"),
+            ("a +", "ends where"),
+            ("(a", "not closed"),
+            ("a)", "unexpected ')'"),
+            ("a # b", "unexpected character '#'"),
+            ("*a", "found '*'"),
+        ] {
+            let e = parse(text).unwrap_err().to_string();
+            assert!(e.contains(says), "{text}: {e}");
+        }
+    }
+}
