@@ -6,11 +6,11 @@ use crate::base::progress::Silent;
 use crate::engine::calibrate::{Analysis, Overrides, Problem};
 use crate::engine::compare;
 use crate::engine::gp::DiscrepancyKernel;
-use std::path::PathBuf;
 use anyhow::Result;
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::path::Path;
+use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(Debug, serde::Serialize)]
@@ -24,7 +24,11 @@ pub struct LikelihoodBench {
 }
 
 /// Single-threaded evaluations per second at prior draws (all observables).
-pub fn likelihood_throughput(analysis: &Analysis, kernel: Option<DiscrepancyKernel>, evaluations: usize) -> Result<LikelihoodBench> {
+pub fn likelihood_throughput(
+    analysis: &Analysis,
+    kernel: Option<DiscrepancyKernel>,
+    evaluations: usize,
+) -> Result<LikelihoodBench> {
     let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..Default::default() })?;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
     let dim = problem.prior.dim();
@@ -66,7 +70,12 @@ pub struct GridBench {
 }
 
 /// Times the full 9-case comparison grid.
-pub fn compare_grid(analysis: &Analysis, overrides: &Overrides, seed: u64, out: &Path) -> Result<(f64, Vec<GridBench>)> {
+pub fn compare_grid(
+    analysis: &Analysis,
+    overrides: &Overrides,
+    seed: u64,
+    out: &Path,
+) -> Result<(f64, Vec<GridBench>)> {
     let start = Instant::now();
     let cases = compare::run_grid(analysis, overrides, seed, out, &Silent)?;
     let total = start.elapsed().as_secs_f64();
@@ -121,12 +130,16 @@ pub fn emulator_throughput(dir: &Path, predictions: usize) -> Result<EmulatorBen
     let reps = (2e8 / (n as f64).powi(3)).clamp(10.0, 2000.0) as usize;
     let start = Instant::now();
     for _ in 0..reps {
-        std::hint::black_box(crate::engine::gp::ard_log_marginal_likelihood(emu.parts.kernel, hyper, &unit, scores, Some(&mut grad)).ok());
+        std::hint::black_box(
+            crate::engine::gp::ard_log_marginal_likelihood(emu.parts.kernel, hyper, &unit, scores, Some(&mut grad))
+                .ok(),
+        );
     }
     let lml_rate = reps as f64 / start.elapsed().as_secs_f64();
 
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
-    let thetas: Vec<Vec<f64>> = (0..1024).map(|_| (0..d).map(|p| lo[p] + rng.random::<f64>() * (hi[p] - lo[p])).collect()).collect();
+    let thetas: Vec<Vec<f64>> =
+        (0..1024).map(|_| (0..d).map(|p| lo[p] + rng.random::<f64>() * (hi[p] - lo[p])).collect()).collect();
     let mut scratch = emu.scratch();
     let (mut m, mut v) = (vec![0.0; k], vec![0.0; k]);
     let start = Instant::now();
@@ -200,7 +213,11 @@ pub fn heavy_ion_point(events: usize, oversample: usize, dir: &Path) -> Result<H
     let t = Instant::now();
     let sampled = ev::sample_events(&tables, events, oversample, 1);
     let sampling_s = t.elapsed().as_secs_f64();
-    let particles: f64 = sampled.iter().flat_map(|e| e.files.iter().filter(|f| f.name.contains("_diff_"))).map(|f| (0..f.rows()).map(|r| f.row(r)[f.columns - 1]).sum::<f64>()).sum();
+    let particles: f64 = sampled
+        .iter()
+        .flat_map(|e| e.files.iter().filter(|f| f.name.contains("_diff_")))
+        .map(|f| (0..f.rows()).map(|r| f.row(r)[f.columns - 1]).sum::<f64>())
+        .sum();
     let _ = std::fs::remove_dir_all(dir);
     let (h5_dir, text_dir) = (dir.join("hdf5/0000"), dir.join("text/0000"));
     let t = Instant::now();
@@ -212,7 +229,16 @@ pub fn heavy_ion_point(events: usize, oversample: usize, dir: &Path) -> Result<H
     let t = Instant::now();
     crate::engine::ingest::ingest_runs(&dir.join("hdf5"), None, &crate::engine::ingest::IngestSettings::default())?;
     let ingest_s = t.elapsed().as_secs_f64();
-    Ok(HeavyIonBench { events, oversample, particles: particles as usize, smooth_tables_s, sampling_s, write_hdf5_s, write_text_s, ingest_s })
+    Ok(HeavyIonBench {
+        events,
+        oversample,
+        particles: particles as usize,
+        smooth_tables_s,
+        sampling_s,
+        write_hdf5_s,
+        write_text_s,
+        ingest_s,
+    })
 }
 
 #[derive(Debug, serde::Serialize)]
@@ -252,7 +278,8 @@ pub struct BenchArgs {
 pub fn command(a: BenchArgs) -> Result<()> {
     let threads = rayon::current_num_threads();
     if let Some(events) = a.heavy_ion_events {
-        let b = heavy_ion_point(events, crate::systems::heavy_ion::events::DEFAULT_OVERSAMPLE, &a.out.join("heavy_ion"))?;
+        let b =
+            heavy_ion_point(events, crate::systems::heavy_ion::events::DEFAULT_OVERSAMPLE, &a.out.join("heavy_ion"))?;
         println!("heavy-ion stand-in, one design point: {} events x {} samples, {} particles in the files ({threads} threads)", b.events, b.oversample, b.particles);
         println!("  smooth Cooper-Frye tables {:>7.3} s", b.smooth_tables_s);
         println!("  event sampling            {:>7.3} s", b.sampling_s);
@@ -265,28 +292,64 @@ pub fn command(a: BenchArgs) -> Result<()> {
     if let Some(dir) = &a.emulator {
         let b = emulator_throughput(dir, 200_000)?;
         println!("emulator: {} design points, {} components, {} outputs", b.n_points, b.n_components, b.n_outputs);
-        println!("  marginal likelihood + gradient: {:>10.0} evaluations/s (one core)", b.marginal_likelihood_evals_per_second);
-        println!("  one component, mean + variance: {:>10.0} predictions/s (one core)", b.component_predictions_per_second_one_core);
-        println!("  all components, mean + variance: {:>9.0} predictions/s ({threads} threads)", b.emulator_predictions_per_second);
-        println!("  all components, batches of 256: {:>9.0} predictions/s ({threads} threads)", b.batched_predictions_per_second);
-        println!("  mean + full {}x{} covariance:  {:>10.0} predictions/s ({threads} threads)", b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second);
+        println!(
+            "  marginal likelihood + gradient: {:>10.0} evaluations/s (one core)",
+            b.marginal_likelihood_evals_per_second
+        );
+        println!(
+            "  one component, mean + variance: {:>10.0} predictions/s (one core)",
+            b.component_predictions_per_second_one_core
+        );
+        println!(
+            "  all components, mean + variance: {:>9.0} predictions/s ({threads} threads)",
+            b.emulator_predictions_per_second
+        );
+        println!(
+            "  all components, batches of 256: {:>9.0} predictions/s ({threads} threads)",
+            b.batched_predictions_per_second
+        );
+        println!(
+            "  mean + full {}x{} covariance:  {:>10.0} predictions/s ({threads} threads)",
+            b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second
+        );
         return Ok(());
     }
     let analysis = crate::systems::load(&a.config)?;
     if a.diagnose {
         let b = diagnose_time(&analysis, a.seed)?;
-        println!("diagnose {}: {} calibrations in {:.1} s on {threads} threads; verdict {}", a.config.display(), b.calibrations, b.seconds, b.verdict);
+        println!(
+            "diagnose {}: {} calibrations in {:.1} s on {threads} threads; verdict {}",
+            a.config.display(),
+            b.calibrations,
+            b.seconds,
+            b.verdict
+        );
         return Ok(());
     }
     for kernel in compare::KERNELS {
         let b = likelihood_throughput(&analysis, kernel, a.evaluations)?;
-        println!("likelihood kernel={:<4} dim={:>2} points={}: {:>10.0} evaluations/s on one core ({:.1} ns each)", b.kernel, b.dim, b.n_points, b.evaluations_per_second_one_core, 1e9 / b.evaluations_per_second_one_core);
+        println!(
+            "likelihood kernel={:<4} dim={:>2} points={}: {:>10.0} evaluations/s on one core ({:.1} ns each)",
+            b.kernel,
+            b.dim,
+            b.n_points,
+            b.evaluations_per_second_one_core,
+            1e9 / b.evaluations_per_second_one_core
+        );
     }
     if !a.likelihood_only {
         let overrides = super::commands::parse_overrides(None, None, None, a.sampler)?;
         let (total, rows) = compare_grid(&analysis, &overrides, a.seed, &a.out)?;
         for r in &rows {
-            println!("{:<40} {:<8} {:>6.2} s  min ESS {:>6.0}  min ESS/s {:>8.0}  {}", r.case, r.sampler, r.seconds, r.min_ess, r.min_ess_per_second, if r.converged { "converged" } else { "NOT CONVERGED" });
+            println!(
+                "{:<40} {:<8} {:>6.2} s  min ESS {:>6.0}  min ESS/s {:>8.0}  {}",
+                r.case,
+                r.sampler,
+                r.seconds,
+                r.min_ess,
+                r.min_ess_per_second,
+                if r.converged { "converged" } else { "NOT CONVERGED" }
+            );
         }
         println!("full 9-case grid: {total:.2} s on {threads} threads");
     }

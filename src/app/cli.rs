@@ -5,7 +5,11 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
 #[derive(Parser)]
-#[command(name = "mdpipe", version, about = "Locate, explain and model simulator-data mismatch with Bayesian model discrepancy")]
+#[command(
+    name = "mdpipe",
+    version,
+    about = "Locate, explain and model simulator-data mismatch with Bayesian model discrepancy"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -62,6 +66,9 @@ pub enum Command {
     Demo {
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Sample with the config's full settings (4 x 2000 particles) instead of a quarter of them
+        #[arg(long)]
+        full: bool,
         #[arg(long, default_value = "outputs/demo")]
         out: PathBuf,
     },
@@ -288,4 +295,3 @@ pub enum SimulateSystem {
         sigma: Vec<f64>,
     },
 }
-

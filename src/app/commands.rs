@@ -12,19 +12,36 @@ use crate::systems;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
-pub fn parse_overrides(data: Option<PathBuf>, kernel: Option<String>, observables: Option<Vec<String>>, sampler: Option<String>) -> Result<Overrides> {
+pub fn parse_overrides(
+    data: Option<PathBuf>,
+    kernel: Option<String>,
+    observables: Option<Vec<String>>,
+    sampler: Option<String>,
+) -> Result<Overrides> {
     let kernel = match kernel {
         None => None,
-        Some(k) => Some(DiscrepancyKernel::parse(&k).with_context(|| format!("--kernel: unknown kernel {k:?} (use none, I or II)"))?),
+        Some(k) => Some(
+            DiscrepancyKernel::parse(&k)
+                .with_context(|| format!("--kernel: unknown kernel {k:?} (use none, I or II)"))?,
+        ),
     };
     let sampler = match sampler {
         None => None,
-        Some(s) => Some(SamplerKind::parse(&s).with_context(|| format!("--sampler: unknown sampler {s:?} (use smc or ensemble)"))?),
+        Some(s) => Some(
+            SamplerKind::parse(&s)
+                .with_context(|| format!("--sampler: unknown sampler {s:?} (use smc or ensemble)"))?,
+        ),
     };
     Ok(Overrides { data, kernel, observables, sampler })
 }
 
-pub fn calibrate(args: CalibrationArgs, kernel: Option<String>, observables: Option<Vec<String>>, sampler: Option<String>, time_limit: Option<f64>) -> Result<()> {
+pub fn calibrate(
+    args: CalibrationArgs,
+    kernel: Option<String>,
+    observables: Option<Vec<String>>,
+    sampler: Option<String>,
+    time_limit: Option<f64>,
+) -> Result<()> {
     let analysis = systems::load(&args.config)?;
     let overrides = parse_overrides(args.data, kernel, observables, sampler)?;
     let problem = Problem::new(&analysis, &overrides)?;
@@ -33,7 +50,11 @@ pub fn calibrate(args: CalibrationArgs, kernel: Option<String>, observables: Opt
     }
     artifacts::check_writable(&args.out)?;
     let limit = time_limit.map(std::time::Duration::from_secs_f64);
-    let checkpoint = calibrate::checkpoint::Checkpointing::new(&args.out.join(".checkpoint"), calibrate::checkpoint_key(&problem, args.seed), limit);
+    let checkpoint = calibrate::checkpoint::Checkpointing::new(
+        &args.out.join(".checkpoint"),
+        calibrate::checkpoint_key(&problem, args.seed),
+        limit,
+    );
     let cal = calibrate::run_and_write(&problem, args.seed, &Bars::default(), &checkpoint, &args.out)?;
     print_summary(&cal.summary);
     println!("wrote {}/{{posterior.parquet, summary.json, predictions.parquet}}", args.out.display());
@@ -64,7 +85,14 @@ pub fn diagnose(args: CalibrationArgs) -> Result<()> {
     let analysis = systems::load(&args.config)?;
     let overrides = parse_overrides(args.data, None, None, None)?;
     artifacts::check_writable(&args.out)?;
-    let run = diagnose::run(&analysis, &overrides, args.seed, &diagnose::DiagnoseSettings::default(), Some(&args.out), &Bars::default())?;
+    let run = diagnose::run(
+        &analysis,
+        &overrides,
+        args.seed,
+        &diagnose::DiagnoseSettings::default(),
+        Some(&args.out),
+        &Bars::default(),
+    )?;
     diagnose::print(&run.diagnosis);
     report::write(&[args.out.clone()], &args.out.join("report.html"), "mdpipe diagnose", &systems::figures())?;
     println!("wrote {0}/diagnosis.json and {0}/report.html", args.out.display());
@@ -75,7 +103,10 @@ pub fn design(spec: &Path, points: usize, seed: u64, out: &Path) -> Result<()> {
     let bytes = std::fs::read(spec).with_context(|| format!("reading {}", spec.display()))?;
     let design_spec = crate::engine::design::DesignSpec::load(spec)?;
     let q = crate::engine::design::write_design(&design_spec, &artifacts::sha256_hex(&bytes), points, seed, out)?;
-    println!("{} points in {} dimensions: minimum distance {:.4}, centered L2 discrepancy {:.5} (unit cube)", q.points, q.dimensions, q.min_distance, q.centered_l2_discrepancy);
+    println!(
+        "{} points in {} dimensions: minimum distance {:.4}, centered L2 discrepancy {:.5} (unit cube)",
+        q.points, q.dimensions, q.min_distance, q.centered_l2_discrepancy
+    );
     println!("wrote {0}/design.parquet, {0}/parameters/parameter_*, {0}/submit.slurm, {0}/quality.json", out.display());
     Ok(())
 }
@@ -122,27 +153,63 @@ pub fn report(dirs: &[PathBuf], out: &Path, png: Option<&Path>) -> Result<()> {
     Ok(())
 }
 
-pub fn run_study(config: &Path, stage: Option<String>, force: bool, seed: u64, out: Option<PathBuf>, executor: &str, case: Option<usize>) -> Result<()> {
+pub fn run_study(
+    config: &Path,
+    stage: Option<String>,
+    force: bool,
+    seed: u64,
+    out: Option<PathBuf>,
+    executor: &str,
+    case: Option<usize>,
+) -> Result<()> {
     use crate::systems::heavy_ion::study_runner;
     let config = Config::load(config)?;
     let out = out.unwrap_or_else(|| PathBuf::from("outputs").join(&config.name));
     let start = std::time::Instant::now();
-    let opts = study_runner::RunOptions { out: out.clone(), seed, stage, force, show_progress: true, executor: executor.parse()?, mdpipe: std::env::current_exe()?, case };
+    let opts = study_runner::RunOptions {
+        out: out.clone(),
+        seed,
+        stage,
+        force,
+        show_progress: true,
+        executor: executor.parse()?,
+        mdpipe: std::env::current_exe()?,
+        case,
+    };
     let outcomes = study_runner::run(&config, &opts)?;
     let ran: Vec<&str> = outcomes.iter().filter(|o| o.ran).map(|o| o.stage.as_str()).collect();
-    println!("ran {} stage(s) [{}] in {:.1} s; outputs in {}", ran.len(), ran.join(", "), start.elapsed().as_secs_f64(), out.display());
+    println!(
+        "ran {} stage(s) [{}] in {:.1} s; outputs in {}",
+        ran.len(),
+        ran.join(", "),
+        start.elapsed().as_secs_f64(),
+        out.display()
+    );
     if out.join("report.html").exists() {
-        let table = if out.join("study.md").exists() { out.join("study.md") } else { out.join("calibrate").join("cases.md") };
+        let table =
+            if out.join("study.md").exists() { out.join("study.md") } else { out.join("calibrate").join("cases.md") };
         println!("results: {}; report: {}", table.display(), out.join("report.html").display());
     }
     Ok(())
 }
 
-pub fn ingest(runs: &Path, pt_bins: Option<Vec<f64>>, design: Option<&Path>, min_events: usize, format: &str, out: &Path) -> Result<()> {
+pub fn ingest(
+    runs: &Path,
+    pt_bins: Option<Vec<f64>>,
+    design: Option<&Path>,
+    min_events: usize,
+    format: &str,
+    out: &Path,
+) -> Result<()> {
     use crate::engine::ingest;
     if runs.is_file() && runs.extension().is_some_and(|e| e == "dat") {
         let data = artifacts::read_paper_table(runs)?;
-        let prov = artifacts::Provenance::new(String::new(), artifacts::measurements_hash(&data), 0, &format!("ingest {}", runs.display()));
+        let prov = artifacts::Provenance::new(
+            String::new(),
+            artifacts::measurements_hash(&data),
+            0,
+            &format!("ingest {}", runs.display()),
+        );
         artifacts::write_measurements(out, &data, Some(&prov))?;
         println!("converted {} values from {} to {}", data.len(), runs.display(), out.display());
         return Ok(());
@@ -155,7 +222,13 @@ pub fn ingest(runs: &Path, pt_bins: Option<Vec<f64>>, design: Option<&Path>, min
     ingest::print_report(&ingested.report);
     let report = ingest::write(&ingested, design_df.as_ref(), out)?;
     let good = ingested.report.points.iter().filter(|p| p.flagged.is_none()).count();
-    println!("wrote {} rows from {good} of {} design points to {} (report: {})", ingested.rows.len(), ingested.report.points.len(), out.display(), report.display());
+    println!(
+        "wrote {} rows from {good} of {} design points to {} (report: {})",
+        ingested.rows.len(),
+        ingested.report.points.len(),
+        out.display(),
+        report.display()
+    );
     Ok(())
 }
 

@@ -27,7 +27,10 @@ pub fn heavy_ion(a: HeavyIonArgs) -> Result<()> {
     let df: heavy_ion::DeltaF = a.delta_f.parse()?;
     let smooth = a.events.is_none() && a.out.extension().is_some_and(|e| e == "csv" || e == "parquet");
     if a.errors_from.is_some() && !smooth {
-        bail!("--errors-from gives smooth values their errors: --out must be a .csv or .parquet file (got {})", a.out.display());
+        bail!(
+            "--errors-from gives smooth values their errors: --out must be a .csv or .parquet file (got {})",
+            a.out.display()
+        );
     }
     if let (true, Some(design), Some(id)) = (a.point_folder, &a.design, a.only) {
         let n_events = a.events.unwrap_or(100);
@@ -51,7 +54,12 @@ pub fn heavy_ion(a: HeavyIonArgs) -> Result<()> {
     if let Some(design) = &a.design {
         let table = heavy_ion::simulate_design(design, df)?;
         let data_hash = artifacts::sha256_hex(&std::fs::read(design)?);
-        let prov = Provenance::new(String::new(), data_hash, 0, &format!("simulate heavy-ion --design {} --delta-f {}", design.display(), a.delta_f));
+        let prov = Provenance::new(
+            String::new(),
+            data_hash,
+            0,
+            &format!("simulate heavy-ion --design {} --delta-f {}", design.display(), a.delta_f),
+        );
         table.write(&a.out, Some(&prov))?;
         println!("wrote {} design points x {} outputs to {}", table.n_points(), table.n_outputs(), a.out.display());
         return Ok(());
@@ -62,7 +70,12 @@ pub fn heavy_ion(a: HeavyIonArgs) -> Result<()> {
         mock::take_errors_from(&mut data, source)?;
     }
     let errors = a.errors_from.as_ref().map(|p| format!(" --errors-from {}", p.display())).unwrap_or_default();
-    let prov = Provenance::new(String::new(), artifacts::measurements_hash(&data), 0, &format!("simulate heavy-ion --point {point} --delta-f {}{errors}", a.delta_f));
+    let prov = Provenance::new(
+        String::new(),
+        artifacts::measurements_hash(&data),
+        0,
+        &format!("simulate heavy-ion --point {point} --delta-f {}{errors}", a.delta_f),
+    );
     artifacts::write_measurements(&a.out, &data, Some(&prov))?;
     let bins = heavy_ion::analysis_pt().len();
     println!("wrote {} values ({} observables x {bins} pT bins) to {}", data.len(), data.len() / bins, a.out.display());
@@ -70,7 +83,17 @@ pub fn heavy_ion(a: HeavyIonArgs) -> Result<()> {
 }
 
 #[allow(clippy::too_many_arguments)]
-pub fn ball_drop(seed: u64, out: &Path, k: f64, g: f64, v0: f64, h0: f64, points: usize, t_max: f64, sigma: &[f64]) -> Result<()> {
+pub fn ball_drop(
+    seed: u64,
+    out: &Path,
+    k: f64,
+    g: f64,
+    v0: f64,
+    h0: f64,
+    points: usize,
+    t_max: f64,
+    sigma: &[f64],
+) -> Result<()> {
     if sigma.len() != 3 || sigma.iter().any(|s| !(*s > 0.0)) {
         bail!("--sigma needs three positive errors (height, velocity, acceleration)");
     }

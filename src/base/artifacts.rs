@@ -51,7 +51,13 @@ pub struct Provenance {
 
 impl Provenance {
     pub fn new(config_hash: String, data_hash: String, seed: u64, command: &str) -> Self {
-        Provenance { mdpipe_version: env!("CARGO_PKG_VERSION").to_string(), config_hash, data_hash, seed, command: command.to_string() }
+        Provenance {
+            mdpipe_version: env!("CARGO_PKG_VERSION").to_string(),
+            config_hash,
+            data_hash,
+            seed,
+            command: command.to_string(),
+        }
     }
 
     pub fn key_values(&self) -> Vec<(String, String)> {
@@ -89,9 +95,16 @@ fn temp_path(path: &Path) -> PathBuf {
     use std::sync::atomic::{AtomicU64, Ordering};
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let name = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
-    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").or_else(|_| std::env::var("HOSTNAME")).unwrap_or_default();
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
-    path.with_file_name(format!(".{name}.tmp-{}-{}-{nanos}-{}", host.trim(), std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed)))
+    let host =
+        std::fs::read_to_string("/proc/sys/kernel/hostname").or_else(|_| std::env::var("HOSTNAME")).unwrap_or_default();
+    let nanos =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    path.with_file_name(format!(
+        ".{name}.tmp-{}-{}-{nanos}-{}",
+        host.trim(),
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ))
 }
 
 /// The files of one result, each written to a temporary sibling and all
@@ -126,7 +139,10 @@ impl StagedWrites {
         if let Err(e) = result {
             let _ = std::fs::remove_file(&tmp);
             self.abandon();
-            return Err(e.context(format!("writing {} failed; nothing of this result was put in place, the previous artifacts are as they were", path.display())));
+            return Err(e.context(format!(
+                "writing {} failed; nothing of this result was put in place, the previous artifacts are as they were",
+                path.display()
+            )));
         }
         self.pending.push((tmp, path.to_path_buf()));
         Ok(())
@@ -153,7 +169,8 @@ impl StagedWrites {
     /// Renames every file into place, in the order written.
     pub fn commit(mut self) -> Result<()> {
         for (tmp, path) in std::mem::take(&mut self.pending) {
-            std::fs::rename(&tmp, &path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+            std::fs::rename(&tmp, &path)
+                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
         }
         Ok(())
     }
@@ -179,7 +196,12 @@ pub fn check_writable(dir: &Path) -> Result<()> {
     let existing = dir.ancestors().find(|a| a.as_os_str().is_empty() || a.is_dir()).unwrap_or(Path::new("."));
     let existing = if existing.as_os_str().is_empty() { Path::new(".") } else { existing };
     let probe = temp_path(&existing.join("write-probe"));
-    std::fs::File::create(&probe).map_err(|e| anyhow!("{}: the output folder is not writable ({e}); nothing was run, and what it holds is as it was", dir.display()))?;
+    std::fs::File::create(&probe).map_err(|e| {
+        anyhow!(
+            "{}: the output folder is not writable ({e}); nothing was run, and what it holds is as it was",
+            dir.display()
+        )
+    })?;
     let _ = std::fs::remove_file(&probe);
     Ok(())
 }
@@ -222,7 +244,11 @@ pub fn read_parquet(path: &Path) -> Result<DataFrame> {
 /// that names the file: no input may panic mdpipe.
 pub fn without_panics<T>(path: &Path, format: &str, parse: impl FnOnce() -> T) -> Result<T> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(parse)).map_err(|p| {
-        let why = p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string())).unwrap_or_default();
+        let why = p
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_default();
         anyhow!("{}: not a readable {format} file (the decoder failed: {why})", path.display())
     })
 }
@@ -276,10 +302,12 @@ fn read_measurements_csv(path: &Path) -> Result<Vec<Measurement>> {
     let headers = reader.headers().with_context(|| format!("{file}: reading header"))?.clone();
     let mut idx = [0usize; 4];
     for (k, name) in MEASUREMENT_COLUMNS.iter().enumerate() {
-        idx[k] = headers
-            .iter()
-            .position(|h| h == *name)
-            .ok_or_else(|| anyhow!("{file}: line 1: missing column '{name}' (expected columns: observable, x, value, error; found: {})", headers.iter().collect::<Vec<_>>().join(", ")))?;
+        idx[k] = headers.iter().position(|h| h == *name).ok_or_else(|| {
+            anyhow!(
+                "{file}: line 1: missing column '{name}' (expected columns: observable, x, value, error; found: {})",
+                headers.iter().collect::<Vec<_>>().join(", ")
+            )
+        })?;
     }
     let mut out = Vec::new();
     for rec in reader.records() {
@@ -289,9 +317,17 @@ fn read_measurements_csv(path: &Path) -> Result<Vec<Measurement>> {
         let field = |k: usize| rec.get(idx[k]).unwrap_or("");
         let num = |k: usize| -> Result<f64> {
             let s = field(k);
-            s.parse::<f64>().map_err(|_| anyhow!("{file}: {where_}, field '{}': cannot parse {:?} as a number", MEASUREMENT_COLUMNS[k], s))
+            s.parse::<f64>().map_err(|_| {
+                anyhow!("{file}: {where_}, field '{}': cannot parse {:?} as a number", MEASUREMENT_COLUMNS[k], s)
+            })
         };
-        let m = Measurement { observable: field(0).to_string(), x: num(1)?, value: num(2)?, error: num(3)?, line: line as usize };
+        let m = Measurement {
+            observable: field(0).to_string(),
+            x: num(1)?,
+            value: num(2)?,
+            error: num(3)?,
+            line: line as usize,
+        };
         validate_row(path, &where_, &m)?;
         out.push(m);
     }
@@ -301,8 +337,12 @@ fn read_measurements_csv(path: &Path) -> Result<Vec<Measurement>> {
 fn read_measurements_parquet(path: &Path) -> Result<Vec<Measurement>> {
     let file = path.display();
     let df = read_parquet(path)?;
-    let col = |name: &str| df.column(name).map_err(|_| anyhow!("{file}: missing column '{name}' (expected columns: observable, x, value, error)"));
-    let obs = col("observable")?.str().map_err(|_| anyhow!("{file}: column 'observable' must be a string column"))?.clone();
+    let col = |name: &str| {
+        df.column(name)
+            .map_err(|_| anyhow!("{file}: missing column '{name}' (expected columns: observable, x, value, error)"))
+    };
+    let obs =
+        col("observable")?.str().map_err(|_| anyhow!("{file}: column 'observable' must be a string column"))?.clone();
     let num = |name: &str| -> Result<Float64Chunked> {
         let c = col(name)?.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?;
         Ok(c.f64()?.clone())
@@ -311,9 +351,14 @@ fn read_measurements_parquet(path: &Path) -> Result<Vec<Measurement>> {
     let mut out = Vec::with_capacity(df.height());
     for i in 0..df.height() {
         let where_ = format!("row {}", i + 1);
-        let get = |c: &Float64Chunked, name: &str| c.get(i).ok_or_else(|| anyhow!("{file}: {where_}, field '{name}': missing value"));
+        let get = |c: &Float64Chunked, name: &str| {
+            c.get(i).ok_or_else(|| anyhow!("{file}: {where_}, field '{name}': missing value"))
+        };
         let m = Measurement {
-            observable: obs.get(i).ok_or_else(|| anyhow!("{file}: {where_}, field 'observable': missing value"))?.to_string(),
+            observable: obs
+                .get(i)
+                .ok_or_else(|| anyhow!("{file}: {where_}, field 'observable': missing value"))?
+                .to_string(),
             x: get(&x, "x")?,
             value: get(&value, "value")?,
             error: get(&error, "error")?,
@@ -352,14 +397,26 @@ pub fn read_paper_table(path: &Path) -> Result<Vec<Measurement>> {
         }
         let cells: Vec<&str> = t.split_whitespace().collect();
         if cells.len() != 15 {
-            bail!("{file}: line {line_no}: expected 15 columns (pT, then value and error for {}), found {}", PAPER_TABLE_OBSERVABLES.map(|o| o.0).join(", "), cells.len());
+            bail!(
+                "{file}: line {line_no}: expected 15 columns (pT, then value and error for {}), found {}",
+                PAPER_TABLE_OBSERVABLES.map(|o| o.0).join(", "),
+                cells.len()
+            );
         }
         let num = |c: usize, field: String| -> Result<f64> {
-            cells[c].parse::<f64>().map_err(|_| anyhow!("{file}: line {line_no}, field '{field}': cannot parse {:?} as a number", cells[c]))
+            cells[c].parse::<f64>().map_err(|_| {
+                anyhow!("{file}: line {line_no}, field '{field}': cannot parse {:?} as a number", cells[c])
+            })
         };
         let pt = num(0, "pT".into())?;
         for (j, (column, name)) in PAPER_TABLE_OBSERVABLES.iter().enumerate() {
-            let m = Measurement { observable: name.to_string(), x: pt, value: num(1 + 2 * j, column.to_string())?, error: num(2 + 2 * j, format!("{column}_err"))?, line: line_no };
+            let m = Measurement {
+                observable: name.to_string(),
+                x: pt,
+                value: num(1 + 2 * j, column.to_string())?,
+                error: num(2 + 2 * j, format!("{column}_err"))?,
+                line: line_no,
+            };
             validate_row(path, &format!("line {line_no}"), &m).with_context(|| format!("column {column}"))?;
             out.push(m);
         }
@@ -375,7 +432,12 @@ pub fn write_measurements(path: &Path, data: &[Measurement], provenance: Option<
 }
 
 /// Writes measurements as CSV or Parquet by extension, as part of a staged result.
-pub fn stage_measurements(staged: &mut StagedWrites, path: &Path, data: &[Measurement], provenance: Option<&Provenance>) -> Result<()> {
+pub fn stage_measurements(
+    staged: &mut StagedWrites,
+    path: &Path,
+    data: &[Measurement],
+    provenance: Option<&Provenance>,
+) -> Result<()> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     if ext == "parquet" || ext == "pq" {
         let obs: Vec<&str> = data.iter().map(|m| m.observable.as_str()).collect();
@@ -414,10 +476,7 @@ mod tests {
 
     #[test]
     fn measurements_round_trip_csv_and_parquet() {
-        let data = vec![
-            Measurement::new("height", 0.1, 59.9, 0.1),
-            Measurement::new("velocity", 0.2, 1.9, 0.2),
-        ];
+        let data = vec![Measurement::new("height", 0.1, 59.9, 0.1), Measurement::new("velocity", 0.2, 1.9, 0.2)];
         let d = tmpdir("rt");
         for name in ["m.csv", "m.parquet"] {
             let p = d.join(name);

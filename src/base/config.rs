@@ -100,21 +100,24 @@ impl ParamSpec {
 pub struct DiscrepancyConfig {
     /// "none", "I" or "II".
     pub kernel: String,
-    /// Uniform prior bounds per hyperparameter name (cbar, ell, r, s).
+    /// Uniform prior bounds per hyperparameter name (cbar, ell, r, s); the
+    /// paper's (0, 10) for each when not given.
+    #[serde(default = "paper_bounds")]
     pub bounds: BTreeMap<String, [f64; 2]>,
     /// Per observable, how x becomes the kernel's input (default: x itself).
     #[serde(default)]
     pub inputs: BTreeMap<String, KernelInput>,
 }
 
+/// The paper's hyperparameter priors: (0, 10) for c̄, ℓ, r and s.
+fn paper_bounds() -> BTreeMap<String, [f64; 2]> {
+    let b = [0.0, 10.0];
+    [("cbar", b), ("ell", b), ("r", b), ("s", b)].into_iter().map(|(k, v)| (k.to_string(), v)).collect()
+}
+
 impl Default for DiscrepancyConfig {
     fn default() -> Self {
-        let b = [0.0, 10.0];
-        DiscrepancyConfig {
-            kernel: "II".into(),
-            bounds: [("cbar", b), ("ell", b), ("r", b), ("s", b)].into_iter().map(|(k, v)| (k.to_string(), v)).collect(),
-            inputs: BTreeMap::new(),
-        }
+        DiscrepancyConfig { kernel: "II".into(), bounds: paper_bounds(), inputs: BTreeMap::new() }
     }
 }
 
@@ -193,7 +196,11 @@ impl Config {
         }
         let p = &self.predictions;
         let x_min = p.x_min.unwrap_or(f64::NEG_INFINITY);
-        if p.points < 2 || p.draws == 0 || p.x_min.is_some_and(|m| !m.is_finite()) || p.x_max.is_some_and(|m| !(m.is_finite() && m > x_min)) {
+        if p.points < 2
+            || p.draws == 0
+            || p.x_min.is_some_and(|m| !m.is_finite())
+            || p.x_max.is_some_and(|m| !(m.is_finite() && m > x_min))
+        {
             bail!("{file}: [predictions]: need points >= 2, draws >= 1 and finite x_min < x_max, got points = {}, draws = {}, x_min = {:?}, x_max = {:?}", p.points, p.draws, p.x_min, p.x_max);
         }
         self.model_kind()?;
@@ -202,7 +209,10 @@ impl Config {
 
     /// The `kind` of a raw table (`[model]`, `[truth]`), named in errors by `table`.
     pub fn kind_of<'a>(&self, table: &'a toml::Table, name: &str) -> Result<&'a str> {
-        table.get("kind").and_then(|k| k.as_str()).ok_or_else(|| anyhow!("{}: [{name}] needs a `kind` (a model family's name)", self.path.display()))
+        table
+            .get("kind")
+            .and_then(|k| k.as_str())
+            .ok_or_else(|| anyhow!("{}: [{name}] needs a `kind` (a model family's name)", self.path.display()))
     }
 
     /// `[model] kind`.

@@ -48,7 +48,11 @@ impl CovarianceEntry {
 
 pub fn read_covariance(path: &Path) -> Result<Vec<CovarianceEntry>> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    let rows = if ext == "parquet" || ext == "pq" { read_parquet_rows(path)? } else { read_csv_rows(path, COVARIANCE_COLUMNS)? };
+    let rows = if ext == "parquet" || ext == "pq" {
+        read_parquet_rows(path)?
+    } else {
+        read_csv_rows(path, COVARIANCE_COLUMNS)?
+    };
     for e in &rows {
         if !(e.x_a.is_finite() && e.x_b.is_finite() && e.covariance.is_finite()) {
             bail!("{}: x and covariance must be finite numbers", e.location(path));
@@ -65,7 +69,11 @@ pub fn read_noise_correlation(path: &Path) -> Result<Vec<CovarianceEntry>> {
     let rows = read_csv_rows(path, CORRELATION_COLUMNS)?;
     for e in &rows {
         if !(e.x_a.is_finite() && e.x_b.is_finite() && e.covariance.abs() <= 1.0 + 1e-9) {
-            bail!("{}, field 'correlation': {} is not a correlation (finite, within [-1, 1])", e.location(path), e.covariance);
+            bail!(
+                "{}, field 'correlation': {} is not a correlation (finite, within [-1, 1])",
+                e.location(path),
+                e.covariance
+            );
         }
     }
     Ok(rows)
@@ -78,19 +86,37 @@ pub fn noise_correlation_csv(entries: &[CovarianceEntry]) -> String {
 
 fn read_csv_rows(path: &Path, columns: [&str; 5]) -> Result<Vec<CovarianceEntry>> {
     let file = path.display();
-    let mut reader = csv::ReaderBuilder::new().comment(Some(b'#')).trim(csv::Trim::All).from_path(path).with_context(|| format!("opening {file}"))?;
+    let mut reader = csv::ReaderBuilder::new()
+        .comment(Some(b'#'))
+        .trim(csv::Trim::All)
+        .from_path(path)
+        .with_context(|| format!("opening {file}"))?;
     let headers = reader.headers().with_context(|| format!("{file}: reading header"))?.clone();
     let mut idx = [0usize; 5];
     for (k, name) in columns.iter().enumerate() {
-        idx[k] = headers.iter().position(|h| h == *name).ok_or_else(|| anyhow!("{file}: line 1: missing column '{name}' (expected: {})", columns.join(", ")))?;
+        idx[k] = headers
+            .iter()
+            .position(|h| h == *name)
+            .ok_or_else(|| anyhow!("{file}: line 1: missing column '{name}' (expected: {})", columns.join(", ")))?;
     }
     let mut out = Vec::new();
     for rec in reader.records() {
         let rec = rec.with_context(|| format!("{file}: malformed CSV"))?;
         let line = rec.position().map(|p| p.line() as usize).unwrap_or(0);
         let field = |k: usize| rec.get(idx[k]).unwrap_or("");
-        let num = |k: usize| -> Result<f64> { field(k).parse::<f64>().map_err(|_| anyhow!("{file}: line {line}, field '{}': cannot parse {:?} as a number", columns[k], field(k))) };
-        out.push(CovarianceEntry { observable_a: field(0).to_string(), x_a: num(1)?, observable_b: field(2).to_string(), x_b: num(3)?, covariance: num(4)?, line });
+        let num = |k: usize| -> Result<f64> {
+            field(k).parse::<f64>().map_err(|_| {
+                anyhow!("{file}: line {line}, field '{}': cannot parse {:?} as a number", columns[k], field(k))
+            })
+        };
+        out.push(CovarianceEntry {
+            observable_a: field(0).to_string(),
+            x_a: num(1)?,
+            observable_b: field(2).to_string(),
+            x_b: num(3)?,
+            covariance: num(4)?,
+            line,
+        });
     }
     Ok(out)
 }
@@ -98,9 +124,20 @@ fn read_csv_rows(path: &Path, columns: [&str; 5]) -> Result<Vec<CovarianceEntry>
 fn read_parquet_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
     let file = path.display();
     let df = read_parquet(path)?;
-    let col = |name: &str| df.column(name).map_err(|_| anyhow!("{file}: missing column '{name}' (expected: {})", COVARIANCE_COLUMNS.join(", ")));
-    let text = |name: &str| -> Result<StringChunked> { Ok(col(name)?.str().map_err(|_| anyhow!("{file}: column '{name}' must be a string column"))?.clone()) };
-    let num = |name: &str| -> Result<Float64Chunked> { Ok(col(name)?.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?.f64()?.clone()) };
+    let col = |name: &str| {
+        df.column(name)
+            .map_err(|_| anyhow!("{file}: missing column '{name}' (expected: {})", COVARIANCE_COLUMNS.join(", ")))
+    };
+    let text = |name: &str| -> Result<StringChunked> {
+        Ok(col(name)?.str().map_err(|_| anyhow!("{file}: column '{name}' must be a string column"))?.clone())
+    };
+    let num = |name: &str| -> Result<Float64Chunked> {
+        Ok(col(name)?
+            .cast(&DataType::Float64)
+            .map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?
+            .f64()?
+            .clone())
+    };
     let (oa, ob) = (text("observable_a")?, text("observable_b")?);
     let (xa, xb, c) = (num("x_a")?, num("x_b")?, num("covariance")?);
     (0..df.height())

@@ -9,7 +9,8 @@ use anyhow::Result;
 use polars::prelude::*;
 use std::path::Path;
 
-pub const KERNELS: [Option<DiscrepancyKernel>; 3] = [None, Some(DiscrepancyKernel::KernelI), Some(DiscrepancyKernel::KernelII)];
+pub const KERNELS: [Option<DiscrepancyKernel>; 3] =
+    [None, Some(DiscrepancyKernel::KernelI), Some(DiscrepancyKernel::KernelII)];
 
 /// One calibration in the grid.
 pub struct CompareCase {
@@ -29,15 +30,25 @@ pub fn observable_sets(analysis: &Analysis, overrides: &Overrides) -> Result<Vec
 }
 
 pub fn case_dir_name(observables: &[String], kernel: Option<DiscrepancyKernel>) -> String {
-    format!("{}__{}", observables.join("+"), match kernel {
-        None => "nomd",
-        Some(DiscrepancyKernel::KernelI) => "kernel1",
-        Some(DiscrepancyKernel::KernelII) => "kernel2",
-    })
+    format!(
+        "{}__{}",
+        observables.join("+"),
+        match kernel {
+            None => "nomd",
+            Some(DiscrepancyKernel::KernelI) => "kernel1",
+            Some(DiscrepancyKernel::KernelII) => "kernel2",
+        }
+    )
 }
 
 /// Runs every case, writing each into `out/<case>/` and the tables into `out/`.
-pub fn run_grid(analysis: &Analysis, overrides: &Overrides, seed: u64, out: &Path, observer: &dyn Observer) -> Result<Vec<CompareCase>> {
+pub fn run_grid(
+    analysis: &Analysis,
+    overrides: &Overrides,
+    seed: u64,
+    out: &Path,
+    observer: &dyn Observer,
+) -> Result<Vec<CompareCase>> {
     let mut cases = Vec::new();
     for (i, obs) in observable_sets(analysis, overrides)?.into_iter().enumerate() {
         for (j, kernel) in KERNELS.iter().enumerate() {
@@ -70,8 +81,18 @@ fn write_tables(analysis: &Analysis, cases: &[CompareCase], out: &Path) -> Resul
     }
     md.push_str("---|---|---|---|\n");
     let (mut c_obs, mut c_kernel, mut c_param, mut c_truth) = (vec![], vec![], vec![], vec![]);
-    let (mut c_med, mut c_q025, mut c_q975, mut c_q16, mut c_q84, mut c_logz, mut c_logz_err, mut c_rhat, mut c_ess, mut c_wall) =
-        (vec![], vec![], vec![], vec![], vec![], vec![], vec![], vec![], vec![], vec![]);
+    let (
+        mut c_med,
+        mut c_q025,
+        mut c_q975,
+        mut c_q16,
+        mut c_q84,
+        mut c_logz,
+        mut c_logz_err,
+        mut c_rhat,
+        mut c_ess,
+        mut c_wall,
+    ) = (vec![], vec![], vec![], vec![], vec![], vec![], vec![], vec![], vec![], vec![]);
     for case in cases {
         let s = &case.calibration.summary;
         let rhat = s.diagnostics.parameters.iter().map(|d| d.rhat).fold(f64::NEG_INFINITY, f64::max);
@@ -145,12 +166,23 @@ pub struct ReplicateRow {
 
 /// Mock measurements: the true process at θ's true values, at the x and with
 /// the errors of `template` (the analysis' own data), plus Gaussian noise.
-pub fn mock_measurements(analysis: &Analysis, template: &[Measurement], rng: &mut impl rand::Rng) -> Result<Vec<Measurement>> {
+pub fn mock_measurements(
+    analysis: &Analysis,
+    template: &[Measurement],
+    rng: &mut impl rand::Rng,
+) -> Result<Vec<Measurement>> {
     use rand_distr::{Distribution, Normal};
     let mut out = Vec::with_capacity(template.len());
     for m in template {
         let truth = analysis.truth_curve(&m.observable, &[m.x]).map(|v| v[0]).filter(|v| v.is_finite());
-        let truth = truth.ok_or_else(|| anyhow::anyhow!("{}: mock data need a [truth] process and a `truth` value for every parameter (none for {} at x = {})", analysis.config_path.display(), m.observable, m.x))?;
+        let truth = truth.ok_or_else(|| {
+            anyhow::anyhow!(
+                "{}: mock data need a [truth] process and a `truth` value for every parameter (none for {} at x = {})",
+                analysis.config_path.display(),
+                m.observable,
+                m.x
+            )
+        })?;
         out.push(Measurement::new(&m.observable, m.x, truth + Normal::new(0.0, m.error)?.sample(rng), m.error));
     }
     Ok(out)
@@ -159,7 +191,13 @@ pub fn mock_measurements(analysis: &Analysis, template: &[Measurement], rng: &mu
 /// Runs the grid on `n` mock data sets drawn from the config's `[truth]`
 /// process at the parameters' true values and at the analysis' data points,
 /// into `out/replicate_<r>/`, and writes `replicates.md` and `replicates.parquet`.
-pub fn run_replicates(analysis: &Analysis, overrides: &Overrides, n: usize, seed: u64, out: &Path) -> Result<Vec<ReplicateRow>> {
+pub fn run_replicates(
+    analysis: &Analysis,
+    overrides: &Overrides,
+    n: usize,
+    seed: u64,
+    out: &Path,
+) -> Result<Vec<ReplicateRow>> {
     use rand::SeedableRng;
     let template = artifacts::read_measurements(&analysis.data)?;
     // (observables, kernel, parameter) -> (covered, widths)
@@ -171,7 +209,12 @@ pub fn run_replicates(analysis: &Analysis, overrides: &Overrides, n: usize, seed
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(rseed);
         let data = mock_measurements(analysis, &template, &mut rng)?;
         let data_path = dir.join("data.csv");
-        let prov = artifacts::Provenance::new(analysis.config_hash.clone(), artifacts::measurements_hash(&data), rseed, "compare --replicates: mock data from [truth]");
+        let prov = artifacts::Provenance::new(
+            analysis.config_hash.clone(),
+            artifacts::measurements_hash(&data),
+            rseed,
+            "compare --replicates: mock data from [truth]",
+        );
         artifacts::write_measurements(&data_path, &data, Some(&prov))?;
         let replicate = analysis.with_data(&std::path::absolute(&data_path)?);
         for case in run_grid(&replicate, overrides, rseed, &dir, &Silent)? {
@@ -190,7 +233,9 @@ pub fn run_replicates(analysis: &Analysis, overrides: &Overrides, n: usize, seed
         .iter()
         .map(|((obs, kernel, param), (covered, widths))| {
             let wider = (kernel == "I").then(|| {
-                acc.get(&(obs.clone(), "II".to_string(), param.clone())).map(|(_, w2)| widths.iter().zip(w2).filter(|(a, b)| a > b).count()).unwrap_or(0)
+                acc.get(&(obs.clone(), "II".to_string(), param.clone()))
+                    .map(|(_, w2)| widths.iter().zip(w2).filter(|(a, b)| a > b).count())
+                    .unwrap_or(0)
             });
             ReplicateRow {
                 observables: obs.clone(),
@@ -205,7 +250,16 @@ pub fn run_replicates(analysis: &Analysis, overrides: &Overrides, n: usize, seed
         .collect();
     let mut md = format!("# {}: the grid over {n} independent mock data sets\n\nCoverage = replicates whose 95% interval contains the truth; a calibrated 95% interval covers in 95% of them (binomial sd for {n}: {:.1}).\n\n| observables | kernel | parameter | covered | mean 95% width | Kernel I wider than II |\n|---|---|---|---|---|---|\n", analysis.name, (n as f64 * 0.95 * 0.05).sqrt());
     for r in &rows {
-        md.push_str(&format!("| {} | {} | {} | {} of {} | {:.3} | {} |\n", r.observables, r.kernel, r.parameter, r.covered, r.replicates, r.mean_width95, r.wider_than_kernel2.map(|w| format!("{w} of {}", r.replicates)).unwrap_or_default()));
+        md.push_str(&format!(
+            "| {} | {} | {} | {} of {} | {:.3} | {} |\n",
+            r.observables,
+            r.kernel,
+            r.parameter,
+            r.covered,
+            r.replicates,
+            r.mean_width95,
+            r.wider_than_kernel2.map(|w| format!("{w} of {}", r.replicates)).unwrap_or_default()
+        ));
     }
     artifacts::write_text_atomic(&out.join("replicates.md"), &md)?;
     let col_s = |f: &dyn Fn(&ReplicateRow) -> String| rows.iter().map(f).collect::<Vec<String>>();
@@ -218,10 +272,18 @@ pub fn run_replicates(analysis: &Analysis, overrides: &Overrides, n: usize, seed
             Column::new("replicates".into(), rows.iter().map(|r| r.replicates as u32).collect::<Vec<u32>>()),
             Column::new("covered".into(), rows.iter().map(|r| r.covered as u32).collect::<Vec<u32>>()),
             Column::new("mean_width95".into(), rows.iter().map(|r| r.mean_width95).collect::<Vec<f64>>()),
-            Column::new("wider_than_kernel2".into(), rows.iter().map(|r| r.wider_than_kernel2.map(|w| w as u32)).collect::<Vec<Option<u32>>>()),
+            Column::new(
+                "wider_than_kernel2".into(),
+                rows.iter().map(|r| r.wider_than_kernel2.map(|w| w as u32)).collect::<Vec<Option<u32>>>(),
+            ),
         ],
     )?;
-    let prov = artifacts::Provenance::new(analysis.config_hash.clone(), String::new(), seed, &format!("compare --replicates {n}"));
+    let prov = artifacts::Provenance::new(
+        analysis.config_hash.clone(),
+        String::new(),
+        seed,
+        &format!("compare --replicates {n}"),
+    );
     artifacts::write_parquet_atomic(&out.join("replicates.parquet"), &mut df, Some(&prov))?;
     Ok(rows)
 }

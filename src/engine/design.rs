@@ -73,7 +73,13 @@ impl DesignSpec {
         let spec: DesignSpec = toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", path.display()))?;
         for p in &spec.parameters {
             if !(p.min.is_finite() && p.max.is_finite() && p.min < p.max) {
-                bail!("{}: [[parameter]] {}: bounds must satisfy min < max, got ({}, {})", path.display(), p.name, p.min, p.max);
+                bail!(
+                    "{}: [[parameter]] {}: bounds must satisfy min < max, got ({}, {})",
+                    path.display(),
+                    p.name,
+                    p.min,
+                    p.max
+                );
             }
             if p.log && p.min <= 0.0 {
                 bail!("{}: [[parameter]] {}: log scale needs min > 0", path.display(), p.name);
@@ -90,7 +96,15 @@ impl DesignSpec {
         self.parameters
             .iter()
             .zip(u)
-            .map(|(p, &v)| if p.log { (p.min.ln() + v * (p.max.ln() - p.min.ln())).exp() } else { p.min + v * (p.max - p.min) })
+            .map(
+                |(p, &v)| {
+                    if p.log {
+                        (p.min.ln() + v * (p.max.ln() - p.min.ln())).exp()
+                    } else {
+                        p.min + v * (p.max - p.min)
+                    }
+                },
+            )
             .collect()
     }
 }
@@ -160,7 +174,12 @@ pub fn centered_l2_discrepancy(x: &[f64], d: usize) -> f64 {
 }
 
 pub fn quality(x: &[f64], d: usize) -> DesignQuality {
-    DesignQuality { points: x.len() / d, dimensions: d, min_distance: min_distance(x, d), centered_l2_discrepancy: centered_l2_discrepancy(x, d) }
+    DesignQuality {
+        points: x.len() / d,
+        dimensions: d,
+        min_distance: min_distance(x, d),
+        centered_l2_discrepancy: centered_l2_discrepancy(x, d),
+    }
 }
 
 /// Maximin-optimized Latin hypercube (ESE with column swaps).
@@ -253,7 +272,8 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
     let d = spec.parameters.len();
     let unit = maximin_lhs(n, d, seed);
     let q = quality(&unit, d);
-    let prov = Provenance::new(spec_hash.to_string(), String::new(), seed, &format!("design {} --points {n}", spec.name));
+    let prov =
+        Provenance::new(spec_hash.to_string(), String::new(), seed, &format!("design {} --points {n}", spec.name));
     let rows: Vec<Vec<f64>> = unit.chunks(d).map(|u| spec.scale(u)).collect();
     let ids: Vec<i64> = (0..n as i64).collect();
     write_points(spec, &ids, &rows, &prov, &format!("mdpipe design ({n} points, seed {seed})"), out)?;
@@ -264,10 +284,22 @@ pub fn write_design(spec: &DesignSpec, spec_hash: &str, n: usize, seed: u64, out
 /// Writes given points (physical units, in the spec's parameter order) with
 /// their design ids: `design.parquet`, one parameter file per point and a
 /// SLURM array script over those ids. `made_by` goes into the script's header.
-pub fn write_points(spec: &DesignSpec, ids: &[i64], rows: &[Vec<f64>], prov: &Provenance, made_by: &str, out: &Path) -> Result<()> {
+pub fn write_points(
+    spec: &DesignSpec,
+    ids: &[i64],
+    rows: &[Vec<f64>],
+    prov: &Provenance,
+    made_by: &str,
+    out: &Path,
+) -> Result<()> {
     let n = ids.len();
     if n == 0 || rows.len() != n {
-        bail!("{}: a design needs one or more points, each with its id ({} ids, {} points)", out.display(), n, rows.len());
+        bail!(
+            "{}: a design needs one or more points, each with its id ({} ids, {} points)",
+            out.display(),
+            n,
+            rows.len()
+        );
     }
     let span = span_of(ids);
     let mut cols = vec![Column::new("design_id".into(), ids.iter().map(|&i| i as u32).collect::<Vec<u32>>())];
@@ -288,7 +320,12 @@ pub fn write_points(spec: &DesignSpec, ids: &[i64], rows: &[Vec<f64>], prov: &Pr
     }
     let width = parameter_file_width(span);
     let param_file = format!("parameters/parameter_$(printf '%0{width}d' $SLURM_ARRAY_TASK_ID)");
-    let cmd = spec.slurm.command.replace("{param_file}", &param_file).replace("{point}", "$(printf '%04d' $SLURM_ARRAY_TASK_ID)").replace("{id}", "$SLURM_ARRAY_TASK_ID");
+    let cmd = spec
+        .slurm
+        .command
+        .replace("{param_file}", &param_file)
+        .replace("{point}", "$(printf '%04d' $SLURM_ARRAY_TASK_ID)")
+        .replace("{id}", "$SLURM_ARRAY_TASK_ID");
     let array = ids.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(",");
     let array = if ids.windows(2).all(|w| w[1] == w[0] + 1) { format!("{}-{}", ids[0], ids[n - 1]) } else { array };
     let script = format!(
@@ -322,14 +359,23 @@ pub fn read_points(design: &Path) -> Result<Vec<(i64, BTreeMap<String, f64>)>> {
     use polars::prelude::DataType;
     let df = artifacts::read_parquet(design)?;
     let column = |name: &str| -> Result<Vec<f64>> {
-        let c = df.column(name).map_err(|_| anyhow!("{}: missing column '{name}'", design.display()))?.cast(&DataType::Float64)?;
+        let c = df
+            .column(name)
+            .map_err(|_| anyhow!("{}: missing column '{name}'", design.display()))?
+            .cast(&DataType::Float64)?;
         let ca = c.f64()?;
-        (0..df.height()).map(|i| ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", design.display(), i + 1))).collect()
+        (0..df.height())
+            .map(|i| {
+                ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", design.display(), i + 1))
+            })
+            .collect()
     };
     let ids = column("design_id")?;
     let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).filter(|n| n != "design_id").collect();
     let columns: Vec<Vec<f64>> = names.iter().map(|n| column(n)).collect::<Result<_>>()?;
-    Ok((0..ids.len()).map(|i| (ids[i] as i64, names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect())).collect())
+    Ok((0..ids.len())
+        .map(|i| (ids[i] as i64, names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect()))
+        .collect())
 }
 
 fn toml_scalar(v: &toml::Value) -> String {
@@ -368,7 +414,8 @@ mod tests {
         let q = write_design(&spec, "hash", 20, 4, &out).unwrap();
         assert_eq!((q.points, q.dimensions), (20, 5));
         let text = std::fs::read_to_string(out.join("parameters/parameter_013")).unwrap();
-        let kv: BTreeMap<&str, f64> = text.lines().map(|l| l.split_once(' ').unwrap()).map(|(k, v)| (k, v.parse().unwrap())).collect();
+        let kv: BTreeMap<&str, f64> =
+            text.lines().map(|l| l.split_once(' ').unwrap()).map(|(k, v)| (k, v.parse().unwrap())).collect();
         assert_eq!(kv["T_dependent_Shear_to_S_ratio"], 3.0);
         let t = kv["shear_viscosity_3_eta_over_s_T_kink_in_GeV"];
         assert!((0.13..0.3).contains(&t));
@@ -378,7 +425,9 @@ mod tests {
         let t_col = design.column("T_kink").unwrap().f64().unwrap().get(13).unwrap();
         assert_eq!(t_col, t);
         let slurm = std::fs::read_to_string(out.join("submit.slurm")).unwrap();
-        assert!(slurm.contains("#SBATCH --array=0-19") && slurm.contains("parameter_$(printf '%03d' $SLURM_ARRAY_TASK_ID)"));
+        assert!(
+            slurm.contains("#SBATCH --array=0-19") && slurm.contains("parameter_$(printf '%03d' $SLURM_ARRAY_TASK_ID)")
+        );
     }
 
     #[test]

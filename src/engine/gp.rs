@@ -128,9 +128,19 @@ impl DiscrepancyGram {
             }
         }
         let equal_lag_sq = unique_sq_dist.get(1).copied().filter(|&h2| {
-            h2 > 0.0 && unique_sq_dist.iter().enumerate().all(|(k, &d2)| (d2 - (k * k) as f64 * h2).abs() <= 1e-12 * d2.max(h2))
+            h2 > 0.0
+                && unique_sq_dist
+                    .iter()
+                    .enumerate()
+                    .all(|(k, &d2)| (d2 - (k * k) as f64 * h2).abs() <= 1e-12 * d2.max(h2))
         });
-        DiscrepancyGram { x: x.to_vec(), ln_x: x.iter().map(|v| v.ln()).collect(), unique_sq_dist, pair_index, equal_lag_sq }
+        DiscrepancyGram {
+            x: x.to_vec(),
+            ln_x: x.iter().map(|v| v.ln()).collect(),
+            unique_sq_dist,
+            pair_index,
+            equal_lag_sq,
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -144,7 +154,14 @@ impl DiscrepancyGram {
     /// Writes the lower triangle of `K(x,x)` (column-major `n*n`).
     /// `xr` is scratch of length n for `x_i^r`; `corr` of length `n_unique()`.
     #[inline]
-    pub fn fill_lower(&self, kernel: DiscrepancyKernel, hyper: &[f64], out: &mut [f64], xr: &mut [f64], corr: &mut [f64]) {
+    pub fn fill_lower(
+        &self,
+        kernel: DiscrepancyKernel,
+        hyper: &[f64],
+        out: &mut [f64],
+        xr: &mut [f64],
+        corr: &mut [f64],
+    ) {
         let n = self.x.len();
         let (cbar, ell, r) = (hyper[0], hyper[1], hyper[2]);
         let s2 = match kernel {
@@ -540,7 +557,14 @@ impl CholeskyWorkspace {
                 cholesky_small(&mut self.factor, n)
             } else {
                 let a = MatMut::from_column_major_slice_mut(&mut self.factor, n, n);
-                cholesky_in_place(a, Default::default(), Par::Seq, MemStack::new(&mut self.stack), Spec::<LltParams, f64>::default()).is_ok()
+                cholesky_in_place(
+                    a,
+                    Default::default(),
+                    Par::Seq,
+                    MemStack::new(&mut self.stack),
+                    Spec::<LltParams, f64>::default(),
+                )
+                .is_ok()
             };
             if ok && (0..n).all(|i| self.factor[i * n + i].is_finite()) {
                 if attempt > 0 {
@@ -568,7 +592,14 @@ impl CholeskyWorkspace {
             cholesky_small(&mut self.factor, n)
         } else {
             let a = MatMut::from_column_major_slice_mut(&mut self.factor, n, n);
-            cholesky_in_place(a, Default::default(), Par::Seq, MemStack::new(&mut self.stack), Spec::<LltParams, f64>::default()).is_ok()
+            cholesky_in_place(
+                a,
+                Default::default(),
+                Par::Seq,
+                MemStack::new(&mut self.stack),
+                Spec::<LltParams, f64>::default(),
+            )
+            .is_ok()
         }
     }
 
@@ -625,7 +656,12 @@ impl CholeskyWorkspace {
         let l = MatRef::from_column_major_slice(&self.factor, n, n);
         let req = faer::linalg::cholesky::llt::inverse::inverse_scratch::<f64>(n, Par::Seq);
         let mut mem = MemBuffer::new(req);
-        faer::linalg::cholesky::llt::inverse::inverse(MatMut::from_column_major_slice_mut(&mut out, n, n), l, Par::Seq, MemStack::new(&mut mem));
+        faer::linalg::cholesky::llt::inverse::inverse(
+            MatMut::from_column_major_slice_mut(&mut out, n, n),
+            l,
+            Par::Seq,
+            MemStack::new(&mut mem),
+        );
         // faer fills the lower triangle; mirror it.
         for j in 0..n {
             for i in j + 1..n {
@@ -643,7 +679,11 @@ impl CholeskyWorkspace {
             out[i + i * n] = 1.0;
         }
         let l = MatRef::from_column_major_slice(&self.factor, n, n);
-        faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, MatMut::from_column_major_slice_mut(&mut out, n, n), Par::Seq);
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+            l,
+            MatMut::from_column_major_slice_mut(&mut out, n, n),
+            Par::Seq,
+        );
         out
     }
 }
@@ -678,9 +718,8 @@ mod tests {
         for i in 0..3 {
             cov[i * 3 + i] = var[i];
         }
-        let expected: f64 = (0..3)
-            .map(|i| -0.5 * (r[i] * r[i] / var[i] + var[i].ln() + (2.0 * std::f64::consts::PI).ln()))
-            .sum();
+        let expected: f64 =
+            (0..3).map(|i| -0.5 * (r[i] * r[i] / var[i] + var[i].ln() + (2.0 * std::f64::consts::PI).ln())).sum();
         let got = gaussian_logpdf(&r, &cov).unwrap();
         assert!((got - expected).abs() < 1e-12, "{got} vs {expected}");
     }
@@ -777,7 +816,8 @@ mod tests {
     fn equally_spaced_gram_recurrence_matches_direct_exp() {
         // The ball drop's times (0..1 s in 9 steps) and the heavy-ion pT bin
         // midpoints, at length scales from tiny (underflowing lags) to long.
-        let grids: [Vec<f64>; 2] = [(0..10).map(|i| i as f64 / 9.0).collect(), (0..10).map(|i| 0.1 + 0.2 * i as f64).collect()];
+        let grids: [Vec<f64>; 2] =
+            [(0..10).map(|i| i as f64 / 9.0).collect(), (0..10).map(|i| 0.1 + 0.2 * i as f64).collect()];
         for x in &grids {
             let n = x.len();
             let g = DiscrepancyGram::new(x);

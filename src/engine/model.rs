@@ -41,7 +41,15 @@ pub trait Simulator: Send + Sync {
     }
     /// Adds `inv_scale2 ×` the model's predictive covariance at (x, θ) to the
     /// lower triangle of `lower` (column-major n × n).
-    fn add_model_covariance(&self, _observable: usize, _x: &[f64], _theta: &[f64], _inv_scale2: f64, _lower: &mut [f64]) {}
+    fn add_model_covariance(
+        &self,
+        _observable: usize,
+        _x: &[f64],
+        _theta: &[f64],
+        _inv_scale2: f64,
+        _lower: &mut [f64],
+    ) {
+    }
     /// Whether the model's covariance links different observables (an
     /// emulator's principal components are shared by all of its outputs).
     fn model_covariance_spans_observables(&self) -> bool {
@@ -51,7 +59,14 @@ pub trait Simulator: Send + Sync {
     /// (observable index, x), the pair scaled by `inv_scales[i] × inv_scales[j]`,
     /// to the lower triangle of `lower` (column-major N × N, N = points.len()).
     /// Only called when `model_covariance_spans_observables`.
-    fn add_joint_model_covariance(&self, _points: &[(usize, f64)], _inv_scales: &[f64], _theta: &[f64], _lower: &mut [f64]) {}
+    fn add_joint_model_covariance(
+        &self,
+        _points: &[(usize, f64)],
+        _inv_scales: &[f64],
+        _theta: &[f64],
+        _lower: &mut [f64],
+    ) {
+    }
 }
 
 /// Units of the discrepancy input x, of each observable and of each parameter,
@@ -125,7 +140,11 @@ pub trait ModelFamily: Send + Sync {
     /// The process that made mock data, from a `[truth]` table of this kind: a
     /// simulator over the config's θ names, evaluated at their `truth` values.
     fn true_process(&self, config: &Config, _truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
-        bail!("{}: [truth]: model family '{}' has no true process to draw mock data from", config.path.display(), self.kind())
+        bail!(
+            "{}: [truth]: model family '{}' has no true process to draw mock data from",
+            config.path.display(),
+            self.kind()
+        )
     }
 }
 
@@ -154,7 +173,11 @@ impl Registry {
     /// The family of `kind`; `table` names where the kind was given, for the error.
     pub fn get(&self, kind: &str, config: &Config, table: &str) -> Result<Arc<dyn ModelFamily>> {
         self.families.iter().find(|f| f.kind() == kind).cloned().ok_or_else(|| {
-            anyhow!("{}: [{table}] kind = {kind:?}: unknown model family (known: {})", config.path.display(), self.kinds().join(", "))
+            anyhow!(
+                "{}: [{table}] kind = {kind:?}: unknown model family (known: {})",
+                config.path.display(),
+                self.kinds().join(", ")
+            )
         })
     }
 }

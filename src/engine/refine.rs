@@ -50,7 +50,9 @@ pub struct Target {
 pub fn targets(emulator: &Emulator, data: &[Measurement]) -> Result<Vec<Target>> {
     data.iter()
         .map(|m| {
-            let output = emulator.output_index(&m.observable, m.x).ok_or_else(|| anyhow!("data point {} at x = {}: the emulator has no such output", m.observable, m.x))?;
+            let output = emulator.output_index(&m.observable, m.x).ok_or_else(|| {
+                anyhow!("data point {} at x = {}: the emulator has no such output", m.observable, m.x)
+            })?;
             if !(m.error > 0.0) {
                 bail!("data point {} at x = {}: error {} is not positive", m.observable, m.x, m.error);
             }
@@ -99,7 +101,8 @@ fn latent_ratio_terms(emulator: &Emulator, post: &LatentPosterior, targets: &[Ta
         }
         for (t, target) in targets.iter().enumerate() {
             let (_, jac) = emulator.output_mean_from_components(means, target.output);
-            out[b * targets.len() + t] = emulator.output_var_from_component_vars(&vars, target.output, jac) / (target.error * target.error);
+            out[b * targets.len() + t] =
+                emulator.output_var_from_component_vars(&vars, target.output, jac) / (target.error * target.error);
         }
     }
     out
@@ -115,7 +118,13 @@ fn predictive_ratio_terms(emulator: &Emulator, draws: &[f64], targets: &[Target]
     for q in 0..b {
         for (t, target) in targets.iter().enumerate() {
             let (_, jac) = emulator.output_mean_from_components(&means[q * kc..(q + 1) * kc], target.output);
-            out[q * targets.len() + t] = emulator.output_cov_from_components(&vars[q * kc..(q + 1) * kc], target.output, target.output, jac, jac) / (target.error * target.error);
+            out[q * targets.len() + t] = emulator.output_cov_from_components(
+                &vars[q * kc..(q + 1) * kc],
+                target.output,
+                target.output,
+                jac,
+                jac,
+            ) / (target.error * target.error);
         }
     }
     out
@@ -123,10 +132,22 @@ fn predictive_ratio_terms(emulator: &Emulator, draws: &[f64], targets: &[Target]
 
 /// The same with the floor alone (scatter and dropped signal).
 fn floor_ratio_terms(emulator: &Emulator, draws: &[f64], targets: &[Target]) -> Vec<f64> {
-    emulator.variance_budgets(draws).into_iter().flat_map(|budget| targets.iter().map(move |t| budget[t.output].floor() / (t.error * t.error)).collect::<Vec<_>>()).collect()
+    emulator
+        .variance_budgets(draws)
+        .into_iter()
+        .flat_map(|budget| {
+            targets.iter().map(move |t| budget[t.output].floor() / (t.error * t.error)).collect::<Vec<_>>()
+        })
+        .collect()
 }
 
-fn summarize(targets: &[Target], draws: usize, latent: &[f64], predictive: &[f64], floor: &[f64]) -> Vec<ObservableRatio> {
+fn summarize(
+    targets: &[Target],
+    draws: usize,
+    latent: &[f64],
+    predictive: &[f64],
+    floor: &[f64],
+) -> Vec<ObservableRatio> {
     let mut names: Vec<String> = Vec::new();
     for t in targets {
         if !names.contains(&t.observable) {
@@ -138,9 +159,19 @@ fn summarize(targets: &[Target], draws: usize, latent: &[f64], predictive: &[f64
         .into_iter()
         .map(|name| {
             let cols: Vec<usize> = (0..nt).filter(|&t| targets[t].observable == name).collect();
-            let rms = |terms: &[f64], cols: &[usize]| (cols.iter().map(|&t| (0..draws).map(|b| terms[b * nt + t]).sum::<f64>()).sum::<f64>() / (draws * cols.len()) as f64).sqrt();
+            let rms = |terms: &[f64], cols: &[usize]| {
+                (cols.iter().map(|&t| (0..draws).map(|b| terms[b * nt + t]).sum::<f64>()).sum::<f64>()
+                    / (draws * cols.len()) as f64)
+                    .sqrt()
+            };
             let latent_max_bin = cols.iter().map(|&t| rms(latent, &[t])).fold(0.0, f64::max);
-            ObservableRatio { latent: rms(latent, &cols), latent_max_bin, predictive: rms(predictive, &cols), floor: rms(floor, &cols), observable: name }
+            ObservableRatio {
+                latent: rms(latent, &cols),
+                latent_max_bin,
+                predictive: rms(predictive, &cols),
+                floor: rms(floor, &cols),
+                observable: name,
+            }
         })
         .collect()
 }
@@ -166,7 +197,11 @@ pub fn select(emulator: &Emulator, draws: &[f64], targets: &[Target], k: usize) 
     let d = emulator.n_parameters();
     let mut points = Vec::with_capacity(k);
     for _ in 0..k.min(b) {
-        let best = (0..b).map(|a| (a, reduction(&post, &weights, a))).max_by(|x, y| x.1.total_cmp(&y.1)).map(|(a, _)| a).unwrap_or(0);
+        let best = (0..b)
+            .map(|a| (a, reduction(&post, &weights, a)))
+            .max_by(|x, y| x.1.total_cmp(&y.1))
+            .map(|(a, _)| a)
+            .unwrap_or(0);
         post.condition_on_run_at(best);
         points.push(draws[best * d..(best + 1) * d].to_vec());
     }
@@ -176,7 +211,12 @@ pub fn select(emulator: &Emulator, draws: &[f64], targets: &[Target], k: usize) 
     let predictive = predictive_ratio_terms(emulator, draws, targets);
     let floor = floor_ratio_terms(emulator, draws, targets);
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    Selection { points, mean_ratio2_before: mean(&before), mean_ratio2_after: mean(&after), forecast: summarize(targets, b, &after, &predictive, &floor) }
+    Selection {
+        points,
+        mean_ratio2_before: mean(&before),
+        mean_ratio2_after: mean(&after),
+        forecast: summarize(targets, b, &after, &predictive, &floor),
+    }
 }
 
 /// `w_c(b)`: how much a unit of component c's latent variance at draw b
@@ -222,13 +262,16 @@ pub fn read_draws(calibration: &Path, parameters: &[String], max: usize, seed: u
     let cols: Vec<Vec<f64>> = parameters
         .iter()
         .map(|p| -> Result<Vec<f64>> {
-            let c = df.column(p).map_err(|_| anyhow!("{}: no column '{p}' (the emulator's parameter)", path.display()))?;
+            let c =
+                df.column(p).map_err(|_| anyhow!("{}: no column '{p}' (the emulator's parameter)", path.display()))?;
             Ok(c.f64()?.into_no_null_iter().collect())
         })
         .collect::<Result<_>>()?;
     let mut rows: Vec<Vec<f64>> = (0..df.height()).map(|i| cols.iter().map(|c| c[i]).collect()).collect();
     // SMC resampling repeats particles; a repeated draw adds nothing as a candidate.
-    rows.sort_by(|a, b| a.iter().zip(b).map(|(x, y)| x.total_cmp(y)).find(|o| o.is_ne()).unwrap_or(std::cmp::Ordering::Equal));
+    rows.sort_by(|a, b| {
+        a.iter().zip(b).map(|(x, y)| x.total_cmp(y)).find(|o| o.is_ne()).unwrap_or(std::cmp::Ordering::Equal)
+    });
     rows.dedup();
     let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
     rows.shuffle(&mut rng);
@@ -266,7 +309,8 @@ mod tests {
             noise_correlation: None,
             values,
         };
-        let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 2").unwrap();
+        let settings: EmulatorSettings =
+            toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 2").unwrap();
         train(&table, &settings, 1).unwrap().0
     }
 
@@ -308,7 +352,11 @@ mod tests {
             for c in 0..kc {
                 assert!((m[c] - post.means[b * kc + c]).abs() < 1e-10);
                 let expect = v[c] - post.noise[c];
-                assert!((post.var(c, b) - expect).abs() < 1e-9 * (1.0 + expect.abs()), "c {c} b {b}: {} vs {expect}", post.var(c, b));
+                assert!(
+                    (post.var(c, b) - expect).abs() < 1e-9 * (1.0 + expect.abs()),
+                    "c {c} b {b}: {} vs {expect}",
+                    post.var(c, b)
+                );
             }
         }
     }
@@ -334,7 +382,10 @@ mod tests {
     fn the_forecast_reduction_is_what_the_refitted_emulator_shows() {
         let emu = small_emulator();
         let draws = grid_draws();
-        let targets = vec![Target { output: 0, observable: "y".into(), error: 0.01 }, Target { output: 1, observable: "z".into(), error: 0.01 }];
+        let targets = vec![
+            Target { output: 0, observable: "y".into(), error: 0.01 },
+            Target { output: 1, observable: "z".into(), error: 0.01 },
+        ];
         let sel = select(&emu, &draws, &targets, 3);
         assert_eq!(sel.points.len(), 3);
         assert!(sel.mean_ratio2_after < sel.mean_ratio2_before);
@@ -343,9 +394,14 @@ mod tests {
             refit = with_run_at(&refit, p);
         }
         let post = refit.latent_posterior(&draws);
-        let measured: f64 = latent_ratio_terms(&refit, &post, &targets).iter().sum::<f64>() / (post.points * targets.len()) as f64;
+        let measured: f64 =
+            latent_ratio_terms(&refit, &post, &targets).iter().sum::<f64>() / (post.points * targets.len()) as f64;
         // Refitting leaves the means, and so the Jacobians, unchanged here (no log outputs).
-        assert!((measured - sel.mean_ratio2_after).abs() < 1e-9 * sel.mean_ratio2_before, "{measured} vs {}", sel.mean_ratio2_after);
+        assert!(
+            (measured - sel.mean_ratio2_after).abs() < 1e-9 * sel.mean_ratio2_before,
+            "{measured} vs {}",
+            sel.mean_ratio2_after
+        );
         // Greedy ALC beats every one of 20 random batches of 3 prior-box points.
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
         for _ in 0..20 {
@@ -355,7 +411,8 @@ mod tests {
                 r = with_run_at(&r, &[rng.random::<f64>(), rng.random::<f64>()]);
             }
             let post = r.latent_posterior(&draws);
-            let random: f64 = latent_ratio_terms(&r, &post, &targets).iter().sum::<f64>() / (post.points * targets.len()) as f64;
+            let random: f64 =
+                latent_ratio_terms(&r, &post, &targets).iter().sum::<f64>() / (post.points * targets.len()) as f64;
             assert!(sel.mean_ratio2_after < random, "ALC {} vs random {random}", sel.mean_ratio2_after);
         }
     }

@@ -21,7 +21,9 @@ struct Case {
 }
 
 fn ball_drop_toml() -> String {
-    std::fs::read_to_string(root().join("pipeline/ball_drop.toml")).unwrap().replace("ball_drop_data.csv", &root().join("pipeline/ball_drop_data.csv").display().to_string())
+    std::fs::read_to_string(root().join("pipeline/ball_drop.toml"))
+        .unwrap()
+        .replace("ball_drop_data.csv", &root().join("pipeline/ball_drop_data.csv").display().to_string())
 }
 
 fn data(rows: &str) -> String {
@@ -41,51 +43,295 @@ fn shifted_data() -> String {
 fn cases() -> Vec<Case> {
     let cfg = ball_drop_toml();
     let with = |from: &str, to: &str| cfg.replace(from, to);
-    let c = |what, files: Vec<(&'static str, String)>, args, says, no_output| Case { what, files, args, says, no_output };
+    let c =
+        |what, files: Vec<(&'static str, String)>, args, says, no_output| Case { what, files, args, says, no_output };
     vec![
         c("config file missing", vec![], "calibrate {d}/none.toml --out {d}/out", "reading config", "out"),
-        c("config not TOML", vec![("c.toml", "name = [".into())], "calibrate {d}/c.toml --out {d}/out", "c.toml", "out"),
-        c("unknown model family", vec![("c.toml", with("kind = \"ode\"", "kind = \"pendulum\""))], "calibrate {d}/c.toml --out {d}/out", "unknown model family", "out"),
-        c("formula with an unknown name", vec![("c.toml", with("v = \"g\"", "v = \"g - drag*v\""))], "calibrate {d}/c.toml --out {d}/out", "unknown name 'drag'", "out"),
-        c("formula not finite at a prior corner", vec![("c.toml", with("h = \"h0\"", "h = \"h0/v0\""))], "calibrate {d}/c.toml --out {d}/out", "not finite", "out"),
-        c("prior bounds min >= max", vec![("c.toml", with("max = 20.0", "max = -1.0"))], "calibrate {d}/c.toml --out {d}/out", "min < max", "out"),
-        c("unknown kernel in config", vec![("c.toml", with("kernel = \"II\"", "kernel = \"III\""))], "calibrate {d}/c.toml --out {d}/out", "unknown kernel", "out"),
-        c("unknown --kernel", vec![], "calibrate pipeline/ball_drop.toml --kernel III --out {d}/out", "--kernel", "out"),
-        c("unknown --sampler", vec![], "calibrate pipeline/ball_drop.toml --sampler gibbs --out {d}/out", "--sampler", "out"),
-        c("ess_fraction = 1", vec![("c.toml", with("replicates = 4", "replicates = 4\ness_fraction = 1.0"))], "calibrate {d}/c.toml --out {d}/out", "smc.ess_fraction", "out"),
-        c("unknown config field", vec![("c.toml", with("[predictions]", "[predictions]\nx_mn = 1.0"))], "calibrate {d}/c.toml --out {d}/out", "x_mn", "out"),
-        c("parameter the model lacks", vec![("c.toml", format!("{cfg}\n[parameters.k]\nmin = 0.0\nmax = 1.0\n"))], "calibrate {d}/c.toml --out {d}/out", "the model has no parameter 'k'", "out"),
-        c("shift/scale of the kernel input invalid", vec![("c.toml", format!("{cfg}\n[discrepancy.inputs]\nheight = {{ scale = -1.0 }}\n"))], "calibrate {d}/c.toml --out {d}/out", "positive scale", "out"),
-        c("data file missing", vec![], "calibrate pipeline/ball_drop.toml --data {d}/none.csv --out {d}/out", "none.csv", "out"),
-        c("data column missing", vec![("d.csv", "observable,x,value\nheight,0,60\n".into())], "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out", "missing column 'error'", "out"),
-        c("data value NaN", vec![("d.csv", data("height,0.7,nan,0.1\n"))], "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out", "line 4", "out"),
-        c("data error negative", vec![("d.csv", data("height,0.7,58,-0.1\n"))], "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out", "'error'", "out"),
-        c("data observable unknown", vec![("d.csv", data("speed,0.7,5,0.1\n"))], "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out", "unknown observable 'speed'", "out"),
-        c("one point of an observable", vec![("d.csv", "observable,x,value,error\nheight,0,60,0.1\n".into())], "calibrate pipeline/ball_drop.toml --data {d}/d.csv --observables height --out {d}/out", "at least 2", "out"),
-        c("--observables not in the model", vec![], "calibrate pipeline/ball_drop.toml --observables speed --out {d}/out", "unknown observable 'speed'", "out"),
-        c("data before the ODE's t0", vec![("d.csv", shifted_data())], "calibrate pipeline/ball_drop.toml --data {d}/d.csv --kernel II --out {d}/out", "before t0", "out/summary.json"),
-        c("negative x under the (x·x')^r kernel", vec![("c.toml", with("t0 = 0.0", "t0 = -0.5")), ("d.csv", shifted_data())], "calibrate {d}/c.toml --data {d}/d.csv --kernel II --out {d}/out", "x ≥ 0", "out/summary.json"),
-        c("negative --time-limit", vec![], "calibrate pipeline/ball_drop.toml --time-limit=-1 --out {d}/out", "--time-limit", "out"),
-        c("compare --replicates with --data", vec![], "compare pipeline/ball_drop.toml --replicates 2 --data pipeline/ball_drop_data.csv --out {d}/out", "drop --data", "out"),
-        c("compare --replicates without [truth]", vec![("c.toml", cfg.split("[truth]").next().unwrap().to_string())], "compare {d}/c.toml --replicates 2 --out {d}/out", "[truth]", "out/replicates.md"),
-        c("diagnose on a missing data file", vec![], "diagnose pipeline/ball_drop.toml --data {d}/none.csv --out {d}/out", "none.csv", "out/diagnosis.json"),
+        c(
+            "config not TOML",
+            vec![("c.toml", "name = [".into())],
+            "calibrate {d}/c.toml --out {d}/out",
+            "c.toml",
+            "out",
+        ),
+        c(
+            "unknown model family",
+            vec![("c.toml", with("kind = \"ode\"", "kind = \"pendulum\""))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "unknown model family",
+            "out",
+        ),
+        c(
+            "formula with an unknown name",
+            vec![("c.toml", with("v = \"g\"", "v = \"g - drag*v\""))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "unknown name 'drag'",
+            "out",
+        ),
+        c(
+            "formula not finite at a prior corner",
+            vec![("c.toml", with("h = \"h0\"", "h = \"h0/v0\""))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "not finite",
+            "out",
+        ),
+        c(
+            "prior bounds min >= max",
+            vec![("c.toml", with("max = 20.0", "max = -1.0"))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "min < max",
+            "out",
+        ),
+        c(
+            "unknown kernel in config",
+            vec![("c.toml", with("kernel = \"II\"", "kernel = \"III\""))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "unknown kernel",
+            "out",
+        ),
+        c(
+            "unknown --kernel",
+            vec![],
+            "calibrate pipeline/ball_drop.toml --kernel III --out {d}/out",
+            "--kernel",
+            "out",
+        ),
+        c(
+            "unknown --sampler",
+            vec![],
+            "calibrate pipeline/ball_drop.toml --sampler gibbs --out {d}/out",
+            "--sampler",
+            "out",
+        ),
+        c(
+            "ess_fraction = 1",
+            vec![("c.toml", with("replicates = 4", "replicates = 4\ness_fraction = 1.0"))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "smc.ess_fraction",
+            "out",
+        ),
+        c(
+            "unknown config field",
+            vec![("c.toml", with("[predictions]", "[predictions]\nx_mn = 1.0"))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "x_mn",
+            "out",
+        ),
+        c(
+            "parameter the model lacks",
+            vec![("c.toml", format!("{cfg}\n[parameters.k]\nmin = 0.0\nmax = 1.0\n"))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "the model has no parameter 'k'",
+            "out",
+        ),
+        c(
+            "shift/scale of the kernel input invalid",
+            vec![("c.toml", format!("{cfg}\n[discrepancy.inputs]\nheight = {{ scale = -1.0 }}\n"))],
+            "calibrate {d}/c.toml --out {d}/out",
+            "positive scale",
+            "out",
+        ),
+        c(
+            "data file missing",
+            vec![],
+            "calibrate pipeline/ball_drop.toml --data {d}/none.csv --out {d}/out",
+            "none.csv",
+            "out",
+        ),
+        c(
+            "data column missing",
+            vec![("d.csv", "observable,x,value\nheight,0,60\n".into())],
+            "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out",
+            "missing column 'error'",
+            "out",
+        ),
+        c(
+            "data value NaN",
+            vec![("d.csv", data("height,0.7,nan,0.1\n"))],
+            "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out",
+            "line 4",
+            "out",
+        ),
+        c(
+            "data error negative",
+            vec![("d.csv", data("height,0.7,58,-0.1\n"))],
+            "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out",
+            "'error'",
+            "out",
+        ),
+        c(
+            "data observable unknown",
+            vec![("d.csv", data("speed,0.7,5,0.1\n"))],
+            "calibrate pipeline/ball_drop.toml --data {d}/d.csv --out {d}/out",
+            "unknown observable 'speed'",
+            "out",
+        ),
+        c(
+            "one point of an observable",
+            vec![("d.csv", "observable,x,value,error\nheight,0,60,0.1\n".into())],
+            "calibrate pipeline/ball_drop.toml --data {d}/d.csv --observables height --out {d}/out",
+            "at least 2",
+            "out",
+        ),
+        c(
+            "--observables not in the model",
+            vec![],
+            "calibrate pipeline/ball_drop.toml --observables speed --out {d}/out",
+            "unknown observable 'speed'",
+            "out",
+        ),
+        c(
+            "data before the ODE's t0",
+            vec![("d.csv", shifted_data())],
+            "calibrate pipeline/ball_drop.toml --data {d}/d.csv --kernel II --out {d}/out",
+            "before t0",
+            "out/summary.json",
+        ),
+        c(
+            "negative x under the (x·x')^r kernel",
+            vec![("c.toml", with("t0 = 0.0", "t0 = -0.5")), ("d.csv", shifted_data())],
+            "calibrate {d}/c.toml --data {d}/d.csv --kernel II --out {d}/out",
+            "x ≥ 0",
+            "out/summary.json",
+        ),
+        c(
+            "negative --time-limit",
+            vec![],
+            "calibrate pipeline/ball_drop.toml --time-limit=-1 --out {d}/out",
+            "--time-limit",
+            "out",
+        ),
+        c(
+            "compare --replicates with --data",
+            vec![],
+            "compare pipeline/ball_drop.toml --replicates 2 --data pipeline/ball_drop_data.csv --out {d}/out",
+            "drop --data",
+            "out",
+        ),
+        c(
+            "compare --replicates without [truth]",
+            vec![("c.toml", cfg.split("[truth]").next().unwrap().to_string())],
+            "compare {d}/c.toml --replicates 2 --out {d}/out",
+            "[truth]",
+            "out/replicates.md",
+        ),
+        c(
+            "diagnose on a missing data file",
+            vec![],
+            "diagnose pipeline/ball_drop.toml --data {d}/none.csv --out {d}/out",
+            "none.csv",
+            "out/diagnosis.json",
+        ),
         c("ingest: runs folder missing", vec![], "ingest {d}/runs --out {d}/t.parquet", "runs", "t.parquet"),
-        c("ingest: a .dat table that is not the paper's", vec![("t.dat", "1 2 3\n4 5\n".into())], "ingest {d}/t.dat --out {d}/m.csv", "t.dat", "m.csv"),
-        c("ingest: unknown --format", vec![], "ingest tests/fixtures/iebe_music/runs --format zip --out {d}/t.parquet", "unknown run format", "t.parquet"),
-        c("ingest: pT bins not increasing", vec![], "ingest tests/fixtures/iebe_music/runs --pt-bins 1,0.5 --out {d}/t.parquet", "--pt-bins", "t.parquet"),
-        c("train-emulator: no [emulator] table", vec![], "train-emulator pipeline/ball_drop.toml --training pipeline/ball_drop_data.csv --out {d}/emu", "no [emulator] table", "emu"),
-        c("train-emulator: table value NaN", vec![("e.toml", "[emulator]\nparameters = [\"a\"]\n".into()), ("t.csv", "design_id,observable,x,value,a\n0,y,0,1,0\n1,y,0,nan,1\n2,y,0,2,2\n".into())], "train-emulator {d}/e.toml --training {d}/t.csv --out {d}/emu", "'value'", "emu"),
-        c("validate-emulator: not an emulator folder", vec![], "validate-emulator {d}", "emulator.json", "validation.json"),
+        c(
+            "ingest: a .dat table that is not the paper's",
+            vec![("t.dat", "1 2 3\n4 5\n".into())],
+            "ingest {d}/t.dat --out {d}/m.csv",
+            "t.dat",
+            "m.csv",
+        ),
+        c(
+            "ingest: unknown --format",
+            vec![],
+            "ingest tests/fixtures/iebe_music/runs --format zip --out {d}/t.parquet",
+            "unknown run format",
+            "t.parquet",
+        ),
+        c(
+            "ingest: pT bins not increasing",
+            vec![],
+            "ingest tests/fixtures/iebe_music/runs --pt-bins 1,0.5 --out {d}/t.parquet",
+            "--pt-bins",
+            "t.parquet",
+        ),
+        c(
+            "train-emulator: no [emulator] table",
+            vec![],
+            "train-emulator pipeline/ball_drop.toml --training pipeline/ball_drop_data.csv --out {d}/emu",
+            "no [emulator] table",
+            "emu",
+        ),
+        c(
+            "train-emulator: table value NaN",
+            vec![
+                ("e.toml", "[emulator]\nparameters = [\"a\"]\n".into()),
+                ("t.csv", "design_id,observable,x,value,a\n0,y,0,1,0\n1,y,0,nan,1\n2,y,0,2,2\n".into()),
+            ],
+            "train-emulator {d}/e.toml --training {d}/t.csv --out {d}/emu",
+            "'value'",
+            "emu",
+        ),
+        c(
+            "validate-emulator: not an emulator folder",
+            vec![],
+            "validate-emulator {d}",
+            "emulator.json",
+            "validation.json",
+        ),
         c("design: spec missing", vec![], "design {d}/none.toml --points 10 --out {d}/design", "none.toml", "design"),
-        c("simulate ball-drop: bad --sigma", vec![], "simulate ball-drop --sigma 0.1,0 --out {d}/m.csv", "--sigma", "m.csv"),
-        c("simulate heavy-ion: --point not a number", vec![], "simulate heavy-ion --point eta_s=abc,e_sw=0.2 --out {d}/m.csv", "not a number", "m.csv"),
-        c("simulate heavy-ion: e_sw <= 0", vec![], "simulate heavy-ion --point eta_s=0.1,e_sw=-1 --out {d}/m.csv", "must be positive", "m.csv"),
-        c("simulate heavy-ion: --errors-from lacks a point", vec![("e.csv", "observable,x,value,error\nch_spectrum,0.1,1,0.5\n".into())], "simulate heavy-ion --point eta_s=0.1,e_sw=0.2 --errors-from {d}/e.csv --out {d}/m.csv", "no measurement of ch_spectrum at x = 0.3000", "m.csv"),
-        c("simulate heavy-ion: --errors-from with a bad error", vec![("e.csv", "observable,x,value,error\nch_spectrum,0.1,1,-2\n".into())], "simulate heavy-ion --point eta_s=0.1,e_sw=0.2 --errors-from {d}/e.csv --out {d}/m.csv", "line 2, field 'error'", "m.csv"),
-        c("simulate heavy-ion: --errors-from for runs", vec![("e.csv", "observable,x,value,error\nch_spectrum,0.1,1,0.5\n".into())], "simulate heavy-ion --point eta_s=0.1,e_sw=0.2 --errors-from {d}/e.csv --out {d}/runs", ".csv or .parquet", "runs"),
-        c("run: config without [run]", vec![], "run pipeline/ball_drop.toml --out {d}/study", "no [run] table", "study"),
-        c("run: unknown --stage", vec![], "run pipeline/heavy_ion_2param.toml --stage fit --out {d}/study", "unknown stage", "study"),
-        c("report: damaged summary.json", vec![("r/summary.json", "{\"name\": 1".into())], "report {d}/r --out {d}/report.html", "summary.json", "report.html"),
+        c(
+            "simulate ball-drop: bad --sigma",
+            vec![],
+            "simulate ball-drop --sigma 0.1,0 --out {d}/m.csv",
+            "--sigma",
+            "m.csv",
+        ),
+        c(
+            "simulate heavy-ion: --point not a number",
+            vec![],
+            "simulate heavy-ion --point eta_s=abc,e_sw=0.2 --out {d}/m.csv",
+            "not a number",
+            "m.csv",
+        ),
+        c(
+            "simulate heavy-ion: e_sw <= 0",
+            vec![],
+            "simulate heavy-ion --point eta_s=0.1,e_sw=-1 --out {d}/m.csv",
+            "must be positive",
+            "m.csv",
+        ),
+        c(
+            "simulate heavy-ion: --errors-from lacks a point",
+            vec![("e.csv", "observable,x,value,error\nch_spectrum,0.1,1,0.5\n".into())],
+            "simulate heavy-ion --point eta_s=0.1,e_sw=0.2 --errors-from {d}/e.csv --out {d}/m.csv",
+            "no measurement of ch_spectrum at x = 0.3000",
+            "m.csv",
+        ),
+        c(
+            "simulate heavy-ion: --errors-from with a bad error",
+            vec![("e.csv", "observable,x,value,error\nch_spectrum,0.1,1,-2\n".into())],
+            "simulate heavy-ion --point eta_s=0.1,e_sw=0.2 --errors-from {d}/e.csv --out {d}/m.csv",
+            "line 2, field 'error'",
+            "m.csv",
+        ),
+        c(
+            "simulate heavy-ion: --errors-from for runs",
+            vec![("e.csv", "observable,x,value,error\nch_spectrum,0.1,1,0.5\n".into())],
+            "simulate heavy-ion --point eta_s=0.1,e_sw=0.2 --errors-from {d}/e.csv --out {d}/runs",
+            ".csv or .parquet",
+            "runs",
+        ),
+        c(
+            "run: config without [run]",
+            vec![],
+            "run pipeline/ball_drop.toml --out {d}/study",
+            "no [run] table",
+            "study",
+        ),
+        c(
+            "run: unknown --stage",
+            vec![],
+            "run pipeline/heavy_ion_2param.toml --stage fit --out {d}/study",
+            "unknown stage",
+            "study",
+        ),
+        c(
+            "report: damaged summary.json",
+            vec![("r/summary.json", "{\"name\": 1".into())],
+            "report {d}/r --out {d}/report.html",
+            "summary.json",
+            "report.html",
+        ),
     ]
 }
 
@@ -105,16 +351,25 @@ fn every_bad_input_gets_a_clear_error_and_writes_nothing() {
         }
         let line = case.args.replace("{d}", &d.display().to_string());
         let start = Instant::now();
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe")).args(line.split_whitespace()).current_dir(root()).output().unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+            .args(line.split_whitespace())
+            .current_dir(root())
+            .output()
+            .unwrap();
         let took = start.elapsed();
         let stderr = String::from_utf8_lossy(&out.stderr).to_string();
         let message = stderr.lines().find(|l| l.starts_with("error:")).unwrap_or("").to_string();
         let code = out.status.code().unwrap_or(-1);
         let written = d.join(case.no_output).exists();
         let command = case.args.split_whitespace().next().unwrap_or("");
-        table.push_str(&format!("| {} | {command} | {code} | {} |\n", case.what, message.trim_start_matches("error: ").replace('|', "\\|").replace(&d.display().to_string(), "…")));
+        table.push_str(&format!(
+            "| {} | {command} | {code} | {} |\n",
+            case.what,
+            message.trim_start_matches("error: ").replace('|', "\\|").replace(&d.display().to_string(), "…")
+        ));
         if code != 1 || !stderr.contains(case.says) || written || took > Duration::from_secs(30) {
-            failures.push(format!("{}: exit {code}, {took:?}, artifact written: {written}, stderr: {stderr}", case.what));
+            failures
+                .push(format!("{}: exit {code}, {took:?}, artifact written: {written}, stderr: {stderr}", case.what));
         }
     }
     println!("{} bad inputs:\n{table}", cases().len());

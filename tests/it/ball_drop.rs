@@ -5,9 +5,9 @@
 use mdpipe::calibrate::summary::{ParamSummary, Summary};
 use mdpipe::calibrate::{self, diagnostics, Analysis, Overrides, Problem, SamplerKind};
 use mdpipe::compare;
-use mdpipe::progress::Silent;
 use mdpipe::config::Config;
 use mdpipe::gp::DiscrepancyKernel;
+use mdpipe::progress::Silent;
 use std::path::{Path, PathBuf};
 
 fn config() -> Analysis {
@@ -52,9 +52,17 @@ fn paper_findings_hold_on_bundled_data() {
     for n in 2..=3 {
         let k1 = &find(n, Some(DiscrepancyKernel::KernelI)).parameters;
         let k2 = &find(n, Some(DiscrepancyKernel::KernelII)).parameters;
-        assert!(k1["g"].width95() > k2["g"].width95(), "set {n}: Kernel I g width {} vs II {}", k1["g"].width95(), k2["g"].width95());
+        assert!(
+            k1["g"].width95() > k2["g"].width95(),
+            "set {n}: Kernel I g width {} vs II {}",
+            k1["g"].width95(),
+            k2["g"].width95()
+        );
     }
-    let (k1, k2) = (&find(1, Some(DiscrepancyKernel::KernelI)).parameters["g"], &find(1, Some(DiscrepancyKernel::KernelII)).parameters["g"]);
+    let (k1, k2) = (
+        &find(1, Some(DiscrepancyKernel::KernelI)).parameters["g"],
+        &find(1, Some(DiscrepancyKernel::KernelII)).parameters["g"],
+    );
     assert!(k1.width95() > 10.0 && k2.width95() > 10.0, "height alone: widths {} and {}", k1.width95(), k2.width95());
     // The tables exist and name every case.
     let md = std::fs::read_to_string(out.join("compare.md")).unwrap();
@@ -70,7 +78,12 @@ fn smc_and_ensemble_agree_on_ball_drop() {
     for kernel in [None, Some(DiscrepancyKernel::KernelII)] {
         let mut runs = Vec::new();
         for sampler in [SamplerKind::Smc, SamplerKind::Ensemble] {
-            let ov = Overrides { kernel: Some(kernel), observables: Some(all_obs()), sampler: Some(sampler), ..Default::default() };
+            let ov = Overrides {
+                kernel: Some(kernel),
+                observables: Some(all_obs()),
+                sampler: Some(sampler),
+                ..Default::default()
+            };
             let problem = Problem::new(&cfg, &ov).unwrap();
             let cal = calibrate::run(&problem, 21, &Silent).unwrap();
             runs.push(cal.chains);
@@ -88,7 +101,13 @@ fn smc_and_ensemble_agree_on_ball_drop() {
                 ess
             );
             let sd_err = 4.0 * (1.0 / (2.0 * ess[0]) + 1.0 / (2.0 * ess[1])).sqrt();
-            assert!((s[0].sd / s[1].sd - 1.0).abs() < sd_err, "kernel {:?} param {p}: sd {} vs {}", kernel, s[0].sd, s[1].sd);
+            assert!(
+                (s[0].sd / s[1].sd - 1.0).abs() < sd_err,
+                "kernel {:?} param {p}: sd {} vs {}",
+                kernel,
+                s[0].sd,
+                s[1].sd
+            );
         }
     }
 }
@@ -96,11 +115,14 @@ fn smc_and_ensemble_agree_on_ball_drop() {
 #[test]
 fn calibrate_writes_artifacts_with_provenance() {
     let cfg = config();
-    let problem = Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() }).unwrap();
+    let problem =
+        Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() })
+            .unwrap();
     let cal = calibrate::run(&problem, 5, &Silent).unwrap();
     let out = tmp("artifacts");
     calibrate::write_outputs(&out, &problem, &cal).unwrap();
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     for key in ["median", "q025", "q975", "q16", "q84", "mean", "sd"] {
         assert!(summary["parameters"]["g"][key].is_number(), "missing {key}");
         assert!(summary["parameters"]["acceleration.cbar"][key].is_number());
@@ -152,7 +174,8 @@ fn bad_input_names_file_line_and_field() {
     let msg = err_of(&format!("{head}height,0,60,0.1\nheight,0.1,59,0.1\nspeed,0.1,1,0.1\n"));
     assert!(msg.contains("line 4") && msg.contains("'observable'") && msg.contains("speed"), "{msg}");
 
-    let cfg_text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
+    let cfg_text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
     let d = tmp("badcfg");
     let p = d.join("cfg.toml");
     std::fs::write(&p, cfg_text.replace("min = 0.0\nmax = 20.0", "min = 20.0\nmax = 20.0")).unwrap();
@@ -177,16 +200,30 @@ fn replicate_grid_tabulates_coverage_over_mock_data_sets() {
         let mut covered = 0;
         for k in 0..n {
             let df = mdpipe::artifacts::read_parquet(&out.join(format!("replicate_{k:03}/compare.parquet"))).unwrap();
-            let col_s = |c: &str| df.column(c).unwrap().str().unwrap().iter().map(|v| v.unwrap().to_string()).collect::<Vec<_>>();
+            let col_s = |c: &str| {
+                df.column(c).unwrap().str().unwrap().iter().map(|v| v.unwrap().to_string()).collect::<Vec<_>>()
+            };
             let col_f = |c: &str| df.column(c).unwrap().f64().unwrap().iter().map(|v| v.unwrap()).collect::<Vec<_>>();
-            let (obs, ker, par, lo, hi, truth) = (col_s("observables"), col_s("kernel"), col_s("parameter"), col_f("q025"), col_f("q975"), col_f("truth"));
-            let i = (0..obs.len()).find(|&i| obs[i] == r.observables && ker[i] == r.kernel && par[i] == r.parameter).unwrap();
+            let (obs, ker, par, lo, hi, truth) = (
+                col_s("observables"),
+                col_s("kernel"),
+                col_s("parameter"),
+                col_f("q025"),
+                col_f("q975"),
+                col_f("truth"),
+            );
+            let i = (0..obs.len())
+                .find(|&i| obs[i] == r.observables && ker[i] == r.kernel && par[i] == r.parameter)
+                .unwrap();
             covered += (lo[i] <= truth[i] && truth[i] <= hi[i]) as usize;
         }
         assert_eq!(r.covered, covered, "{} {} {}", r.observables, r.kernel, r.parameter);
         assert_eq!(r.wider_than_kernel2.is_some(), r.kernel == "I");
     }
-    let nomd_all = rows.iter().find(|r| r.observables == "height+velocity+acceleration" && r.kernel == "none" && r.parameter == "g").unwrap();
+    let nomd_all = rows
+        .iter()
+        .find(|r| r.observables == "height+velocity+acceleration" && r.kernel == "none" && r.parameter == "g")
+        .unwrap();
     assert_eq!(nomd_all.covered, 0);
     assert!(out.join("replicates.md").exists() && out.join("replicates.parquet").exists());
 }

@@ -12,7 +12,8 @@ use std::path::Path;
 use std::time::Duration;
 
 fn problem() -> Problem {
-    let mut cfg = mdpipe::systems::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
+    let mut cfg =
+        mdpipe::systems::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
     cfg.sampler.smc.particles = 300;
     cfg.sampler.smc.replicates = 2;
     Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() }).unwrap()
@@ -36,7 +37,9 @@ fn resumed_smc_equals_uninterrupted_smc_bit_for_bit() {
             Ok(out) => break out,
             Err(stopped) => {
                 stops += 1;
-                assert!(stopped.dir.join("replicate_0.json").exists() || stopped.dir.join("replicate_0.done.json").exists());
+                assert!(
+                    stopped.dir.join("replicate_0.json").exists() || stopped.dir.join("replicate_0.done.json").exists()
+                );
                 assert!(stops < 500, "no progress across resumes");
             }
         }
@@ -74,7 +77,11 @@ fn calibrate_time_limit_stops_and_the_same_command_resumes() {
     };
     let stopped = cmd(&["--time-limit", "0"], &out);
     assert!(!stopped.status.success());
-    assert!(String::from_utf8_lossy(&stopped.stderr).contains("stopped at the time limit"), "{}", String::from_utf8_lossy(&stopped.stderr));
+    assert!(
+        String::from_utf8_lossy(&stopped.stderr).contains("stopped at the time limit"),
+        "{}",
+        String::from_utf8_lossy(&stopped.stderr)
+    );
     assert!(out.join(".checkpoint").exists() && !out.join("summary.json").exists());
     let resumed = cmd(&[], &out);
     assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
@@ -86,8 +93,12 @@ fn calibrate_time_limit_stops_and_the_same_command_resumes() {
     let (a, b) = (read(&out), read(&plain_dir));
     assert_eq!(a.get_column_names(), b.get_column_names());
     for name in a.get_column_names() {
-        let (ca, cb) = (a.column(name.as_str()).unwrap().f64().unwrap(), b.column(name.as_str()).unwrap().f64().unwrap());
-        assert!(ca.iter().zip(cb.iter()).all(|(x, y)| x == y), "resumed posterior differs from an uninterrupted one in {name}");
+        let (ca, cb) =
+            (a.column(name.as_str()).unwrap().f64().unwrap(), b.column(name.as_str()).unwrap().f64().unwrap());
+        assert!(
+            ca.iter().zip(cb.iter()).all(|(x, y)| x == y),
+            "resumed posterior differs from an uninterrupted one in {name}"
+        );
     }
     let _ = std::fs::remove_dir_all(&out);
     let _ = std::fs::remove_dir_all(&plain_dir);

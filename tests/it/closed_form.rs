@@ -5,20 +5,18 @@
 //! posterior is Gaussian and the evidence is analytic. Tolerances are 4×
 //! the Monte Carlo standard error reported by the samplers' own ESS.
 
-
-
 use super::common::*;
+use mdpipe::artifacts::Measurement;
 use mdpipe::calibrate::ensemble::{Ensemble, EnsembleSettings};
 use mdpipe::calibrate::smc::{Smc, SmcSettings};
 use mdpipe::calibrate::summary::ParamSummary;
 use mdpipe::calibrate::{diagnostics, Chains};
+use mdpipe::calibrate::{MdLikelihood, ObservableBlock};
 use mdpipe::gp::{discrepancy_cross_cov, DiscrepancyKernel};
 use mdpipe::progress::Silent;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use mdpipe::artifacts::Measurement;
-use mdpipe::calibrate::{MdLikelihood, ObservableBlock};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -49,7 +47,12 @@ fn check_theta(chains: &Chains, exact: &Analytic, label: &str) {
         );
         // sd of a sample sd ≈ sd / sqrt(2 ESS) for near-Gaussian draws.
         let rel = s.sd / exact.sd[p] - 1.0;
-        assert!(rel.abs() < 4.0 / (2.0 * ess).sqrt(), "{label} θ{p}: sd {} vs exact {} (ESS {ess:.0})", s.sd, exact.sd[p]);
+        assert!(
+            rel.abs() < 4.0 / (2.0 * ess).sqrt(),
+            "{label} θ{p}: sd {} vs exact {} (ESS {ess:.0})",
+            s.sd,
+            exact.sd[p]
+        );
     }
 }
 
@@ -60,7 +63,9 @@ fn smc_matches_closed_form_posterior_and_evidence() {
     let lik = linear_likelihood(&measurements(&x, &y, &err), Some(kernel));
     let exact = analytic_linear(&x, &y, &md_covariance(&lik, kernel, &HYPER));
     let prior = pinned_prior(THETA_BOX, &HYPER, lik.parameter_names());
-    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() }).run(&prior, &lik, 3, &Silent).unwrap();
+    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() })
+        .run(&prior, &lik, 3, &Silent)
+        .unwrap();
     check_theta(&out.chains, &exact, "SMC");
     let log_z_exact = exact.log_integral - (40.0f64 * 40.0).ln();
     assert!(out.log_evidence_err > 0.0 && out.log_evidence_err < 0.5);
@@ -102,11 +107,14 @@ fn smc_evidence_error_is_calibrated() {
     }
     let exact = analytic_linear(&x, &y, &cov);
     let log_z_exact = exact.log_integral - (40.0f64 * 40.0).ln();
-    let prior = mdpipe::calibrate::UniformPrior::new(lik.parameter_names(), vec![-20.0, -20.0], vec![20.0, 20.0]).unwrap();
+    let prior =
+        mdpipe::calibrate::UniformPrior::new(lik.parameter_names(), vec![-20.0, -20.0], vec![20.0, 20.0]).unwrap();
     let runs = 16;
     let mut z2 = 0.0;
     for seed in 0..runs {
-        let out = Smc::new(SmcSettings { particles: 300, replicates: 1, ..Default::default() }).run(&prior, &lik, 100 + seed, &Silent).unwrap();
+        let out = Smc::new(SmcSettings { particles: 300, replicates: 1, ..Default::default() })
+            .run(&prior, &lik, 100 + seed, &Silent)
+            .unwrap();
         let z = (out.log_evidence - log_z_exact) / out.log_evidence_err;
         z2 += z * z / runs as f64;
     }
@@ -119,11 +127,18 @@ fn cramer_rao_sd_equals_the_linear_models_posterior_sd() {
     // flat prior is exactly F⁻¹, at any θ; finite differences are exact too.
     let (x, y, err) = data(5);
     let lik = linear_likelihood(&measurements(&x, &y, &err), None);
-    let diag: Vec<f64> = (0..x.len() * x.len()).map(|k| if k % (x.len() + 1) == 0 { err[k / (x.len() + 1)].powi(2) } else { 0.0 }).collect();
+    let diag: Vec<f64> = (0..x.len() * x.len())
+        .map(|k| if k % (x.len() + 1) == 0 { err[k / (x.len() + 1)].powi(2) } else { 0.0 })
+        .collect();
     let exact = analytic_linear(&x, &y, &diag);
     let sd = lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).expect("identified parameters");
     for p in 0..2 {
-        assert!((sd[p] / exact.sd[p] - 1.0).abs() < 1e-9, "θ{p}: Cramér–Rao sd {} vs posterior sd {}", sd[p], exact.sd[p]);
+        assert!(
+            (sd[p] / exact.sd[p] - 1.0).abs() < 1e-9,
+            "θ{p}: Cramér–Rao sd {} vs posterior sd {}",
+            sd[p],
+            exact.sd[p]
+        );
     }
     // One x value cannot separate intercept and slope: F is singular, and no bound is claimed.
     let same_x = vec![0.5; 10];
@@ -149,11 +164,28 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
     let mut entries = Vec::new();
     for i in 0..x.len() {
         for j in 0..=i {
-            entries.push(CovarianceEntry { observable_a: rows[i].observable.clone(), x_a: x[i], observable_b: rows[j].observable.clone(), x_b: x[j], covariance: norm, line: 0 });
+            entries.push(CovarianceEntry {
+                observable_a: rows[i].observable.clone(),
+                x_a: x[i],
+                observable_b: rows[j].observable.clone(),
+                x_b: x[j],
+                covariance: norm,
+                line: 0,
+            });
         }
     }
-    let mut blocks: Vec<ObservableBlock> = names.iter().map(|n| ObservableBlock::new(n, 0, &rows.iter().filter(|r| &r.observable == n).collect::<Vec<_>>()).unwrap()).collect();
-    let across = mdpipe::calibrate::data_covariance::attach(&mut blocks, &entries, &rows, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
+    let mut blocks: Vec<ObservableBlock> = names
+        .iter()
+        .map(|n| ObservableBlock::new(n, 0, &rows.iter().filter(|r| &r.observable == n).collect::<Vec<_>>()).unwrap())
+        .collect();
+    let across = mdpipe::calibrate::data_covariance::attach(
+        &mut blocks,
+        &entries,
+        &rows,
+        Path::new("cov.csv"),
+        Path::new("data.csv"),
+    )
+    .unwrap();
     assert_eq!(across.len(), half * half);
     let kernel = DiscrepancyKernel::KernelII;
     let lik = MdLikelihood::new(Arc::new(LinearModel), blocks, Some(kernel)).joint(&across);
@@ -175,7 +207,9 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
     }
     let exact = analytic_linear(&x, &y, &cov);
     let prior = pinned_prior(THETA_BOX, &[HYPER, HYPER].concat(), lik.parameter_names());
-    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() }).run(&prior, &lik, 3, &Silent).unwrap();
+    let out = Smc::new(SmcSettings { particles: 2000, replicates: 4, ..Default::default() })
+        .run(&prior, &lik, 3, &Silent)
+        .unwrap();
     check_theta(&out.chains, &exact, "SMC, joint");
     let log_z_exact = exact.log_integral - (40.0f64 * 40.0).ln();
     assert!(
@@ -193,7 +227,12 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
     let exact = analytic_linear(&x, &y, &data_cov);
     let sd = lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).unwrap();
     for p in 0..2 {
-        assert!((sd[p] / exact.sd[p] - 1.0).abs() < 1e-9, "θ{p}: Cramér–Rao sd {} vs posterior sd {}", sd[p], exact.sd[p]);
+        assert!(
+            (sd[p] / exact.sd[p] - 1.0).abs() < 1e-9,
+            "θ{p}: Cramér–Rao sd {} vs posterior sd {}",
+            sd[p],
+            exact.sd[p]
+        );
     }
 }
 
@@ -202,8 +241,12 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
 fn joint_likelihood_without_links_is_the_sum_of_the_blocks() {
     let (x, y, err) = data(22);
     let half = x.len() / 2;
-    let rows: Vec<Measurement> = (0..x.len()).map(|i| Measurement::new(["y1", "y2"][i / half], x[i], y[i], err[i])).collect();
-    let blocks: Vec<ObservableBlock> = ["y1", "y2"].iter().map(|n| ObservableBlock::new(n, 0, &rows.iter().filter(|r| &r.observable == n).collect::<Vec<_>>()).unwrap()).collect();
+    let rows: Vec<Measurement> =
+        (0..x.len()).map(|i| Measurement::new(["y1", "y2"][i / half], x[i], y[i], err[i])).collect();
+    let blocks: Vec<ObservableBlock> = ["y1", "y2"]
+        .iter()
+        .map(|n| ObservableBlock::new(n, 0, &rows.iter().filter(|r| &r.observable == n).collect::<Vec<_>>()).unwrap())
+        .collect();
     for kernel in [None, Some(DiscrepancyKernel::KernelI), Some(DiscrepancyKernel::KernelII)] {
         let blockwise = MdLikelihood::new(Arc::new(LinearModel), blocks.clone(), kernel);
         let joint = MdLikelihood::new(Arc::new(LinearModel), blocks.clone(), kernel).joint(&[]);

@@ -125,10 +125,19 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
         for a in attempts {
             if f["id"] == 7 {
                 assert_eq!(a["timed_out"], true, "{a:#}");
-                assert!(a["seconds"].as_f64().unwrap() >= 3.0 && a["seconds"].as_f64().unwrap() < 20.0, "the 3 s limit: {a:#}");
+                assert!(
+                    a["seconds"].as_f64().unwrap() >= 3.0 && a["seconds"].as_f64().unwrap() < 20.0,
+                    "the 3 s limit: {a:#}"
+                );
             } else {
                 assert_eq!(a["exit_code"], 3, "{a:#}");
-                assert!(a["stderr_tail"].as_str().unwrap().contains(&format!("solver diverged at design point {}", f["id"])), "{a:#}");
+                assert!(
+                    a["stderr_tail"]
+                        .as_str()
+                        .unwrap()
+                        .contains(&format!("solver diverged at design point {}", f["id"])),
+                    "{a:#}"
+                );
             }
         }
     }
@@ -136,7 +145,12 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
     assert_eq!(report["succeeded"], 13);
     // stdout says so, with the exit codes and stderr tails.
     assert!(stdout.contains("warning: 3 of 16 points of the design failed and are left out"), "{stdout}");
-    assert!(stdout.contains("exit code 3") && stdout.contains("| solver diverged at design point 5") && stdout.contains("timed out after"), "{stdout}");
+    assert!(
+        stdout.contains("exit code 3")
+            && stdout.contains("| solver diverged at design point 5")
+            && stdout.contains("timed out after"),
+        "{stdout}"
+    );
 
     // The emulator is trained on the rest, and the calibration finds the truth.
     assert_eq!(design_ids(&out.join("training.parquet")), vec![0, 1, 3, 4, 6, 8, 9, 10, 11, 12, 13, 14, 15]);
@@ -154,13 +168,23 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
     // Unchanged, a rerun skips every stage; failed points are not retried behind the user's back.
     let again = run(&config, &out, &[]);
     let stdout = String::from_utf8_lossy(&again.stdout);
-    assert!(again.status.success() && stdout.contains("[simulate] up to date, skipped") && stdout.contains("[calibrate] up to date, skipped"), "{stdout}");
+    assert!(
+        again.status.success()
+            && stdout.contains("[simulate] up to date, skipped")
+            && stdout.contains("[calibrate] up to date, skipped"),
+        "{stdout}"
+    );
     // A stage forced to run again with the same settings reruns what follows
     // (the calibrations must not keep the previous emulator's results).
     assert!(run(&config, &out, &["--stage", "emulator", "--force"]).status.success());
     let after = run(&config, &out, &[]);
     let stdout = String::from_utf8_lossy(&after.stdout);
-    assert!(after.status.success() && stdout.contains("[ingest] up to date, skipped") && stdout.contains("[calibrate] running"), "{stdout}");
+    assert!(
+        after.status.success()
+            && stdout.contains("[ingest] up to date, skipped")
+            && stdout.contains("[calibrate] running"),
+        "{stdout}"
+    );
 
     // The cause mended, `--stage simulate --force` runs only the failed points
     // again (the finished ones are kept), and ingest takes them in.
@@ -168,24 +192,45 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
     let kept = std::fs::metadata(out.join("design/runs/0000/outputs.csv")).unwrap().modified().unwrap();
     let o = run(&config, &out, &["--stage", "simulate", "--force"]);
     let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success() && stdout.contains("16 points (13 had their run, 2 ran, 0 after a retry, 1 failed)"), "{stdout}");
-    assert_eq!(std::fs::metadata(out.join("design/runs/0000/outputs.csv")).unwrap().modified().unwrap(), kept, "a finished point was run again");
+    assert!(
+        o.status.success() && stdout.contains("16 points (13 had their run, 2 ran, 0 after a retry, 1 failed)"),
+        "{stdout}"
+    );
+    assert_eq!(
+        std::fs::metadata(out.join("design/runs/0000/outputs.csv")).unwrap().modified().unwrap(),
+        kept,
+        "a finished point was run again"
+    );
     let report = json(&out.join("design/runs/execution.json"));
-    assert_eq!(report["failed"].as_array().unwrap().iter().map(|f| f["id"].as_i64().unwrap()).collect::<Vec<_>>(), vec![7], "{report:#}");
+    assert_eq!(
+        report["failed"].as_array().unwrap().iter().map(|f| f["id"].as_i64().unwrap()).collect::<Vec<_>>(),
+        vec![7],
+        "{report:#}"
+    );
     assert!(run(&config, &out, &["--stage", "ingest"]).status.success());
     assert_eq!(design_ids(&out.join("training.parquet")), vec![0, 1, 2, 3, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14, 15]);
 }
 
 fn slurm_answers() -> bool {
-    Command::new("sinfo").args(["-h", "-o", "%T"]).output().map(|o| o.status.success() && String::from_utf8_lossy(&o.stdout).contains("idle")).unwrap_or(false)
+    Command::new("sinfo")
+        .args(["-h", "-o", "%T"])
+        .output()
+        .map(|o| o.status.success() && String::from_utf8_lossy(&o.stdout).contains("idle"))
+        .unwrap_or(false)
 }
 
 fn tables_equal(a: &Path, b: &Path) {
     let (a, b) = (mdpipe::artifacts::read_parquet(a).unwrap(), mdpipe::artifacts::read_parquet(b).unwrap());
     assert_eq!(a.height(), b.height());
     for col in ["design_id", "x", "value", "a", "b"] {
-        let (va, vb) = (a.column(col).unwrap().cast(&polars::prelude::DataType::Float64).unwrap(), b.column(col).unwrap().cast(&polars::prelude::DataType::Float64).unwrap());
-        assert!(va.f64().unwrap().iter().zip(vb.f64().unwrap().iter()).all(|(x, y)| x == y), "column {col} differs between the Slurm and local executors");
+        let (va, vb) = (
+            a.column(col).unwrap().cast(&polars::prelude::DataType::Float64).unwrap(),
+            b.column(col).unwrap().cast(&polars::prelude::DataType::Float64).unwrap(),
+        );
+        assert!(
+            va.f64().unwrap().iter().zip(vb.f64().unwrap().iter()).all(|(x, y)| x == y),
+            "column {col} differs between the Slurm and local executors"
+        );
     }
 }
 
@@ -193,12 +238,19 @@ fn tables_equal(a: &Path, b: &Path) {
 fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
     if !slurm_answers() {
         // CI starts a one-node cluster (.ci/slurm-setup.sh); there this test must run.
-        assert!(std::env::var("CI").is_err(), "CI=true but no Slurm cluster answers: .ci/run should have started one with .ci/slurm-setup.sh");
+        assert!(
+            std::env::var("CI").is_err(),
+            "CI=true but no Slurm cluster answers: .ci/run should have started one with .ci/slurm-setup.sh"
+        );
         eprintln!("SKIPPED slurm_executor_retries_resumes_and_matches_the_local_executor: no Slurm cluster answers here (as root: bash .ci/slurm-setup.sh)");
         return;
     }
     let dir = tmpdir("slurm-executor");
-    let config = write_study(&dir, "FAIL= HANG= FLAKY=5 NAP=1", "time_limit = \"2m\"\nretries = 2\nparallel = 2\nslurm = { poll_seconds = 1.0 }");
+    let config = write_study(
+        &dir,
+        "FAIL= HANG= FLAKY=5 NAP=1",
+        "time_limit = \"2m\"\nretries = 2\nparallel = 2\nslurm = { poll_seconds = 1.0 }",
+    );
     let slurm = dir.join("slurm");
     assert!(run(&config, &slurm, &["--stage", "design"]).status.success());
 
@@ -224,7 +276,10 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
     child.wait().unwrap();
     let first_job = json(&state)["submissions"][0]["job_id"].as_str().unwrap().to_string();
     let queued = Command::new("squeue").args(["-h", "-j", &first_job]).output().unwrap();
-    assert!(!String::from_utf8_lossy(&queued.stdout).trim().is_empty(), "the kill should land while array {first_job} still runs");
+    assert!(
+        !String::from_utf8_lossy(&queued.stdout).trim().is_empty(),
+        "the kill should land while array {first_job} still runs"
+    );
 
     // Restarted, mdpipe follows the same array, then resubmits the point that failed once.
     let o = run(&config, &slurm, &["--stage", "simulate", "--executor", "slurm"]);
@@ -232,7 +287,11 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
     assert!(o.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&o.stderr));
     assert!(stdout.contains(&format!("following array job {first_job} from an earlier mdpipe")), "{stdout}");
     let submissions = json(&state)["submissions"].as_array().unwrap().clone();
-    assert_eq!(submissions[0]["job_id"].as_str().unwrap(), first_job, "the first array was followed, not submitted again");
+    assert_eq!(
+        submissions[0]["job_id"].as_str().unwrap(),
+        first_job,
+        "the first array was followed, not submitted again"
+    );
     assert_eq!(submissions.len(), 2, "one resubmission, of the failed point only: {submissions:?}");
     assert_eq!(submissions[1]["ids"], serde_json::json!([5]));
     let report = json(&slurm.join("design/runs/execution.json"));
@@ -263,11 +322,20 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
     let o = run(&config, &local, &[]);
     assert!(o.status.success(), "local: {}", String::from_utf8_lossy(&o.stderr));
     for case in ["y__nomd", "y__kernel2"] {
-        let (a, b) = (mdpipe::artifacts::read_parquet(&slurm.join("calibrate").join(case).join("posterior.parquet")).unwrap(), mdpipe::artifacts::read_parquet(&local.join("calibrate").join(case).join("posterior.parquet")).unwrap());
+        let (a, b) = (
+            mdpipe::artifacts::read_parquet(&slurm.join("calibrate").join(case).join("posterior.parquet")).unwrap(),
+            mdpipe::artifacts::read_parquet(&local.join("calibrate").join(case).join("posterior.parquet")).unwrap(),
+        );
         assert_eq!(a.get_column_names(), b.get_column_names());
         for col in a.get_column_names() {
-            let (va, vb) = (a.column(col.as_str()).unwrap().cast(&polars::prelude::DataType::Float64).unwrap(), b.column(col.as_str()).unwrap().cast(&polars::prelude::DataType::Float64).unwrap());
-            assert!(va.f64().unwrap().iter().zip(vb.f64().unwrap().iter()).all(|(x, y)| x == y), "{case}: posterior column {col} differs between the array task and the local run");
+            let (va, vb) = (
+                a.column(col.as_str()).unwrap().cast(&polars::prelude::DataType::Float64).unwrap(),
+                b.column(col.as_str()).unwrap().cast(&polars::prelude::DataType::Float64).unwrap(),
+            );
+            assert!(
+                va.f64().unwrap().iter().zip(vb.f64().unwrap().iter()).all(|(x, y)| x == y),
+                "{case}: posterior column {col} differs between the array task and the local run"
+            );
         }
     }
     assert!(slurm.join("calibrate/cases.md").exists() && slurm.join("report.html").exists());
@@ -279,7 +347,10 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
 #[test]
 fn a_slurm_array_that_cannot_start_stops_with_the_reason() {
     if !slurm_answers() {
-        assert!(std::env::var("CI").is_err(), "CI=true but no Slurm cluster answers: .ci/run should have started one with .ci/slurm-setup.sh");
+        assert!(
+            std::env::var("CI").is_err(),
+            "CI=true but no Slurm cluster answers: .ci/run should have started one with .ci/slurm-setup.sh"
+        );
         eprintln!("SKIPPED a_slurm_array_that_cannot_start_stops_with_the_reason: no Slurm cluster answers here");
         return;
     }
@@ -287,7 +358,16 @@ fn a_slurm_array_that_cannot_start_stops_with_the_reason() {
     let config = write_study(&dir, "FAIL= HANG= FLAKY= NAP=0", "slurm = { poll_seconds = 1.0, extra = [\"--hold\"] }");
     let out = dir.join("out");
     assert!(run(&config, &out, &["--stage", "design"]).status.success());
-    let mut child = mdpipe().arg("run").arg(&config).arg("--out").arg(&out).args(["--stage", "simulate", "--executor", "slurm"]).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut child = mdpipe()
+        .arg("run")
+        .arg(&config)
+        .arg("--out")
+        .arg(&out)
+        .args(["--stage", "simulate", "--executor", "slurm"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
     let start = Instant::now();
     let status = loop {
         if let Some(status) = child.try_wait().unwrap() {
@@ -301,7 +381,8 @@ fn a_slurm_array_that_cannot_start_stops_with_the_reason() {
     };
     let mut stderr = String::new();
     std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
-    let job = json(&out.join("design/runs/.attempts/slurm.json"))["submissions"][0]["job_id"].as_str().unwrap().to_string();
+    let job =
+        json(&out.join("design/runs/.attempts/slurm.json"))["submissions"][0]["job_id"].as_str().unwrap().to_string();
     let _ = Command::new("scancel").arg(&job).output();
     assert!(!status.success(), "a held array must stop the run");
     assert!(stderr.contains("JobHeldUser") && stderr.contains(&format!("scancel {job}")), "{stderr}");

@@ -81,13 +81,18 @@ fn an_expression_model_is_the_closed_form_linear_model() {
     // so 0.1 sd is at least 3 Monte Carlo sd once ESS exceeds 900.
     let problem = Problem::new(&analysis, &Overrides::default()).unwrap();
     let data = &problem.likelihood.blocks[0];
-    let cov: Vec<f64> = (0..data.len() * data.len()).map(|k| if k % (data.len() + 1) == 0 { data.error[k / (data.len() + 1)].powi(2) } else { 0.0 }).collect();
+    let cov: Vec<f64> = (0..data.len() * data.len())
+        .map(|k| if k % (data.len() + 1) == 0 { data.error[k / (data.len() + 1)].powi(2) } else { 0.0 })
+        .collect();
     let exact = analytic_linear(&data.x, &data.y, &cov);
     let cal = calibrate::run(&problem, 5, &Silent).unwrap();
     for (k, name) in ["a", "b"].iter().enumerate() {
         let p = &cal.summary.parameters[*name];
         let ess = cal.summary.diagnostics.parameters.iter().find(|d| d.name == *name).map(|d| d.ess_bulk).unwrap();
-        println!("{name}: SMC {:.4} ± {:.4} (ESS {ess:.0}), exact {:.4} ± {:.4}", p.mean, p.sd, exact.mean[k], exact.sd[k]);
+        println!(
+            "{name}: SMC {:.4} ± {:.4} (ESS {ess:.0}), exact {:.4} ± {:.4}",
+            p.mean, p.sd, exact.mean[k], exact.sd[k]
+        );
         assert!(ess > 900.0, "{name}: ESS {ess}");
         assert!((p.mean - exact.mean[k]).abs() < 0.1 * exact.sd[k], "{name}: mean {} vs {}", p.mean, exact.mean[k]);
         assert!((p.sd / exact.sd[k] - 1.0).abs() < 0.1, "{name}: sd {} vs {}", p.sd, exact.sd[k]);
@@ -123,7 +128,12 @@ fn the_declared_ball_drop_matches_the_rust_oracle() {
             let mut got = vec![0.0; times.len()];
             model.predict(k, &times, theta, &mut got);
             for (i, g) in got.iter().enumerate() {
-                assert!((g - want[i][k]).abs() < 1e-6, "{what}, observable {k}, t = {}: {g} vs {}", times[i], want[i][k]);
+                assert!(
+                    (g - want[i][k]).abs() < 1e-6,
+                    "{what}, observable {k}, t = {}: {g} vs {}",
+                    times[i],
+                    want[i][k]
+                );
             }
         }
     };
@@ -155,15 +165,25 @@ fn the_declared_ball_drop_matches_the_rust_oracle() {
         }
     }
     let truth = analysis.truth.clone().expect("a [truth] process");
-    check(truth.as_ref(), &[9.8, 0.0], &reorder(oracle(9.8, 0.0, ExtraForces { quadratic_drag: 0.4, ..ExtraForces::NONE })), "true process");
+    check(
+        truth.as_ref(),
+        &[9.8, 0.0],
+        &reorder(oracle(9.8, 0.0, ExtraForces { quadratic_drag: 0.4, ..ExtraForces::NONE })),
+        "true process",
+    );
 }
 
 /// Writes `config` (a ball-drop variant) into `dir` and returns the error
 /// that loading or calibrating it gives.
 fn error_of(dir: &Path, name: &str, text: &str) -> String {
     let path = dir.join(name);
-    std::fs::write(&path, text.replace("\"ball_drop_data.csv\"", &format!("{:?}", root().join("pipeline/ball_drop_data.csv")))).unwrap();
-    let result = mdpipe::systems::load(&path).and_then(|a| Problem::new(&a, &Overrides::default()).map(|_| ()).and_then(|_| a.candidates().map(|_| ())));
+    std::fs::write(
+        &path,
+        text.replace("\"ball_drop_data.csv\"", &format!("{:?}", root().join("pipeline/ball_drop_data.csv"))),
+    )
+    .unwrap();
+    let result = mdpipe::systems::load(&path)
+        .and_then(|a| Problem::new(&a, &Overrides::default()).map(|_| ()).and_then(|_| a.candidates().map(|_| ())));
     format!("{:#}", result.err().unwrap_or_else(|| panic!("{name} was accepted")))
 }
 
@@ -172,17 +192,63 @@ fn bad_declarations_get_errors_naming_file_table_and_formula() {
     let dir = tmpdir("bad");
     let base = std::fs::read_to_string(root().join("pipeline/ball_drop.toml")).unwrap();
     let cases = [
-        ("unknown.toml", base.replace("v = \"g\"", "v = \"g - drag*v\""), vec!["unknown.toml", "[model.rates] v", "unknown name 'drag'", "g - drag*v"]),
-        ("syntax.toml", base.replace("height = \"h\"", "height = \"h*(\""), vec!["syntax.toml", "[model.observables] height", "not a formula", "h*("]),
-        ("prior.toml", base.replace("rates = { v = \"-b*v\" }", "rates = { v = \"-b*v*c\" }"), vec!["prior.toml", "[[candidates]] linear_drag", "unknown name 'c'"]),
-        ("corner.toml", base.replace("v = \"g\"", "v = \"g + 1/v0\""), vec!["corner.toml", "[model.rates] v", "g + 1/v0", "not finite", "v0 = "]),
-        ("state.toml", base.replace("[model.rates]\nh = \"-v\"\n", "[model.rates]\n"), vec!["state.toml", "[model.initial] h", "no rate for 'h'"]),
-        ("clash.toml", base.replace("constants = { h0 = 60.0 }", "constants = { h0 = 60.0, g = 9.8 }"), vec!["clash.toml", "'g' is both a parameter and a constant"]),
-        ("target.toml", base.replace("rates = { v = \"-f\" }", "rates = { w = \"-f\" }"), vec!["target.toml", "[[candidates]] constant_force", "no state variable 'w'"]),
-        ("truth.toml", base.replace("candidates = { quadratic_drag = { k = 0.4 } }", "candidates = { quadratic_drag = { kk = 0.4 } }"), vec!["truth.toml", "[truth.candidates] quadratic_drag", "'k'"]),
+        (
+            "unknown.toml",
+            base.replace("v = \"g\"", "v = \"g - drag*v\""),
+            vec!["unknown.toml", "[model.rates] v", "unknown name 'drag'", "g - drag*v"],
+        ),
+        (
+            "syntax.toml",
+            base.replace("height = \"h\"", "height = \"h*(\""),
+            vec!["syntax.toml", "[model.observables] height", "not a formula", "h*("],
+        ),
+        (
+            "prior.toml",
+            base.replace("rates = { v = \"-b*v\" }", "rates = { v = \"-b*v*c\" }"),
+            vec!["prior.toml", "[[candidates]] linear_drag", "unknown name 'c'"],
+        ),
+        (
+            "corner.toml",
+            base.replace("v = \"g\"", "v = \"g + 1/v0\""),
+            vec!["corner.toml", "[model.rates] v", "g + 1/v0", "not finite", "v0 = "],
+        ),
+        (
+            "state.toml",
+            base.replace("[model.rates]\nh = \"-v\"\n", "[model.rates]\n"),
+            vec!["state.toml", "[model.initial] h", "no rate for 'h'"],
+        ),
+        (
+            "clash.toml",
+            base.replace("constants = { h0 = 60.0 }", "constants = { h0 = 60.0, g = 9.8 }"),
+            vec!["clash.toml", "'g' is both a parameter and a constant"],
+        ),
+        (
+            "target.toml",
+            base.replace("rates = { v = \"-f\" }", "rates = { w = \"-f\" }"),
+            vec!["target.toml", "[[candidates]] constant_force", "no state variable 'w'"],
+        ),
+        (
+            "truth.toml",
+            base.replace(
+                "candidates = { quadratic_drag = { k = 0.4 } }",
+                "candidates = { quadratic_drag = { kk = 0.4 } }",
+            ),
+            vec!["truth.toml", "[truth.candidates] quadratic_drag", "'k'"],
+        ),
         ("solver.toml", base.replace("rtol = 1e-10", "rtol = 0.0"), vec!["solver.toml", "[model.solver]", "rtol"]),
-        ("unused.toml", base.replace("rates = { v = \"-b*v\" }", "rates = { v = \"-0.5*v\" }"), vec!["unused.toml", "[[candidates]] linear_drag: [candidates.parameters.b]", "no formula uses it"]),
-        ("shadow.toml", base.replace("candidates = { quadratic_drag = { k = 0.4 } }", "candidates = { quadratic_drag = { k = 0.4 } }\nconstants = { g = 1.0 }"), vec!["shadow.toml", "[truth.constants] g"]),
+        (
+            "unused.toml",
+            base.replace("rates = { v = \"-b*v\" }", "rates = { v = \"-0.5*v\" }"),
+            vec!["unused.toml", "[[candidates]] linear_drag: [candidates.parameters.b]", "no formula uses it"],
+        ),
+        (
+            "shadow.toml",
+            base.replace(
+                "candidates = { quadratic_drag = { k = 0.4 } }",
+                "candidates = { quadratic_drag = { k = 0.4 } }\nconstants = { g = 1.0 }",
+            ),
+            vec!["shadow.toml", "[truth.constants] g"],
+        ),
     ];
     for (name, text, says) in cases {
         assert_ne!(text, base, "{name}: the replacement did not apply");
@@ -211,11 +277,21 @@ fn an_ode_that_fails_at_some_theta_is_counted_not_fatal() {
     std::fs::write(&path, text).unwrap();
     let out = dir.join("out");
     let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
-        .args(["calibrate", &path.display().to_string(), "--kernel", "none", "--observables", "velocity", "--out", &out.display().to_string()])
+        .args([
+            "calibrate",
+            &path.display().to_string(),
+            "--kernel",
+            "none",
+            "--observables",
+            "velocity",
+            "--out",
+            &out.display().to_string(),
+        ])
         .output()
         .unwrap();
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let failures = summary["diagnostics"]["model_failures"].as_u64().unwrap();
     println!("failed integrations: {failures}; warnings {}", summary["diagnostics"]["warnings"]);
     assert!(failures > 0, "no failed integration was counted");
@@ -229,7 +305,14 @@ fn an_ode_that_fails_at_some_theta_is_counted_not_fatal() {
     std::fs::write(dir.join("one_step.toml"), one_step).unwrap();
     let start = std::time::Instant::now();
     let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
-        .args(["calibrate", &dir.join("one_step.toml").display().to_string(), "--kernel", "none", "--out", &dir.join("far").display().to_string()])
+        .args([
+            "calibrate",
+            &dir.join("one_step.toml").display().to_string(),
+            "--kernel",
+            "none",
+            "--out",
+            &dir.join("far").display().to_string(),
+        ])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&run.stderr);
@@ -304,7 +387,11 @@ fn kinetics_effect_size(truth: &[f64], times: &[f64], sigma: f64) -> f64 {
     let (mut lo, mut hi) = (best - 0.001, best + 0.001);
     for _ in 0..60 {
         let (a, b) = (lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo));
-        if misfit(a) < misfit(b) { hi = b } else { lo = a }
+        if misfit(a) < misfit(b) {
+            hi = b
+        } else {
+            lo = a
+        }
     }
     best = 0.5 * (lo + hi);
     times.iter().zip(truth).map(|(t, y)| ((y - 5.0 * (-best * t).exp()) / sigma).abs()).fold(0.0, f64::max)
@@ -323,17 +410,16 @@ fn kinetics_truth_oracle_matches_closed_forms() {
     }
 }
 
-/// The issue's blind test on a declared ODE other than the ball drop: 80
-/// seeded data sets of the kinetics example (40 with nothing missing, 10
-/// each of the three library effects at weak to strong sizes, 10 of a
-/// periodic source outside the library), each diagnosed with the declared
-/// candidates and their pairs. Targets: at least 90% of library effects of
-/// 3σ or more named right, the false-alarm rate's 95% upper bound under 15%
-/// (40 nulls allow one false alarm: 13.2%), and no out-of-library effect
-/// given a candidate's name.
-#[test]
-fn kinetics_blind_test_confusion_matrix() {
-    use crate::diagnose::{clopper_pearson, confusion_matrix_meets_targets};
+/// The blind test on a declared ODE other than the ball drop: 80 seeded data
+/// sets of the kinetics example (40 with nothing missing, 10 each of the
+/// three library effects at weak to strong sizes, 10 of a periodic source
+/// outside the library), each diagnosed with the declared candidates and
+/// their pairs.
+///
+/// The kinetics blind campaign's 80 data sets; `pick` chooses which are
+/// diagnosed (from the concealed effect and its noise-free size), so a
+/// subset sees exactly the data sets of the whole campaign.
+fn kinetics_blind(pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str, String, f64)> {
     let mut analysis = mdpipe::systems::load(&root().join("pipeline/examples/kinetics.toml")).unwrap();
     // Lighter sampling for 80 diagnoses; evidence errors stay ~0.1, far below the threshold of 3.
     analysis.sampler.smc.particles = 400;
@@ -361,19 +447,55 @@ fn kinetics_blind_test_confusion_matrix() {
             let z: f64 = rng.sample(rand_distr::StandardNormal);
             csv.push_str(&format!("concentration,{t},{},{sigma}\n", y + sigma * z));
         }
+        let s = kinetics_effect_size(&truth, &times, sigma);
+        if !pick(effect.expected(), s) {
+            continue;
+        }
         let path = dir.join(format!("blind_{k}.csv"));
         std::fs::write(&path, csv).unwrap();
-        let run = mdpipe::diagnose::run(&analysis, &Overrides { data: Some(path), ..Default::default() }, 500 + k, &settings, None, &Silent).unwrap();
-        let s = kinetics_effect_size(&truth, &times, sigma);
-        println!("  concealed {:<13} ({effect:?}, u = {u:.2}) verdict {:<26} noise-free mismatch {s:.1}σ", effect.expected(), run.diagnosis.verdict.best);
+        let run = mdpipe::diagnose::run(
+            &analysis,
+            &Overrides { data: Some(path), ..Default::default() },
+            500 + k,
+            &settings,
+            None,
+            &Silent,
+        )
+        .unwrap();
+        println!(
+            "  concealed {:<13} ({effect:?}, u = {u:.2}) verdict {:<26} noise-free mismatch {s:.1}σ",
+            effect.expected(),
+            run.diagnosis.verdict.best
+        );
         rows.push((effect.expected(), run.diagnosis.verdict.best.clone(), s));
     }
+    rows
+}
+
+/// Second tier: the whole campaign. Targets: at least 90% of library
+/// effects of 3σ or more named right, the false-alarm rate's 95% upper bound
+/// under 15% (40 nulls allow one false alarm: 13.2%), and no out-of-library
+/// effect given a candidate's name.
+#[test]
+#[ignore = "second tier: 80 diagnoses; cargo test --release -- --ignored"]
+fn kinetics_blind_test_confusion_matrix() {
+    use crate::diagnose::{clopper_pearson, confusion_matrix_meets_targets};
+    let rows = kinetics_blind(&mut |_, _| true);
     let labels = ["none", "equilibrium", "second_order", "saturation", "unexplained", "ambiguous"];
     let nulls = rows.iter().filter(|r| r.0 == "none").count();
     let alarms = rows.iter().filter(|r| r.0 == "none" && r.1 != "none").count();
     let (_, upper) = clopper_pearson(alarms, nulls);
     confusion_matrix_meets_targets("kinetics (declared ODE)", &labels, &rows);
     assert!(upper < 0.15, "false alarms {alarms}/{nulls}: 95% upper bound {upper:.3}");
+}
+
+/// First tier: one kinetics data set of each verdict class from the same campaign.
+#[test]
+fn kinetics_blind_test_one_data_set_per_verdict_class() {
+    let rows = kinetics_blind(&mut crate::diagnose::first_of_each_class(3.0));
+    // No second-order loss of the campaign reaches 3σ (k ≤ 0.255), so four classes.
+    assert_eq!(rows.len(), 4, "none, equilibrium, saturation and the periodic source: {rows:?}");
+    crate::diagnose::each_verdict_is_right("kinetics", &rows);
 }
 
 /// Issue 19's honest verdict on the simple machine (Brynjarsdóttir &
@@ -393,7 +515,11 @@ fn an_ambiguous_verdict_suggests_the_measurement_that_settles_it() {
     let v = &first.verdict;
     assert_eq!(v.best, "ambiguous", "{}", v.statement);
     assert!(first.improvement.is_none(), "an ambiguous verdict has no winner to repair");
-    assert!(v.standing.iter().any(|s| s == "saturation") && v.standing.iter().any(|s| s == "quadratic_loss"), "{:?}", v.standing);
+    assert!(
+        v.standing.iter().any(|s| s == "saturation") && v.standing.iter().any(|s| s == "quadratic_loss"),
+        "{:?}",
+        v.standing
+    );
     let s = v.suggestion.as_ref().expect("a suggested measurement");
     assert!(v.statement.contains("to separate them, measure work at x ="), "{}", v.statement);
     assert_eq!(s.observable, "work");
@@ -408,12 +534,21 @@ fn an_ambiguous_verdict_suggests_the_measurement_that_settles_it() {
     let mut rng = rand::rngs::StdRng::seed_from_u64(19);
     for _ in 0..repeats {
         let z: f64 = rng.sample(rand_distr::StandardNormal);
-        data.push(Measurement { observable: "work".into(), x: s.x, value: truth + s.error * z, error: s.error, line: 0 });
+        data.push(Measurement {
+            observable: "work".into(),
+            x: s.x,
+            value: truth + s.error * z,
+            error: s.error,
+            line: 0,
+        });
     }
     let dir = tmpdir("ambiguous");
     let path = dir.join("with_suggested.csv");
     write_measurements(&path, &data, None).unwrap();
-    let second = diagnose::run(&analysis, &Overrides { data: Some(path), ..Default::default() }, 1, &settings, None, &Silent).unwrap().diagnosis;
+    let second =
+        diagnose::run(&analysis, &Overrides { data: Some(path), ..Default::default() }, 1, &settings, None, &Silent)
+            .unwrap()
+            .diagnosis;
     diagnose::print(&second);
     assert_eq!(second.verdict.best, "saturation", "{}", second.verdict.statement);
     let winner = &second.candidates[0];
@@ -430,6 +565,7 @@ fn an_ambiguous_verdict_suggests_the_measurement_that_settles_it() {
 /// fit's 95% intervals cover the published θ and the candidate's own
 /// parameters and are narrower than the MD fit's.
 #[test]
+#[ignore = "second tier: four full diagnoses; cargo test --release -- --ignored"]
 fn published_examples_recover_their_known_answers() {
     use mdpipe::diagnose::{self, DiagnoseSettings};
     let cases: [(&str, &str, &[(&str, f64)]); 2] = [
@@ -438,12 +574,19 @@ fn published_examples_recover_their_known_answers() {
     ];
     for (config, candidate, truths) in cases {
         let analysis = mdpipe::systems::load(&root().join("pipeline/examples").join(config)).unwrap();
-        let d = diagnose::run(&analysis, &Overrides::default(), 1, &DiagnoseSettings::default(), None, &Silent).unwrap().diagnosis;
+        let d = diagnose::run(&analysis, &Overrides::default(), 1, &DiagnoseSettings::default(), None, &Silent)
+            .unwrap()
+            .diagnosis;
         assert_eq!(d.verdict.best, candidate, "{config}: {}", d.verdict.statement);
         let repaired = &d.candidates[0].parameters;
         for (name, truth) in truths {
             let p = &repaired[*name];
-            assert!(p.q025 <= *truth && *truth <= p.q975, "{config}: {name} = {truth} outside [{}, {}]", p.q025, p.q975);
+            assert!(
+                p.q025 <= *truth && *truth <= p.q975,
+                "{config}: {name} = {truth} outside [{}, {}]",
+                p.q025,
+                p.q975
+            );
         }
         let imp = d.improvement.as_ref().unwrap();
         for (name, narrowing) in &imp.interval_narrowing {

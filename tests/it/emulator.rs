@@ -32,7 +32,11 @@ fn analytic(theta: &[f64]) -> Vec<(String, f64, f64)> {
         }
         for k in 0..4 {
             let damp = (-(k as f64 + 1.0) * (0.5 + 1.5 * b) * 0.3 * x).exp();
-            out.push((format!("flow{k}"), x, (0.12 - 0.02 * k as f64) * x * damp * (1.0 - 0.4 * a + 0.2 * c) + 0.01 * (2.0 * c).cos() * x));
+            out.push((
+                format!("flow{k}"),
+                x,
+                (0.12 - 0.02 * k as f64) * x * damp * (1.0 - 0.4 * a + 0.2 * c) + 0.01 * (2.0 * c).cos() * x,
+            ));
         }
     }
     out
@@ -88,11 +92,24 @@ fn held_out_error_is_small_and_intervals_are_calibrated() {
     let tol95 = 3.0 * (0.95f64 * 0.05 / n_val).sqrt();
     let tol68 = 3.0 * (0.68f64 * 0.32 / n_val).sqrt();
     for s in &summary {
-        println!("{:<10} RMSE/spread {:.4}  cov68 {:.3}  cov95 {:.3}", s.observable, s.relative_rmse, s.coverage_68, s.coverage_95);
+        println!(
+            "{:<10} RMSE/spread {:.4}  cov68 {:.3}  cov95 {:.3}",
+            s.observable, s.relative_rmse, s.coverage_68, s.coverage_95
+        );
         // The 1% noise alone puts a floor of about 0.01 × value / spread on this.
         assert!(s.relative_rmse < 0.1, "{}: relative RMSE {}", s.observable, s.relative_rmse);
-        assert!((s.coverage_95 - 0.95).abs() < tol95, "{}: 95% coverage {} (tolerance {tol95:.3})", s.observable, s.coverage_95);
-        assert!((s.coverage_68 - 0.68).abs() < tol68, "{}: 68% coverage {} (tolerance {tol68:.3})", s.observable, s.coverage_68);
+        assert!(
+            (s.coverage_95 - 0.95).abs() < tol95,
+            "{}: 95% coverage {} (tolerance {tol95:.3})",
+            s.observable,
+            s.coverage_95
+        );
+        assert!(
+            (s.coverage_68 - 0.68).abs() < tol68,
+            "{}: 68% coverage {} (tolerance {tol68:.3})",
+            s.observable,
+            s.coverage_68
+        );
     }
 }
 
@@ -101,7 +118,9 @@ fn marginal_likelihood_gradient_matches_finite_differences() {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
     let (n, d) = (30, 3);
     let x: Vec<f64> = (0..n * d).map(|_| rng.random::<f64>()).collect();
-    let y: Vec<f64> = (0..n).map(|i| (3.0 * x[i * d]).sin() + x[i * d + 1] * x[i * d + 2] + 0.05 * rng.sample::<f64, _>(StandardNormal)).collect();
+    let y: Vec<f64> = (0..n)
+        .map(|i| (3.0 * x[i * d]).sin() + x[i * d + 1] * x[i * d + 2] + 0.05 * rng.sample::<f64, _>(StandardNormal))
+        .collect();
     for kernel in [ArdKernel::SquaredExponential, ArdKernel::Matern52] {
         let hyper = ArdHyper { log_params: vec![0.3, -0.9, -0.4, 0.2, -2.0, -4.0] };
         let mut grad = vec![0.0; 6];
@@ -112,9 +131,15 @@ fn marginal_likelihood_gradient_matches_finite_differences() {
             up.log_params[k] += h;
             let mut dn = hyper.clone();
             dn.log_params[k] -= h;
-            let fd = (ard_log_marginal_likelihood(kernel, &up, &x, &y, None).unwrap() - ard_log_marginal_likelihood(kernel, &dn, &x, &y, None).unwrap()) / (2.0 * h);
+            let fd = (ard_log_marginal_likelihood(kernel, &up, &x, &y, None).unwrap()
+                - ard_log_marginal_likelihood(kernel, &dn, &x, &y, None).unwrap())
+                / (2.0 * h);
             // Central differences are accurate to O(h²) ≈ 1e-10 relative; rounding adds ~1e-8.
-            assert!((grad[k] - fd).abs() < 1e-6 * fd.abs().max(1.0), "{kernel:?} parameter {k}: analytic {} vs finite difference {fd}", grad[k]);
+            assert!(
+                (grad[k] - fd).abs() < 1e-6 * fd.abs().max(1.0),
+                "{kernel:?} parameter {k}: analytic {} vs finite difference {fd}",
+                grad[k]
+            );
         }
     }
 }
@@ -143,7 +168,12 @@ fn mean_gradient_matches_finite_differences_and_reload_is_bit_identical() {
         for j in 0..emu.n_outputs() {
             let fd_error = (coarse[j] - fine[j]).abs();
             let tol = 1e-7 * mean[j].abs().max(1e-3) + 2.0 * fd_error;
-            assert!((jac[j * d + p] - fine[j]).abs() < tol, "output {j}, parameter {p}: analytic {} vs finite difference {} (tolerance {tol:e})", jac[j * d + p], fine[j]);
+            assert!(
+                (jac[j * d + p] - fine[j]).abs() < tol,
+                "output {j}, parameter {p}: analytic {} vs finite difference {} (tolerance {tol:e})",
+                jac[j * d + p],
+                fine[j]
+            );
         }
     }
     let prov = mdpipe::artifacts::Provenance::new("cfg".into(), "data".into(), 2, "test");
@@ -165,7 +195,12 @@ fn mean_gradient_matches_finite_differences_and_reload_is_bit_identical() {
         emu.predict_components(&thetas[q * 3..q * 3 + 3], &mut m1, &mut v1, &mut scratch);
         for c in 0..k {
             assert!((bm[q * k + c] - m1[c]).abs() <= 1e-10 * m1[c].abs().max(1.0), "batched mean differs");
-            assert!((bv[q * k + c] - v1[c]).abs() <= 1e-8 * v1[c].abs() + 1e-11, "batched variance differs: {} vs {}", bv[q * k + c], v1[c]);
+            assert!(
+                (bv[q * k + c] - v1[c]).abs() <= 1e-8 * v1[c].abs() + 1e-11,
+                "batched variance differs: {} vs {}",
+                bv[q * k + c],
+                v1[c]
+            );
         }
     }
     // The covariance is a covariance: symmetric with a positive diagonal.
@@ -190,7 +225,9 @@ fn error_of(table: &str, components: Option<usize>) -> String {
 #[test]
 fn bad_tables_get_errors_naming_file_row_and_field() {
     let header = "design_id,observable,x,value,a,b,c\n";
-    let good = |i: usize, v: f64| format!("{i},flow0,0.5,{v},{},{},{}\n", 0.1 * i as f64, 0.3 + 0.2 * (i % 2) as f64, 0.2 + 0.1 * i as f64);
+    let good = |i: usize, v: f64| {
+        format!("{i},flow0,0.5,{v},{},{},{}\n", 0.1 * i as f64, 0.3 + 0.2 * (i % 2) as f64, 0.2 + 0.1 * i as f64)
+    };
     // NaN value.
     let t = format!("{header}{}{}0,flow0,0.7,NaN,0.0,0.3,0.2\n", good(0, 0.1), good(1, 0.2));
     let e = error_of(&t, None);
@@ -212,7 +249,9 @@ fn bad_tables_get_errors_naming_file_row_and_field() {
     let table_path = dir.join("runs.csv");
     std::fs::write(&table_path, format!("{header}{}{}{}", good(0, 0.1), good(1, 0.5), good(3, 0.2))).unwrap();
     let design = dir.join("design.csv");
-    let rows: String = (0..4).map(|i| format!("{i},{},{},{}\n", 0.1 * i as f64, 0.3 + 0.2 * (i % 2) as f64, 0.2 + 0.1 * i as f64)).collect();
+    let rows: String = (0..4)
+        .map(|i| format!("{i},{},{},{}\n", 0.1 * i as f64, 0.3 + 0.2 * (i % 2) as f64, 0.2 + 0.1 * i as f64))
+        .collect();
     std::fs::write(&design, format!("design_id,a,b,c\n{rows}")).unwrap();
     let table = read_training_table(&table_path, &params()).unwrap();
     let e = format!("{:#}", emulator::check_against_design(&table, &design).unwrap_err());
@@ -248,9 +287,25 @@ fn constant_outputs_are_emulated_exactly() {
     std::fs::write(dir.join("train.csv"), text).unwrap();
     let table = read_training_table(&dir.join("train.csv"), &params()).unwrap();
     let (emu, report) = train(&table, &settings(None), 1).unwrap();
-    store::save(&dir.join("emu"), &emu, &settings(None), &report, &mdpipe::artifacts::Provenance::new(String::new(), String::new(), 1, "test")).unwrap();
+    store::save(
+        &dir.join("emu"),
+        &emu,
+        &settings(None),
+        &report,
+        &mdpipe::artifacts::Provenance::new(String::new(), String::new(), 1, "test"),
+    )
+    .unwrap();
     let reloaded = store::load(&dir.join("emu")).unwrap();
-    let constant: Vec<(usize, f64)> = table.outputs.iter().enumerate().filter_map(|(j, o)| match (o.observable.as_str(), o.x) { ("flow0", x) if x == 0.0 => Some((j, 0.0)), ("spectrum0", x) if x == 5.0 => Some((j, 0.1)), _ => None }).collect();
+    let constant: Vec<(usize, f64)> = table
+        .outputs
+        .iter()
+        .enumerate()
+        .filter_map(|(j, o)| match (o.observable.as_str(), o.x) {
+            ("flow0", x) if x == 0.0 => Some((j, 0.0)),
+            ("spectrum0", x) if x == 5.0 => Some((j, 0.1)),
+            _ => None,
+        })
+        .collect();
     assert_eq!(constant.len(), 2);
     let m = table.n_outputs();
     for _ in 0..20 {
@@ -258,7 +313,11 @@ fn constant_outputs_are_emulated_exactly() {
         for e in [&emu, &reloaded] {
             let p = e.predict(&theta);
             for &(j, value) in &constant {
-                assert_eq!(p.mean[j], value, "{}: emulated {} instead of its constant {value}", table.outputs[j], p.mean[j]);
+                assert_eq!(
+                    p.mean[j], value,
+                    "{}: emulated {} instead of its constant {value}",
+                    table.outputs[j], p.mean[j]
+                );
                 assert!((0..m).all(|k| p.cov[j * m + k] == 0.0), "{}: nonzero covariance", table.outputs[j]);
             }
         }
@@ -291,11 +350,16 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
     }
     std::fs::write(dir.join("runs.csv"), text).unwrap();
     // The emulator predicts velocity and acceleration only, so its data file holds just those.
-    let data: Vec<_> = mdpipe::artifacts::read_measurements(&root.join("pipeline/ball_drop_data.csv")).unwrap().into_iter().filter(|m| obs.contains(&m.observable)).collect();
+    let data: Vec<_> = mdpipe::artifacts::read_measurements(&root.join("pipeline/ball_drop_data.csv"))
+        .unwrap()
+        .into_iter()
+        .filter(|m| obs.contains(&m.observable))
+        .collect();
     mdpipe::artifacts::write_measurements(&dir.join("data.csv"), &data, None).unwrap();
     let cfg_text = format!(
         "{}\n[emulator]\nparameters = [\"g\", \"v0\"]\nkernel = \"se\"\nrestarts = 4\n",
-        emulated_ball_drop_config(&std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap()).replace("measurements = \"ball_drop_data.csv\"", "measurements = \"data.csv\"")
+        emulated_ball_drop_config(&std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap())
+            .replace("measurements = \"ball_drop_data.csv\"", "measurements = \"data.csv\"")
     );
     std::fs::write(dir.join("emulated.toml"), cfg_text).unwrap();
     emulator::train_and_save(&dir.join("emulated.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1).unwrap();
@@ -306,7 +370,10 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
     for p in ["g", "v0"] {
         let (x, y) = (&a.summary.parameters[p], &b.summary.parameters[p]);
         let width = x.q975 - x.q025;
-        println!("{p}: exact {:.4} [{:.4}, {:.4}], emulated {:.4} [{:.4}, {:.4}]", x.median, x.q025, x.q975, y.median, y.q025, y.q975);
+        println!(
+            "{p}: exact {:.4} [{:.4}, {:.4}], emulated {:.4} [{:.4}, {:.4}]",
+            x.median, x.q025, x.q975, y.median, y.q025, y.q975
+        );
         // SMC medians carry Monte Carlo error of a few % of the width; the emulator's own error adds less.
         assert!((x.median - y.median).abs() < 0.1 * width, "{p}: medians {} vs {}", x.median, y.median);
         assert!(((y.q975 - y.q025) / width - 1.0).abs() < 0.15, "{p}: widths {} vs {}", width, y.q975 - y.q025);
@@ -329,8 +396,17 @@ fn a_prior_outside_the_training_box_is_refused() {
     emulator::train_and_save(&dir.join("c.toml"), &dir.join("t.csv"), None, &dir.join("emu"), 1).unwrap();
     assert!(mdpipe::systems::load(&dir.join("c.toml")).is_ok(), "the training box itself must be accepted");
     std::fs::write(dir.join("wide.toml"), config(3.0)).unwrap();
-    let msg = format!("{:#}", mdpipe::systems::load(&dir.join("wide.toml")).err().expect("a prior three times the training box was accepted"));
-    assert!(msg.contains("wide.toml") && msg.contains("[parameters.a]") && msg.contains("trained on a in") && msg.contains("Narrow the prior"), "{msg}");
+    let msg = format!(
+        "{:#}",
+        mdpipe::systems::load(&dir.join("wide.toml")).err().expect("a prior three times the training box was accepted")
+    );
+    assert!(
+        msg.contains("wide.toml")
+            && msg.contains("[parameters.a]")
+            && msg.contains("trained on a in")
+            && msg.contains("Narrow the prior"),
+        "{msg}"
+    );
 }
 
 /// The bundled ball-drop config with its declared ODE model replaced by an
@@ -355,7 +431,9 @@ fn excess_kept(runs: usize, excess: f64, seed: u64) -> bool {
     let error = 0.05;
     let values: Vec<f64> = inputs
         .chunks(2)
-        .map(|u| (3.0 * u[0]).sin() + u[1] * u[1] + error * (1.0 + excess).sqrt() * rng.sample::<f64, _>(StandardNormal))
+        .map(|u| {
+            (3.0 * u[0]).sin() + u[1] * u[1] + error * (1.0 + excess).sqrt() * rng.sample::<f64, _>(StandardNormal)
+        })
         .collect();
     let table = TrainingTable {
         path: "synthetic".into(),
@@ -367,7 +445,8 @@ fn excess_kept(runs: usize, excess: f64, seed: u64) -> bool {
         noise_correlation: None,
         values,
     };
-    let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 1\nrestarts = 3").unwrap();
+    let settings: EmulatorSettings =
+        toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 1\nrestarts = 3").unwrap();
     let (_, report) = train(&table, &settings, seed).unwrap();
     report.excess_scatter.iter().any(|t| t.excess_kept)
 }
@@ -382,10 +461,15 @@ fn excess_kept(runs: usize, excess: f64, seed: u64) -> bool {
 ///   sits below the test's asymptotic Wald power (0.87) because the GP's
 ///   lengths, refitted under the null, absorb part of the excess.
 #[test]
+#[ignore = "second tier: the nugget study over 400 trainings; cargo test --release -- --ignored"]
 fn excess_run_scatter_is_kept_at_the_tests_nominal_rate() {
     use crate::diagnose::clopper_pearson;
     let (sets, runs) = (200, 100);
-    for (excess, label) in [(0.0, "size (no excess)"), (0.5, "power (noise variance 1.5x reported)"), (1.0, "power (noise variance 2x reported)")] {
+    for (excess, label) in [
+        (0.0, "size (no excess)"),
+        (0.5, "power (noise variance 1.5x reported)"),
+        (1.0, "power (noise variance 2x reported)"),
+    ] {
         let kept = (0..sets as u64).filter(|&s| excess_kept(runs, excess, 1000 + s)).count();
         let (lo, hi) = clopper_pearson(kept, sets);
         println!("{label}: excess kept in {kept}/{sets} data sets of {runs} runs, 95% interval [{lo:.3}, {hi:.3}]");

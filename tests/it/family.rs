@@ -48,13 +48,20 @@ impl ModelFamily for LineFamily {
         Ok(Arc::new(Line { curvature: Some(0.0) }))
     }
     fn units(&self, _config: &Config) -> Units {
-        Units { x: "m".into(), observables: [("y".to_string(), "V".to_string())].into(), parameters: Default::default() }
+        Units {
+            x: "m".into(),
+            observables: [("y".to_string(), "V".to_string())].into(),
+            parameters: Default::default(),
+        }
     }
     fn candidates(&self, _config: &Config) -> anyhow::Result<Vec<CandidateModel>> {
         Ok(vec![CandidateModel {
             name: "curvature".into(),
             description: "a quadratic term c x²".into(),
-            extra_parameters: vec![("c".into(), ParamSpec { min: -2.0, max: 2.0, truth: Some(CURVATURE), units: "V/m²".into() })],
+            extra_parameters: vec![(
+                "c".into(),
+                ParamSpec { min: -2.0, max: 2.0, truth: Some(CURVATURE), units: "V/m²".into() },
+            )],
             simulator: Arc::new(Line { curvature: None }),
         }])
     }
@@ -126,7 +133,15 @@ fn a_family_defined_outside_the_crate_runs_the_whole_pipeline() {
     assert_eq!(cases.len(), 3);
 
     // Diagnose names the family's own candidate and recovers its parameter.
-    let run = diagnose::run(&analysis, &Overrides::default(), 1, &DiagnoseSettings::default(), Some(&dir.join("diagnose")), &Silent).unwrap();
+    let run = diagnose::run(
+        &analysis,
+        &Overrides::default(),
+        1,
+        &DiagnoseSettings::default(),
+        Some(&dir.join("diagnose")),
+        &Silent,
+    )
+    .unwrap();
     let d = &run.diagnosis;
     assert_eq!(d.verdict.best, "curvature", "{}", d.verdict.statement);
     let c = &d.candidates[0].parameters["c"];
@@ -142,7 +157,8 @@ fn a_family_defined_outside_the_crate_runs_the_whole_pipeline() {
 #[test]
 fn an_unregistered_kind_is_refused_naming_the_file_and_the_known_kinds() {
     let (dir, _) = setup("unknown");
-    let msg = format!("{:#}", mdpipe::systems::load(&dir.join("line.toml")).err().expect("an unknown kind was accepted"));
+    let msg =
+        format!("{:#}", mdpipe::systems::load(&dir.join("line.toml")).err().expect("an unknown kind was accepted"));
     assert!(msg.contains("line.toml") && msg.contains("[model] kind = \"line\"") && msg.contains("ode"), "{msg}");
     let _ = std::fs::remove_dir_all(&dir);
 }

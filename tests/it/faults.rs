@@ -18,7 +18,10 @@ fn mdpipe() -> Command {
 }
 
 fn run_to_end(config: &Path, out: &Path) {
-    let o = mdpipe().args(["run", &config.display().to_string(), "--seed", "3", "--out", &out.display().to_string()]).output().unwrap();
+    let o = mdpipe()
+        .args(["run", &config.display().to_string(), "--seed", "3", "--out", &out.display().to_string()])
+        .output()
+        .unwrap();
     assert!(o.status.success(), "mdpipe run failed: {}", String::from_utf8_lossy(&o.stderr));
 }
 
@@ -27,7 +30,8 @@ fn stage_seconds(out: &Path) -> BTreeMap<String, f64> {
     STAGES
         .iter()
         .map(|s| {
-            let stamp: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join(format!("stages/{s}.json"))).unwrap()).unwrap();
+            let stamp: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(out.join(format!("stages/{s}.json"))).unwrap()).unwrap();
             (s.to_string(), stamp["seconds"].as_f64().unwrap())
         })
         .collect()
@@ -159,11 +163,14 @@ fn assert_same_outputs(a: &Path, b: &Path) {
         let (pa, pb) = (a.join(rel), b.join(rel));
         match rel.extension().and_then(|e| e.to_str()) {
             Some("parquet") => {
-                let (da, db) = (mdpipe::artifacts::read_parquet(&pa).unwrap(), mdpipe::artifacts::read_parquet(&pb).unwrap());
+                let (da, db) =
+                    (mdpipe::artifacts::read_parquet(&pa).unwrap(), mdpipe::artifacts::read_parquet(&pb).unwrap());
                 assert!(da.equals_missing(&db), "{} differs", rel.display());
             }
             Some("json") => {
-                let read = |p: &Path, root: &Path| comparable_json(serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap(), root);
+                let read = |p: &Path, root: &Path| {
+                    comparable_json(serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap(), root)
+                };
                 assert_eq!(read(&pa, a), read(&pb, b), "{} differs", rel.display());
             }
             // Reports and study tables carry wall times; their numbers come from the artifacts compared above.
@@ -180,6 +187,7 @@ fn assert_same_outputs(a: &Path, b: &Path) {
 /// of a few milliseconds) leaves that stage done in its folder, so the chain
 /// goes on in a fresh folder.
 #[test]
+#[ignore = "second tier: kills in every stage; cargo test --release -- --ignored"]
 fn run_killed_at_random_points_of_every_stage_resumes_to_the_same_outputs() {
     const KILLS_PER_STAGE: usize = 3;
     let dir = tmpdir("kill");
@@ -233,6 +241,23 @@ fn run_killed_at_random_points_of_every_stage_resumes_to_the_same_outputs() {
     assert!(total >= 20, "only {total} kills landed inside a running stage");
 }
 
+/// First tier: one kill in the middle of the longest stage, a restart in
+/// the same folder, and the outputs of an uninterrupted run.
+#[test]
+fn run_killed_once_resumes_to_the_same_outputs() {
+    let dir = tmpdir("kill-once");
+    let config = write_config(&dir, 300, 12);
+    let reference = dir.join("reference");
+    run_to_end(&config, &reference);
+    let seconds = stage_seconds(&reference);
+    let (stage, longest) = seconds.iter().max_by(|a, b| a.1.total_cmp(b.1)).map(|(s, t)| (s.clone(), *t)).unwrap();
+    let out = dir.join("killed");
+    let landed = kill_during(&config, &out, &stage, Duration::from_secs_f64(0.5 * longest));
+    assert!(matches!(&landed, Landed::In(s) if *s == stage), "the kill aimed at {stage} landed {landed:?}");
+    run_to_end(&config, &out);
+    assert_same_outputs(&reference, &out);
+}
+
 /// A ball-drop calibration small enough to run in seconds.
 fn small_calibration_config(dir: &Path) -> PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -275,7 +300,9 @@ fn full_disk_and_read_only_output_folder_keep_previous_artifacts() {
     let mnt = dir.join("mnt");
     std::fs::create_dir_all(&mnt).unwrap();
     let bin = env!("CARGO_BIN_EXE_mdpipe");
-    let cal = |seed: u32| format!("{bin} calibrate {} --kernel none --seed {seed} --out {}/cal", config.display(), mnt.display());
+    let cal = |seed: u32| {
+        format!("{bin} calibrate {} --kernel none --seed {seed} --out {}/cal", config.display(), mnt.display())
+    };
     let script = format!(
         r#"set -u
 mount -t tmpfs -o size=4m tmpfs {m} || exit 90
@@ -299,12 +326,26 @@ cp -a {m}/cal {d}/after_ro
     );
     let out = Command::new("unshare").args(["-Urm", "sh", "-c", &script]).output().expect("unshare (util-linux) runs");
     let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap_or_default();
-    assert!(out.status.success(), "the fault script stopped early ({:?}): {}{}", out.status.code(), String::from_utf8_lossy(&out.stderr), read("first.err"));
+    assert!(
+        out.status.success(),
+        "the fault script stopped early ({:?}): {}{}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr),
+        read("first.err")
+    );
 
     let before = snapshot(&dir.join("before"));
     let names: Vec<String> = before.keys().map(|p| p.display().to_string()).collect();
-    assert!(["posterior.parquet", "summary.json", "predictions.parquet", "measurements.parquet"].iter().all(|f| names.contains(&f.to_string())), "{names:?}");
-    for (case, needle, promise) in [("full", "No space left on device", "previous artifacts are as they were"), ("ro", "not writable", "what it holds is as it was")] {
+    assert!(
+        ["posterior.parquet", "summary.json", "predictions.parquet", "measurements.parquet"]
+            .iter()
+            .all(|f| names.contains(&f.to_string())),
+        "{names:?}"
+    );
+    for (case, needle, promise) in [
+        ("full", "No space left on device", "previous artifacts are as they were"),
+        ("ro", "not writable", "what it holds is as it was"),
+    ] {
         let err = read(&format!("{case}.err"));
         println!("{case}: exit {} | {}", read(&format!("{case}.code")).trim(), err.lines().last().unwrap_or(""));
         assert_eq!(read(&format!("{case}.code")).trim(), "1", "{case}: {err}");

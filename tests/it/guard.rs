@@ -19,10 +19,17 @@ fn tmp(tag: &str) -> PathBuf {
 fn shifted_ball_drop(dir: &Path, shift: f64, extra: &str) -> PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let data = mdpipe::artifacts::read_measurements(&root.join("pipeline/ball_drop_data.csv")).unwrap();
-    let shifted: Vec<_> = data.into_iter().map(|m| mdpipe::artifacts::Measurement::new(&m.observable, m.x + shift, m.value, m.error)).collect();
+    let shifted: Vec<_> = data
+        .into_iter()
+        .map(|m| mdpipe::artifacts::Measurement::new(&m.observable, m.x + shift, m.value, m.error))
+        .collect();
     mdpipe::artifacts::write_measurements(&dir.join("data.csv"), &shifted, None).unwrap();
     // The ODE starts where the shifted data do.
-    let text = std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap().replace("ball_drop_data.csv", "data.csv").replace("particles = 2000", "particles = 500").replace("t0 = 0.0", &format!("t0 = {shift:?}"));
+    let text = std::fs::read_to_string(root.join("pipeline/ball_drop.toml"))
+        .unwrap()
+        .replace("ball_drop_data.csv", "data.csv")
+        .replace("particles = 2000", "particles = 500")
+        .replace("t0 = 0.0", &format!("t0 = {shift:?}"));
     let cfg = dir.join("shifted.toml");
     std::fs::write(&cfg, format!("{text}\n{extra}")).unwrap();
     cfg
@@ -43,14 +50,22 @@ fn negative_kernel_inputs_stop_at_once_and_a_shift_fixes_them() {
     let (out, took) = calibrate(&cfg, &dir.join("bad"));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && took < Duration::from_secs(30), "took {took:?}: {stderr}");
-    assert!(stderr.contains("x ≥ 0") && stderr.contains("[discrepancy.inputs.height]") && stderr.contains("shift = 0.5"), "{stderr}");
+    assert!(
+        stderr.contains("x ≥ 0") && stderr.contains("[discrepancy.inputs.height]") && stderr.contains("shift = 0.5"),
+        "{stderr}"
+    );
     assert!(!dir.join("bad/summary.json").exists(), "an artifact was written for a refused run");
 
     // With the shift the message suggests, the kernel sees t again: it runs.
-    let fixed = shifted_ball_drop(&dir, -0.5, "[discrepancy.inputs]\nheight = { shift = 0.5 }\nvelocity = { shift = 0.5 }\nacceleration = { shift = 0.5 }\n");
+    let fixed = shifted_ball_drop(
+        &dir,
+        -0.5,
+        "[discrepancy.inputs]\nheight = { shift = 0.5 }\nvelocity = { shift = 0.5 }\nacceleration = { shift = 0.5 }\n",
+    );
     let (out, _) = calibrate(&fixed, &dir.join("good"));
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("good/summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("good/summary.json")).unwrap()).unwrap();
     assert!(summary["log_evidence"].as_f64().unwrap().is_finite());
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -69,8 +84,13 @@ fn impossible_settings_are_refused_naming_file_and_field() {
     ];
     for (k, (config, field)) in cases.iter().enumerate() {
         let p = dir.join(format!("case{k}.toml"));
-        std::fs::write(&p, config.replace("ball_drop_data.csv", &root.join("pipeline/ball_drop_data.csv").display().to_string())).unwrap();
-        let msg = format!("{:#}", mdpipe::systems::load(&p).err().unwrap_or_else(|| panic!("case {k} ({field}) accepted")));
+        std::fs::write(
+            &p,
+            config.replace("ball_drop_data.csv", &root.join("pipeline/ball_drop_data.csv").display().to_string()),
+        )
+        .unwrap();
+        let msg =
+            format!("{:#}", mdpipe::systems::load(&p).err().unwrap_or_else(|| panic!("case {k} ({field}) accepted")));
         assert!(msg.contains(&format!("case{k}.toml")) && msg.contains(field), "case {k}: {msg}");
     }
     let _ = std::fs::remove_dir_all(&dir);
@@ -89,7 +109,10 @@ impl LogLikelihood for Nowhere {
 fn smc_on_a_likelihood_that_is_nowhere_finite_stops_with_an_error() {
     let prior = UniformPrior::new(vec!["a".into(), "b".into()], vec![0.0, 0.0], vec![1.0, 1.0]).unwrap();
     let start = Instant::now();
-    let err = Smc::new(SmcSettings { particles: 200, replicates: 2, ..Default::default() }).run(&prior, &Nowhere, 1, &Silent).err().expect("a run on an impossible likelihood succeeded");
+    let err = Smc::new(SmcSettings { particles: 200, replicates: 2, ..Default::default() })
+        .run(&prior, &Nowhere, 1, &Silent)
+        .err()
+        .expect("a run on an impossible likelihood succeeded");
     assert!(start.elapsed() < Duration::from_secs(30));
     assert!(err.to_string().contains("no particle has a finite likelihood"), "{err}");
 }

@@ -47,11 +47,18 @@ fn stand_in_matches_iebe_music_at_the_reference_point() {
         assert_eq!(rows.len(), values.len(), "{name}: bins");
         let mut line = format!("{name:<12} model/iEBE-MUSIC:");
         for (m, &v) in rows.iter().zip(values) {
-            let within_band = if *name == "ch_spectrum" { (v / m.value).max(m.value / v) <= 1.5 } else { (v / m.value - 1.0).abs() <= 0.3 };
+            let within_band = if *name == "ch_spectrum" {
+                (v / m.value).max(m.value / v) <= 1.5
+            } else {
+                (v / m.value - 1.0).abs() <= 0.3
+            };
             let within_noise = (v - m.value).abs() <= 0.3 * m.value.abs() + 2.0 * m.error;
             line += &format!(" {:5.2}{}", v / m.value, if within_band { " " } else { "*" });
             if !within_band && !within_noise {
-                failures.push(format!("{name} at pT = {}: model {v:.4e}, iEBE-MUSIC {:.4e} ± {:.1e}", m.x, m.value, m.error));
+                failures.push(format!(
+                    "{name} at pT = {}: model {v:.4e}, iEBE-MUSIC {:.4e} ± {:.1e}",
+                    m.x, m.value, m.error
+                ));
             }
         }
         println!("{line}");
@@ -88,7 +95,11 @@ fn grad_delta_f_suppresses_high_pt_v2_and_hardens_spectra() {
         }
         let lowest = ratio.iter().cloned().fold(f64::INFINITY, f64::min);
         assert!(ratio[pts.len() - 1] > lowest + 0.05, "{name}: spectra not harder at 2 GeV: {ratio:?}");
-        assert!((ratio[0] - 1.0).abs() < 0.05 && (ratio[1] - 1.0).abs() < 0.05, "{name}: δf effect below 0.5 GeV is {:?}", &ratio[..2]);
+        assert!(
+            (ratio[0] - 1.0).abs() < 0.05 && (ratio[1] - 1.0).abs() < 0.05,
+            "{name}: δf effect below 0.5 GeV is {:?}",
+            &ratio[..2]
+        );
     }
 }
 
@@ -97,10 +108,17 @@ fn observables_respond_monotonically_to_the_parameters() {
     let pts = analysis_pt();
     // v2 falls with η/s in every bin above the lowest.
     let grid = [0.0, 0.05, 0.1, 0.2, 0.3];
-    let v2: Vec<Vec<f64>> = grid.iter().map(|&e| series(&observables(&point(e, 0.2), DeltaF::Grad, &pts), "ch_v2").to_vec()).collect();
+    let v2: Vec<Vec<f64>> =
+        grid.iter().map(|&e| series(&observables(&point(e, 0.2), DeltaF::Grad, &pts), "ch_v2").to_vec()).collect();
     for k in 1..pts.len() {
         for j in 1..grid.len() {
-            assert!(v2[j][k] < v2[j - 1][k], "ch_v2 at pT = {} does not fall from η/s = {} to {}", pts[k], grid[j - 1], grid[j]);
+            assert!(
+                v2[j][k] < v2[j - 1][k],
+                "ch_v2 at pT = {} does not fall from η/s = {} to {}",
+                pts[k],
+                grid[j - 1],
+                grid[j]
+            );
         }
     }
     // ε_sw: a later switch (lower ε_sw) means more radial flow, so a larger proton <pT>.
@@ -111,7 +129,8 @@ fn observables_respond_monotonically_to_the_parameters() {
         assert!(mpt[j] < mpt[j - 1], "proton <pT> does not fall with e_sw: {mpt:?}");
     }
     // And the proton spectrum at 1.5 GeV falls as the switch moves earlier.
-    let p_hi: Vec<f64> = e_grid.iter().map(|&e| series(&observables(&point(0.1, e), DeltaF::Grad, &pts), "p_spectrum")[7]).collect();
+    let p_hi: Vec<f64> =
+        e_grid.iter().map(|&e| series(&observables(&point(0.1, e), DeltaF::Grad, &pts), "p_spectrum")[7]).collect();
     println!("proton spectrum at 1.5 GeV vs e_sw {e_grid:?}: {p_hi:?}");
     for j in 1..e_grid.len() {
         assert!(p_hi[j] < p_hi[j - 1], "proton spectrum at 1.5 GeV does not fall with e_sw: {p_hi:?}");
@@ -127,7 +146,8 @@ fn bulk_delta_f_softens_spectra_and_annihilation_removes_protons() {
     let pts = analysis_pt();
     let base = observables(&point(0.1, 0.2), DeltaF::None, &pts);
     let bulk = observables(&HeavyIonParams { zeta_s: 0.1, ..point(0.1, 0.2) }, DeltaF::None, &pts);
-    let ratio: Vec<f64> = series(&bulk, "pi_spectrum").iter().zip(series(&base, "pi_spectrum")).map(|(b, a)| b / a).collect();
+    let ratio: Vec<f64> =
+        series(&bulk, "pi_spectrum").iter().zip(series(&base, "pi_spectrum")).map(|(b, a)| b / a).collect();
     println!("bulk δf (ζ/s = 0.1) π spectrum ratio: {ratio:.3?}");
     assert!(ratio.windows(2).all(|w| w[1] < w[0]), "the softening grows with pT");
     assert!(ratio[9] < 0.98 && ratio[0] > 0.98);

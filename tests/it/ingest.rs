@@ -12,7 +12,8 @@ fn fixture_runs() -> PathBuf {
 }
 
 // Keep in sync with make_fixtures.py: pid, mass, dN/dy, T.
-const SPECIES: [(i32, f64, f64, f64); 3] = [(211, 0.13957, 120.0, 0.22), (321, 0.493677, 20.0, 0.26), (2212, 0.938272, 8.0, 0.30)];
+const SPECIES: [(i32, f64, f64, f64); 3] =
+    [(211, 0.13957, 120.0, 0.22), (321, 0.493677, 20.0, 0.26), (2212, 0.938272, 8.0, 0.30)];
 
 fn v2_of(pt: f64, m: f64) -> f64 {
     let k = (pt * pt + m * m).sqrt() - m;
@@ -37,7 +38,20 @@ fn density(pt: f64, s: (i32, f64, f64, f64), charged: bool) -> f64 {
 fn simpson(f: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
     let n = 200;
     let h = (b - a) / n as f64;
-    (0..=n).map(|i| f(a + i as f64 * h) * if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 }).sum::<f64>() * h / 3.0
+    (0..=n)
+        .map(|i| {
+            f(a + i as f64 * h)
+                * if i == 0 || i == n {
+                    1.0
+                } else if i % 2 == 1 {
+                    4.0
+                } else {
+                    2.0
+                }
+        })
+        .sum::<f64>()
+        * h
+        / 3.0
 }
 
 fn truth(observable: &str, x: f64) -> f64 {
@@ -74,7 +88,12 @@ fn ingest_recovers_known_spectra_and_flow_from_h5py_fixtures() {
     assert_eq!(p0.good_events, 40, "{p0:?}");
     assert_eq!(p0.skipped.len(), 2);
     let nan = p0.skipped.iter().find(|s| s.event == "spvn_results_40").unwrap();
-    assert!(nan.reason.contains("spvn_results.h5:/spvn_results_40/particle_211_vndata_diff_y_-0.5_0.5.dat: row 4, column 2"), "{}", nan.reason);
+    assert!(
+        nan.reason
+            .contains("spvn_results.h5:/spvn_results_40/particle_211_vndata_diff_y_-0.5_0.5.dat: row 4, column 2"),
+        "{}",
+        nan.reason
+    );
     let missing = p0.skipped.iter().find(|s| s.event == "spvn_results_41").unwrap();
     assert!(missing.reason.contains("missing file particle_9999_vndata_diff_eta_-0.5_0.5.dat"), "{}", missing.reason);
     // Point 3 has 2 events: flagged, and absent from the table.
@@ -89,7 +108,15 @@ fn ingest_recovers_known_spectra_and_flow_from_h5py_fixtures() {
     for r in rows0.values() {
         assert_eq!(r.n_events, 40);
         let pull = (r.value - truth(&r.observable, r.x)) / r.error;
-        assert!(pull.abs() < 4.0, "{}[{}]: {} vs truth {} ± {} (pull {pull:.1})", r.observable, r.x, r.value, truth(&r.observable, r.x), r.error);
+        assert!(
+            pull.abs() < 4.0,
+            "{}[{}]: {} vs truth {} ± {} (pull {pull:.1})",
+            r.observable,
+            r.x,
+            r.value,
+            truth(&r.observable, r.x),
+            r.error
+        );
         pulls.push(pull);
     }
     // Jackknife errors are right on average: the rms pull of 70 unit normals
@@ -104,7 +131,12 @@ fn ingest_recovers_known_spectra_and_flow_from_h5py_fixtures() {
     assert!(t.len() >= 68);
     for (k, a) in &t {
         let b = h[k];
-        assert!((a.value - b.value).abs() <= 1e-4 * a.value.abs().max(1e-3), "{k:?}: text {} vs hdf5 {}", a.value, b.value);
+        assert!(
+            (a.value - b.value).abs() <= 1e-4 * a.value.abs().max(1e-3),
+            "{k:?}: text {} vs hdf5 {}",
+            a.value,
+            b.value
+        );
     }
 }
 
@@ -134,7 +166,11 @@ fn ingest_writes_a_training_table_and_reports_corrupt_text() {
     let (got, _) = ingest::ingest_runs(&dir, None, &settings).unwrap();
     let p = &got.report.points[0];
     assert_eq!((p.design_id, p.good_events), (5, 11), "{p:?}");
-    assert!(p.skipped[0].reason.contains("particle_2212_vndata_diff_y_-0.5_0.5.dat: line 6, column 1"), "{}", p.skipped[0].reason);
+    assert!(
+        p.skipped[0].reason.contains("particle_2212_vndata_diff_y_-0.5_0.5.dat: line 6, column 1"),
+        "{}",
+        p.skipped[0].reason
+    );
 
     // The table is a valid training table for train-emulator (long format).
     let out = dir.join("table.parquet");
@@ -145,8 +181,13 @@ fn ingest_writes_a_training_table_and_reports_corrupt_text() {
     assert_eq!(table.n_outputs(), 70 - p.undefined_bins.len());
     // `[emulator] observables` keeps a subset; naming an absent one is an error.
     let only = mdpipe::emulator::table::read_training_table_selected(&out, &[], &["ch_v2".to_string()]).unwrap();
-    assert!(only.n_outputs() == 10 - p.undefined_bins.iter().filter(|b| b.starts_with("ch_v2[")).count() && only.outputs.iter().all(|o| o.observable == "ch_v2"));
-    let e = mdpipe::emulator::table::read_training_table_selected(&out, &[], &["ch_v4".to_string()]).unwrap_err().to_string();
+    assert!(
+        only.n_outputs() == 10 - p.undefined_bins.iter().filter(|b| b.starts_with("ch_v2[")).count()
+            && only.outputs.iter().all(|o| o.observable == "ch_v2")
+    );
+    let e = mdpipe::emulator::table::read_training_table_selected(&out, &[], &["ch_v4".to_string()])
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("no values for observable 'ch_v4'"), "{e}");
     assert!(dir.join("table.report.json").exists());
     std::fs::remove_dir_all(&dir).unwrap();
@@ -161,14 +202,23 @@ fn stand_in_runs_round_trip_through_ingest() {
     let dir = std::env::temp_dir().join(format!("mdpipe-standin-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let p = HeavyIonParams::parse("eta_s=0.1,e_sw=0.2").unwrap();
-    let n = simulate_runs(&[(3, p.clone())], DeltaF::Grad, 100, events::DEFAULT_OVERSAMPLE, 11, events::Layout::Both, &dir).unwrap();
+    let n =
+        simulate_runs(&[(3, p.clone())], DeltaF::Grad, 100, events::DEFAULT_OVERSAMPLE, 11, events::Layout::Both, &dir)
+            .unwrap();
     assert_eq!(n, 100);
     // A rerun into the same folder is refused rather than mixing its events with these.
-    let again = simulate_runs(&[(3, p.clone())], DeltaF::Grad, 10, events::DEFAULT_OVERSAMPLE, 12, events::Layout::Both, &dir).unwrap_err().to_string();
+    let again =
+        simulate_runs(&[(3, p.clone())], DeltaF::Grad, 10, events::DEFAULT_OVERSAMPLE, 12, events::Layout::Both, &dir)
+            .unwrap_err()
+            .to_string();
     assert!(again.contains("already exists"), "{again}");
     let settings = IngestSettings::default();
-    let (h5, _) = ingest::ingest_runs(&dir, None, &IngestSettings { format: ingest::RunFormat::Hdf5, ..settings.clone() }).unwrap();
-    let (txt, _) = ingest::ingest_runs(&dir, None, &IngestSettings { format: ingest::RunFormat::Text, ..settings.clone() }).unwrap();
+    let (h5, _) =
+        ingest::ingest_runs(&dir, None, &IngestSettings { format: ingest::RunFormat::Hdf5, ..settings.clone() })
+            .unwrap();
+    let (txt, _) =
+        ingest::ingest_runs(&dir, None, &IngestSettings { format: ingest::RunFormat::Text, ..settings.clone() })
+            .unwrap();
     assert_eq!(h5.report.points[0].good_events, 100);
     let expected = events::SmoothTables::new(&p, DeltaF::Grad).expected(&settings.pt_edges);
     let (a, b) = (by_point(&h5.rows, 3), by_point(&txt.rows, 3));
@@ -179,7 +229,12 @@ fn stand_in_runs_round_trip_through_ingest() {
             let x = 0.1 + 0.2 * k as f64;
             let key = a.keys().find(|(o, xb)| o == name && (f64::from_bits(*xb) - x).abs() < 1e-9).unwrap().clone();
             let (r, t) = (a[&key], b[&key]);
-            assert!((r.value - t.value).abs() <= 1e-4 * r.value.abs().max(1e-3), "{name}[{x}]: hdf5 {} vs text {}", r.value, t.value);
+            assert!(
+                (r.value - t.value).abs() <= 1e-4 * r.value.abs().max(1e-3),
+                "{name}[{x}]: hdf5 {} vs text {}",
+                r.value,
+                t.value
+            );
             let pull = (r.value - want) / r.error;
             assert!(pull.abs() < 4.0, "{name}[{x}]: {} ± {} vs sampled-from {want} (pull {pull:.1})", r.value, r.error);
             pulls.push(pull);
@@ -260,8 +315,13 @@ fn a_training_table_carries_its_runs_pooled_error_correlation() {
     use mdpipe::systems::heavy_ion::{events, simulate_runs, DeltaF, HeavyIonParams};
     let dir = std::env::temp_dir().join(format!("mdpipe-noisecorr-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let at: Vec<(i64, HeavyIonParams)> = [(1, "eta_s=0.1,e_sw=0.2"), (2, "eta_s=0.2,e_sw=0.3"), (3, "eta_s=0.05,e_sw=0.15")].iter().map(|(id, p)| (*id, HeavyIonParams::parse(p).unwrap())).collect();
-    simulate_runs(&at, DeltaF::None, 200, events::DEFAULT_OVERSAMPLE, 5, events::Layout::Hdf5, &dir.join("runs")).unwrap();
+    let at: Vec<(i64, HeavyIonParams)> =
+        [(1, "eta_s=0.1,e_sw=0.2"), (2, "eta_s=0.2,e_sw=0.3"), (3, "eta_s=0.05,e_sw=0.15")]
+            .iter()
+            .map(|(id, p)| (*id, HeavyIonParams::parse(p).unwrap()))
+            .collect();
+    simulate_runs(&at, DeltaF::None, 200, events::DEFAULT_OVERSAMPLE, 5, events::Layout::Hdf5, &dir.join("runs"))
+        .unwrap();
     let (got, _) = ingest::ingest_runs(&dir.join("runs"), None, &IngestSettings::default()).unwrap();
     let out = dir.join("training.parquet");
     ingest::write(&got, None, &out).unwrap();
@@ -270,7 +330,8 @@ fn a_training_table_carries_its_runs_pooled_error_correlation() {
     let table = mdpipe::emulator::read_training_table(&out, &[]).unwrap();
     let m = table.n_outputs();
     let r = table.noise_correlation.as_ref().expect("the table's noise correlation");
-    let at_x = |o: &str, x: f64| table.outputs.iter().position(|k| k.observable == o && (k.x - x).abs() < 1e-9).unwrap();
+    let at_x =
+        |o: &str, x: f64| table.outputs.iter().position(|k| k.observable == o && (k.x - x).abs() < 1e-9).unwrap();
     // A multiplicity fluctuation moves every bin of a spectrum: neighbouring
     // bins' errors are strongly correlated (0.9 in the 6000-event mock).
     let (a, b) = (at_x("ch_spectrum", 0.5), at_x("ch_spectrum", 0.7));
@@ -282,17 +343,27 @@ fn a_training_table_carries_its_runs_pooled_error_correlation() {
     table.write(&copy, None).unwrap();
     let again = mdpipe::emulator::read_training_table(&copy, &[]).unwrap();
     let (r2, r1) = (again.noise_correlation.unwrap(), r);
-    assert!(r2.iter().zip(r1).all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs().max(1e-300) || x == y), "the copy's correlation differs");
+    assert!(
+        r2.iter().zip(r1).all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs().max(1e-300) || x == y),
+        "the copy's correlation differs"
+    );
     // A table without one, written over the copy, does not inherit its file.
     let plain = mdpipe::emulator::TrainingTable { noise_correlation: None, ..table.clone() };
     plain.write(&copy, None).unwrap();
-    assert!(!mdpipe::base::covariance::noise_correlation_path(&copy).exists() && mdpipe::emulator::read_training_table(&copy, &[]).unwrap().noise_correlation.is_none());
+    assert!(
+        !mdpipe::base::covariance::noise_correlation_path(&copy).exists()
+            && mdpipe::emulator::read_training_table(&copy, &[]).unwrap().noise_correlation.is_none()
+    );
     // A hand-edited file that is not positive definite (ten bins pairwise
     // anti-correlated by 0.9) is shrunk towards the identity until it is.
     let mut text = String::from("observable_a,x_a,observable_b,x_b,correlation\n");
     for a in 0..10 {
         for b in 0..a {
-            text.push_str(&format!("ch_spectrum,{},ch_spectrum,{},-0.9\n", table.outputs[at_x("ch_spectrum", 0.1 + 0.2 * a as f64)].x, table.outputs[at_x("ch_spectrum", 0.1 + 0.2 * b as f64)].x));
+            text.push_str(&format!(
+                "ch_spectrum,{},ch_spectrum,{},-0.9\n",
+                table.outputs[at_x("ch_spectrum", 0.1 + 0.2 * a as f64)].x,
+                table.outputs[at_x("ch_spectrum", 0.1 + 0.2 * b as f64)].x
+            ));
         }
     }
     std::fs::write(&side, text).unwrap();
@@ -304,4 +375,3 @@ fn a_training_table_carries_its_runs_pooled_error_correlation() {
     assert!(shrunk[a * m + b] < 0.0 && shrunk[a * m + b] > -0.9, "{}", shrunk[a * m + b]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
-

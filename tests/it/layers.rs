@@ -28,7 +28,11 @@ const UNITS: [(&str, u32); 17] = [
 
 /// The unit of a module path such as `engine::calibrate::smc` (longest match).
 fn unit_of(path: &str) -> Option<(&'static str, u32)> {
-    UNITS.iter().filter(|(u, _)| path == *u || path.starts_with(&format!("{u}::"))).max_by_key(|(u, _)| u.len()).copied()
+    UNITS
+        .iter()
+        .filter(|(u, _)| path == *u || path.starts_with(&format!("{u}::")))
+        .max_by_key(|(u, _)| u.len())
+        .copied()
 }
 
 /// The module path of a source file: `src/engine/calibrate/smc.rs` → `engine::calibrate::smc`.
@@ -86,7 +90,8 @@ fn no_file_imports_from_a_layer_above_or_a_sibling_unit() {
         if module == "lib" || module == "main" {
             continue;
         }
-        let (unit, rank) = unit_of(&module).unwrap_or_else(|| panic!("{}: module {module} belongs to no unit of ARCHITECTURE.md", file.display()));
+        let (unit, rank) = unit_of(&module)
+            .unwrap_or_else(|| panic!("{}: module {module} belongs to no unit of ARCHITECTURE.md", file.display()));
         let text = std::fs::read_to_string(file).unwrap();
         // Comments may name any module.
         for (line_no, line) in text.lines().enumerate().filter(|(_, l)| !l.trim_start().starts_with("//")) {
@@ -95,7 +100,11 @@ fn no_file_imports_from_a_layer_above_or_a_sibling_unit() {
                 checked += 1;
                 let allowed = target == unit || target_rank < rank;
                 if !allowed {
-                    violations.push(format!("{}:{}: {unit} (rank {rank}) uses crate::{path} ({target}, rank {target_rank})", file.display(), line_no + 1));
+                    violations.push(format!(
+                        "{}:{}: {unit} (rank {rank}) uses crate::{path} ({target}, rank {target_rank})",
+                        file.display(),
+                        line_no + 1
+                    ));
                 }
             }
         }

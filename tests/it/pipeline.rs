@@ -85,7 +85,11 @@ fn check_variant_refinement(out: &Path, last: &serde_json::Value) {
     println!("first verdict: {} (refine {})", first["verdict"]["best"], first["verdict"]["refine"]);
     assert_eq!(first["verdict"]["best"], "emulator_limited");
     for name in first["verdict"]["refine"].as_array().unwrap() {
-        let rounds: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/refine").join(name.as_str().unwrap()).join("rounds.json")).unwrap()).unwrap();
+        let rounds: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("diagnose/refine").join(name.as_str().unwrap()).join("rounds.json"))
+                .unwrap(),
+        )
+        .unwrap();
         let list = rounds["rounds"].as_array().unwrap();
         let new_runs: u64 = list.iter().map(|r| r["new_runs"].as_u64().unwrap()).sum();
         println!("{name}: {} rounds, {new_runs} new runs, stopped: {}", list.len(), rounds["stopped"]);
@@ -97,7 +101,11 @@ fn check_variant_refinement(out: &Path, last: &serde_json::Value) {
         if new_runs > 0 {
             assert!(emulator.contains("round_"), "{emulator}");
         }
-        println!("{name}: emulator share {} → {}", first["candidates"].as_array().unwrap().iter().find(|c| &c["name"] == name).unwrap()["emulator_share"], fit["emulator_share"]);
+        println!(
+            "{name}: emulator share {} → {}",
+            first["candidates"].as_array().unwrap().iter().find(|c| &c["name"] == name).unwrap()["emulator_share"],
+            fit["emulator_share"]
+        );
     }
 }
 
@@ -105,18 +113,28 @@ fn check_variant_refinement(out: &Path, last: &serde_json::Value) {
 /// parameter files and array script, the error where the posterior lives
 /// lower at the end, and the refined emulator trained on every run.
 fn check_refinement(out: &Path, config: &Config) {
-    let rounds: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("refine/rounds.json")).unwrap()).unwrap();
+    let rounds: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("refine/rounds.json")).unwrap()).unwrap();
     let list = rounds["rounds"].as_array().unwrap();
     let new_runs: u64 = list.iter().map(|r| r["new_runs"].as_u64().unwrap()).sum();
     assert!(new_runs <= 8 && list.len() >= 2, "{rounds}");
-    let worst = |r: &serde_json::Value, sd: &str| r["ratios"].as_array().unwrap().iter().map(|o| o[sd].as_f64().unwrap()).fold(0.0, f64::max);
+    let worst = |r: &serde_json::Value, sd: &str| {
+        r["ratios"].as_array().unwrap().iter().map(|o| o[sd].as_f64().unwrap()).fold(0.0, f64::max)
+    };
     let (first, last) = (worst(&list[0], "latent"), worst(list.last().unwrap(), "latent"));
     // The stop reads the predictive sd (what the likelihood sees).
-    let (first_predictive, last_predictive) = (worst(&list[0], "predictive"), worst(list.last().unwrap(), "predictive"));
+    let (first_predictive, last_predictive) =
+        (worst(&list[0], "predictive"), worst(list.last().unwrap(), "predictive"));
     let stopped = rounds["stopped"].as_str().unwrap();
-    assert!(if stopped.starts_with("below") { last_predictive < 1.0 } else { new_runs == 8 && first_predictive >= 1.0 }, "{stopped}: {first_predictive} -> {last_predictive}");
+    assert!(
+        if stopped.starts_with("below") { last_predictive < 1.0 } else { new_runs == 8 && first_predictive >= 1.0 },
+        "{stopped}: {first_predictive} -> {last_predictive}"
+    );
     if new_runs > 0 {
-        assert!(last < first, "refinement did not lower the emulator's error where the posterior lives: {first} -> {last}");
+        assert!(
+            last < first,
+            "refinement did not lower the emulator's error where the posterior lives: {first} -> {last}"
+        );
         let design = mdpipe::design::read_points(&out.join("refine/round_0/design/design.parquet")).unwrap();
         let ids: Vec<i64> = design.iter().map(|(id, _)| *id).collect();
         assert_eq!(ids, vec![16, 17, 18, 19]);
@@ -129,7 +147,8 @@ fn check_refinement(out: &Path, config: &Config) {
         let script = std::fs::read_to_string(out.join("refine/round_0/design/submit.slurm")).unwrap();
         assert!(script.contains("#SBATCH --array=16-19") && script.contains("--seed"), "{script}");
         assert!(out.join("refine/round_0/design/parameters/parameter_016").exists());
-        let emulator = mdpipe::emulator::store::load(&out.join("refine").join(rounds["emulator"].as_str().unwrap())).unwrap();
+        let emulator =
+            mdpipe::emulator::store::load(&out.join("refine").join(rounds["emulator"].as_str().unwrap())).unwrap();
         assert!(emulator.parts.design_ids.contains(&19) && emulator.parts.design_ids.contains(&0));
     }
     assert!(std::fs::read_to_string(out.join("refine/rounds.md")).unwrap().contains("| 0 | "));
@@ -158,7 +177,16 @@ fn check_mock_covariance(out: &Path, config: &Config) {
 }
 
 fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
-    RunOptions { out: out.to_path_buf(), seed: 3, stage: stage.map(String::from), force, show_progress: false, executor: mdpipe::execute::Executor::Local, mdpipe: env!("CARGO_BIN_EXE_mdpipe").into(), case: None }
+    RunOptions {
+        out: out.to_path_buf(),
+        seed: 3,
+        stage: stage.map(String::from),
+        force,
+        show_progress: false,
+        executor: mdpipe::execute::Executor::Local,
+        mdpipe: env!("CARGO_BIN_EXE_mdpipe").into(),
+        case: None,
+    }
 }
 
 fn ran(outcomes: &[StageOutcome]) -> Vec<String> {
@@ -173,11 +201,27 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
 
     let first = run(&config, &opts(&out, None, false)).unwrap();
     assert_eq!(ran(&first), STAGES.to_vec());
-    for p in ["design/design.parquet", "validation_design/design.parquet", "design/submit.slurm", "training.parquet", "validation.parquet", "emulator/emulator.json", "emulator/validation.json", "mock/measurements.parquet", "study.json", "study.md", "report.html",
-        "candidates/grad_shear_delta_f/emulator/emulator.json", "candidates/proton_annihilation/design/design.parquet", "diagnose/diagnosis.json", "diagnose/report.html"] {
+    for p in [
+        "design/design.parquet",
+        "validation_design/design.parquet",
+        "design/submit.slurm",
+        "training.parquet",
+        "validation.parquet",
+        "emulator/emulator.json",
+        "emulator/validation.json",
+        "mock/measurements.parquet",
+        "study.json",
+        "study.md",
+        "report.html",
+        "candidates/grad_shear_delta_f/emulator/emulator.json",
+        "candidates/proton_annihilation/design/design.parquet",
+        "diagnose/diagnosis.json",
+        "diagnose/report.html",
+    ] {
         assert!(out.join(p).exists(), "{p} missing");
     }
-    let study: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    let study: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
     let cases = study["cases"].as_array().unwrap();
     assert_eq!(cases.len(), 4, "2 observable sets x 2 kernels");
     for c in cases {
@@ -199,15 +243,24 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     assert_eq!(mdpipe::model::Simulator::parameter_names(&variant), vec!["eta_s", "e_sw", "p_survival"]);
     // Each variant is validated like the base emulator (5-fold cross-validation, every observable).
     for name in ["grad_shear_delta_f", "proton_annihilation"] {
-        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("candidates").join(name).join("emulator/validation.json")).unwrap()).unwrap();
+        let v: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("candidates").join(name).join("emulator/validation.json")).unwrap(),
+        )
+        .unwrap();
         let cv = v["cross_validation"].as_array().unwrap();
         assert_eq!(v["folds"], 5);
-        assert!(!cv.is_empty() && cv.iter().all(|o| o["rmse"].as_f64().unwrap().is_finite() && o["n"].as_u64().unwrap() > 0), "{name}: {cv:?}");
+        assert!(
+            !cv.is_empty()
+                && cv.iter().all(|o| o["rmse"].as_f64().unwrap().is_finite() && o["n"].as_u64().unwrap() > 0),
+            "{name}: {cv:?}"
+        );
     }
     check_refinement(&out, &config);
     check_mock_covariance(&out, &config);
-    let diagnosis: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
-    let names: Vec<&str> = diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
+    let diagnosis: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
+    let names: Vec<&str> =
+        diagnosis["candidates"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
     assert_eq!(names.len(), 2);
     assert!(names.contains(&"grad_shear_delta_f") && names.contains(&"proton_annihilation"));
     check_variant_refinement(&out, &diagnosis);
@@ -221,7 +274,10 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
         parameters: Default::default(),
     };
     declared.candidates = vec![declaration.to_table().unwrap()];
-    let msg = format!("{:#}", mdpipe::systems::resolve(&declared).unwrap().candidates().err().expect("missing prior accepted"));
+    let msg = format!(
+        "{:#}",
+        mdpipe::systems::resolve(&declared).unwrap().candidates().err().expect("missing prior accepted")
+    );
     assert!(msg.contains("study.toml") && msg.contains("[candidates.parameters.p_survival]"), "{msg}");
 
     // Unchanged: nothing runs.
@@ -238,13 +294,20 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     std::fs::remove_file(out.join("stages/calibrate/ch_spectrum+ch_v2__kernel2.json")).unwrap();
     let kept = out.join("calibrate/ch_spectrum__nomd/summary.json");
     let redone = out.join("calibrate/ch_spectrum+ch_v2__kernel2/summary.json");
-    let (kept_time, redone_time) = (std::fs::metadata(&kept).unwrap().modified().unwrap(), std::fs::metadata(&redone).unwrap().modified().unwrap());
+    let (kept_time, redone_time) = (
+        std::fs::metadata(&kept).unwrap().modified().unwrap(),
+        std::fs::metadata(&redone).unwrap().modified().unwrap(),
+    );
     let resumed = run(&config, &opts(&out, None, false)).unwrap();
     // A stage that ran hands its downstream stages a new key (it cannot tell
     // that the redone case came out as before), so the report is rebuilt.
     assert_eq!(ran(&resumed), vec!["calibrate", "report"]);
     assert_eq!(std::fs::metadata(&kept).unwrap().modified().unwrap(), kept_time, "a finished case was recomputed");
-    assert_ne!(std::fs::metadata(&redone).unwrap().modified().unwrap(), redone_time, "the unfinished case was not recomputed");
+    assert_ne!(
+        std::fs::metadata(&redone).unwrap().modified().unwrap(),
+        redone_time,
+        "the unfinished case was not recomputed"
+    );
 
     // More mock events: the mock data and everything after them rerun; the runs and emulator do not.
     let config2 = Config::load(&write_config(&dir, 400, 12)).unwrap();
@@ -270,7 +333,9 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let err = run(&config, &opts(&dir.join("fresh"), Some("fit"), false)).unwrap_err();
     assert!(format!("{err:#}").contains("unknown stage"));
     // A bad [run] table is refused before any stage runs, naming the file and field.
-    let text = std::fs::read_to_string(dir.join("study.toml")).unwrap().replace(r#"kernels = ["none", "II"]"#, r#"kernels = ["none", "III"]"#);
+    let text = std::fs::read_to_string(dir.join("study.toml"))
+        .unwrap()
+        .replace(r#"kernels = ["none", "II"]"#, r#"kernels = ["none", "III"]"#);
     std::fs::write(dir.join("bad.toml"), text).unwrap();
     let err = run(&Config::load(&dir.join("bad.toml")).unwrap(), &opts(&dir.join("bad"), None, false)).unwrap_err();
     let msg = format!("{err:#}");
@@ -286,7 +351,11 @@ fn run_slurm_array(design_dir: &Path, n: usize) {
     for id in 0..n {
         let line = command.replace("$SLURM_ARRAY_TASK_ID", &id.to_string());
         let args: Vec<&str> = line.split_whitespace().skip(1).collect();
-        let status = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe")).args(&args).current_dir(design_dir).output().unwrap();
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+            .args(&args)
+            .current_dir(design_dir)
+            .output()
+            .unwrap();
         assert!(status.status.success(), "task {id}: {}", String::from_utf8_lossy(&status.stderr));
     }
 }
@@ -318,7 +387,10 @@ fn slurm_array_runs_are_the_simulate_stage_runs() {
         assert_eq!(a.height(), b.height(), "{table}");
         for col in ["value", "error"] {
             let (va, vb) = (a.column(col).unwrap().f64().unwrap(), b.column(col).unwrap().f64().unwrap());
-            assert!(va.iter().zip(vb.iter()).all(|(x, y)| x == y), "{table}: column {col} differs between the SLURM and local runs");
+            assert!(
+                va.iter().zip(vb.iter()).all(|(x, y)| x == y),
+                "{table}: column {col} differs between the SLURM and local runs"
+            );
         }
     }
 }

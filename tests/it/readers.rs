@@ -23,7 +23,22 @@ fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
 }
 
 /// Tokens that readers of numbers and tables trip on.
-const TOKENS: [&str; 14] = ["nan", "NaN", "inf", "-inf", "1e400", "-1e-400", "", ",", "\n", "\"", "99999999999999999999999", "-0", "[", "\u{feff}"];
+const TOKENS: [&str; 14] = [
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "1e400",
+    "-1e-400",
+    "",
+    ",",
+    "\n",
+    "\"",
+    "99999999999999999999999",
+    "-0",
+    "[",
+    "\u{feff}",
+];
 
 #[derive(Clone, Debug)]
 enum Edit {
@@ -96,13 +111,23 @@ fn root() -> &'static Path {
 fn readers() -> Vec<Reader> {
     vec![
         Reader { name: "measurements_csv", ext: "csv", read: |p| mdpipe::artifacts::read_measurements(p).map(drop) },
-        Reader { name: "measurements_parquet", ext: "parquet", read: |p| mdpipe::artifacts::read_measurements(p).map(drop) },
+        Reader {
+            name: "measurements_parquet",
+            ext: "parquet",
+            read: |p| mdpipe::artifacts::read_measurements(p).map(drop),
+        },
         Reader { name: "paper_table", ext: "dat", read: |p| mdpipe::artifacts::read_paper_table(p).map(drop) },
-        Reader { name: "training_table", ext: "csv", read: |p| mdpipe::emulator::read_training_table(p, &["g".into(), "v0".into()]).map(drop) },
+        Reader {
+            name: "training_table",
+            ext: "csv",
+            read: |p| mdpipe::emulator::read_training_table(p, &["g".into(), "v0".into()]).map(drop),
+        },
         Reader {
             name: "iebe_music_text",
             ext: "dat",
-            read: |p| mdpipe::ingest::layout::parse_text_table(p, &String::from_utf8_lossy(&std::fs::read(p)?)).map(drop),
+            read: |p| {
+                mdpipe::ingest::layout::parse_text_table(p, &String::from_utf8_lossy(&std::fs::read(p)?)).map(drop)
+            },
         },
         Reader {
             name: "iebe_music_hdf5",
@@ -120,7 +145,9 @@ fn readers() -> Vec<Reader> {
             read: |p| {
                 // An unreadable or foreign checkpoint is ignored (a fresh start), not an error.
                 let c = Checkpointing::new(p.parent().unwrap(), "key".into(), None);
-                c.load::<ReplicateOutput>(p.file_stem().unwrap().to_str().unwrap()).map(drop).ok_or_else(|| anyhow::anyhow!("ignored"))
+                c.load::<ReplicateOutput>(p.file_stem().unwrap().to_str().unwrap())
+                    .map(drop)
+                    .ok_or_else(|| anyhow::anyhow!("ignored"))
             },
         },
     ]
@@ -142,20 +169,38 @@ fn seed_input(name: &str, dir: &Path) -> Vec<u8> {
             let mut t = String::from("design_id,observable,x,value,g,v0\n");
             for i in 0..4 {
                 for x in [0.0, 0.5] {
-                    t.push_str(&format!("{i},velocity,{x},{},{},{}\n", 0.3 * i as f64 + x, 9.0 + i as f64, 0.1 * i as f64));
+                    t.push_str(&format!(
+                        "{i},velocity,{x},{},{},{}\n",
+                        0.3 * i as f64 + x,
+                        9.0 + i as f64,
+                        0.1 * i as f64
+                    ));
                 }
             }
             t.into_bytes()
         }
-        "iebe_music_text" => fixture("tests/fixtures/iebe_music/runs/0001/spvn_results_6/particle_211_vndata_diff_y_-0.5_0.5.dat"),
+        "iebe_music_text" => {
+            fixture("tests/fixtures/iebe_music/runs/0001/spvn_results_6/particle_211_vndata_diff_y_-0.5_0.5.dat")
+        }
         "iebe_music_hdf5" => fixture("tests/fixtures/iebe_music/runs/0003/spvn_results.h5"),
         "config" => {
             let data = root().join("pipeline/ball_drop_data.csv").display().to_string();
-            String::from_utf8(fixture("pipeline/ball_drop.toml")).unwrap().replace("ball_drop_data.csv", &data).into_bytes()
+            String::from_utf8(fixture("pipeline/ball_drop.toml"))
+                .unwrap()
+                .replace("ball_drop_data.csv", &data)
+                .into_bytes()
         }
         "checkpoint" => {
             let c = Checkpointing::new(dir, "key".into(), None);
-            let out = ReplicateOutput { particles: vec![1.0, 2.0, 3.0, 4.0], log_evidence: -3.5, relative_variance: 0.01, steps: Vec::new(), likelihood_evaluations: 10, term_evaluations: 0, unique_fraction: 0.5 };
+            let out = ReplicateOutput {
+                particles: vec![1.0, 2.0, 3.0, 4.0],
+                log_evidence: -3.5,
+                relative_variance: 0.01,
+                steps: Vec::new(),
+                likelihood_evaluations: 10,
+                term_evaluations: 0,
+                unique_fraction: 0.5,
+            };
             c.save("seed", &out);
             std::fs::read(dir.join("seed.json")).unwrap()
         }
@@ -170,7 +215,12 @@ fn outcome(reader: &Reader, bytes: &[u8], dir: &Path, tag: &str) -> Result<bool,
     std::fs::write(&path, bytes).unwrap();
     let result = std::panic::catch_unwind(AssertUnwindSafe(|| (reader.read)(&path)));
     let _ = std::fs::remove_file(&path);
-    result.map(|r| r.is_ok()).map_err(|p| p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string())).unwrap_or_default())
+    result.map(|r| r.is_ok()).map_err(|p| {
+        p.downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_default()
+    })
 }
 
 fn tmp(tag: &str) -> PathBuf {
@@ -187,19 +237,34 @@ fn mutated_inputs_give_errors_not_panics() {
     let (cases, rng_seed) = (env_or("MDPIPE_FUZZ_CASES", CASES), env_or("MDPIPE_FUZZ_SEED", 20_261_123u64));
     for reader in readers() {
         let seed = seed_input(reader.name, &dir);
-        assert!(matches!(outcome(&reader, &seed, &dir, "valid"), Ok(true)), "{}: the valid seed input is refused or panics", reader.name);
-        let config = RunnerConfig { cases, rng_seed: RngSeed::Fixed(rng_seed), failure_persistence: None, ..RunnerConfig::default() };
+        assert!(
+            matches!(outcome(&reader, &seed, &dir, "valid"), Ok(true)),
+            "{}: the valid seed input is refused or panics",
+            reader.name
+        );
+        let config = RunnerConfig {
+            cases,
+            rng_seed: RngSeed::Fixed(rng_seed),
+            failure_persistence: None,
+            ..RunnerConfig::default()
+        };
         let mut runner = TestRunner::new(config);
         let refused = std::cell::Cell::new(0u32);
         let result = runner.run(&vec(edit(), 1..6), |edits| {
             let bytes = apply(&seed, &edits);
-            let accepted = outcome(&reader, &bytes, &dir, "case").map_err(|m| TestCaseError::fail(format!("panicked: {m}")))?;
+            let accepted =
+                outcome(&reader, &bytes, &dir, "case").map_err(|m| TestCaseError::fail(format!("panicked: {m}")))?;
             refused.set(refused.get() + u32::from(!accepted));
             Ok(())
         });
         // The mutations must reach the readers' error paths, or the test proves little.
         println!("{}: {} of {cases} mutated inputs refused with an error, the rest read", reader.name, refused.get());
-        assert!(refused.get() > cases / 10, "{}: only {} of {cases} mutated inputs were refused", reader.name, refused.get());
+        assert!(
+            refused.get() > cases / 10,
+            "{}: only {} of {cases} mutated inputs were refused",
+            reader.name,
+            refused.get()
+        );
         if let Err(e) = result {
             // Keep the shrunk input for the corpus, so the fix stays tested.
             let keep = dir.join(format!("failing_{}.{}", reader.name, reader.ext));

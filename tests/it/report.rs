@@ -27,7 +27,9 @@ fn heavy_ion_report_has_eta_s_bands_boxes_and_emulator_checks() {
     let mut text = String::from("design_id,observable,x,value,eta_s,e_sw\n");
     for i in 0..40 {
         let (eta_s, e_sw) = (0.4 * rng.random::<f64>(), 0.1 + 0.4 * rng.random::<f64>());
-        for (name, values) in observables(&HeavyIonParams::parse(&format!("eta_s={eta_s},e_sw={e_sw}")).unwrap(), DeltaF::None, &pts) {
+        for (name, values) in
+            observables(&HeavyIonParams::parse(&format!("eta_s={eta_s},e_sw={e_sw}")).unwrap(), DeltaF::None, &pts)
+        {
             if OBSERVABLES.contains(&name) {
                 for (x, v) in pts.iter().zip(values) {
                     text.push_str(&format!("{i},{name},{x},{v},{eta_s},{e_sw}\n"));
@@ -41,7 +43,12 @@ fn heavy_ion_report_has_eta_s_bands_boxes_and_emulator_checks() {
     let data: Vec<_> = observables(&truth, DeltaF::Grad, &pts)
         .into_iter()
         .filter(|(n, _)| OBSERVABLES.contains(n))
-        .flat_map(|(n, v)| pts.iter().zip(v).map(move |(&x, y)| mdpipe::artifacts::Measurement::new(n, x, y, 0.03 * y.abs() + 1e-3)).collect::<Vec<_>>())
+        .flat_map(|(n, v)| {
+            pts.iter()
+                .zip(v)
+                .map(move |(&x, y)| mdpipe::artifacts::Measurement::new(n, x, y, 0.03 * y.abs() + 1e-3))
+                .collect::<Vec<_>>()
+        })
         .collect();
     mdpipe::artifacts::write_measurements(&dir.join("data.csv"), &data, None).unwrap();
     let config = r#"
@@ -93,7 +100,18 @@ log_observables = ["ch_spectrum"]
     // 2 corner plots... one per observable set: corner, η/s(T) + inset, 2 runs × 2 observables of boxes;
     // emulator: one z-score histogram (cv4) and a parity plot per observable.
     assert!(figures >= 2 + 4 + 1 + 2, "{figures} figures");
-    for label in ["T [GeV]", "η/s", "ε_sw [GeV/fm³]", "pT [GeV]", "ch_spectrum / data", "emulator parity: ch_v2", "emulator z-scores", "N(0, 1)", "model + δ, 68%", "truth"] {
+    for label in [
+        "T [GeV]",
+        "η/s",
+        "ε_sw [GeV/fm³]",
+        "pT [GeV]",
+        "ch_spectrum / data",
+        "emulator parity: ch_v2",
+        "emulator z-scores",
+        "N(0, 1)",
+        "model + δ, 68%",
+        "truth",
+    ] {
         assert!(html.contains(label), "report lacks {label}");
     }
     let report = dir.join("report.html");
@@ -103,12 +121,17 @@ log_observables = ["ch_spectrum"]
     // PNG copies: one per figure, each a real PNG of twice its SVG's size.
     let pngs = mdpipe::report::png::write_figures(&html, &dir.join("png")).unwrap();
     assert_eq!(pngs.len(), figures);
-    let attr = |tag: &str, name: &str| -> u32 { tag.split(&format!("{name}=\"")).nth(1).unwrap().split('"').next().unwrap().parse().unwrap() };
+    let attr = |tag: &str, name: &str| -> u32 {
+        tag.split(&format!("{name}=\"")).nth(1).unwrap().split('"').next().unwrap().parse().unwrap()
+    };
     let svg_tags: Vec<&str> = html.split("<svg").skip(1).map(|t| t.split('>').next().unwrap()).collect();
     for (p, tag) in pngs.iter().zip(&svg_tags) {
         let bytes = std::fs::read(p).unwrap();
         assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{}", p.display());
-        let (w, h) = (u32::from_be_bytes(bytes[16..20].try_into().unwrap()), u32::from_be_bytes(bytes[20..24].try_into().unwrap()));
+        let (w, h) = (
+            u32::from_be_bytes(bytes[16..20].try_into().unwrap()),
+            u32::from_be_bytes(bytes[20..24].try_into().unwrap()),
+        );
         assert_eq!((w, h), (2 * attr(tag, "width"), 2 * attr(tag, "height")), "{}", p.display());
     }
     std::fs::remove_dir_all(&dir).unwrap();

@@ -5,8 +5,6 @@
 //! The discrepancy scale is fixed to 1 (no data-dependent standardization),
 //! so the likelihood is exactly the generative model.
 
-
-
 use super::common::*;
 use mdpipe::calibrate::smc::{Smc, SmcSettings};
 use mdpipe::calibrate::{MdLikelihood, ObservableBlock, UniformPrior};
@@ -18,6 +16,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 #[test]
+#[ignore = "second tier: SBC over 200 data sets; cargo test --release -- --ignored"]
 fn credible_intervals_have_nominal_coverage() {
     let kernel = DiscrepancyKernel::KernelII;
     let names: Vec<String> = ["a", "b", "y.cbar", "y.ell", "y.r"].iter().map(|s| s.to_string()).collect();
@@ -52,7 +51,9 @@ fn credible_intervals_have_nominal_coverage() {
             block.mean = 0.0;
             block.scale = 1.0;
             let lik = MdLikelihood::new(Arc::new(LinearModel), vec![block], Some(kernel));
-            let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() }).run(&prior, &lik, 77 + k as u64, &mdpipe::progress::Silent).unwrap();
+            let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() })
+                .run(&prior, &lik, 77 + k as u64, &mdpipe::progress::Silent)
+                .unwrap();
             let mut covered = [[false; 2]; 5];
             for p in 0..5 {
                 let mut d = out.chains.param(p);
@@ -112,19 +113,34 @@ fn linked_line(truth: &[f64], x: &[f64], err: f64, norm: f64, rng: &mut Xoshiro2
     let mut entries = Vec::new();
     for i in 0..rows.len() {
         for j in 0..=i {
-            entries.push(CovarianceEntry { observable_a: rows[i].observable.clone(), x_a: rows[i].x, observable_b: rows[j].observable.clone(), x_b: rows[j].x, covariance: norm * norm, line: 0 });
+            entries.push(CovarianceEntry {
+                observable_a: rows[i].observable.clone(),
+                x_a: rows[i].x,
+                observable_b: rows[j].observable.clone(),
+                x_b: rows[j].x,
+                covariance: norm * norm,
+                line: 0,
+            });
         }
     }
     let mut blocks: Vec<ObservableBlock> = LINKED
         .iter()
         .map(|o| {
-            let mut b = ObservableBlock::new(o, 0, &rows.iter().filter(|r| &r.observable == o).collect::<Vec<_>>()).unwrap();
+            let mut b =
+                ObservableBlock::new(o, 0, &rows.iter().filter(|r| &r.observable == o).collect::<Vec<_>>()).unwrap();
             b.mean = 0.0;
             b.scale = 1.0;
             b
         })
         .collect();
-    let across = mdpipe::calibrate::data_covariance::attach(&mut blocks, &entries, &rows, std::path::Path::new("cov.csv"), std::path::Path::new("data.csv")).unwrap();
+    let across = mdpipe::calibrate::data_covariance::attach(
+        &mut blocks,
+        &entries,
+        &rows,
+        std::path::Path::new("cov.csv"),
+        std::path::Path::new("data.csv"),
+    )
+    .unwrap();
     MdLikelihood::new(Arc::new(LinearModel), blocks, Some(kernel)).joint(&across)
 }
 
@@ -136,7 +152,12 @@ fn linked_prior() -> UniformPrior {
     for o in LINKED {
         names.extend(["cbar", "ell", "r"].iter().map(|h| format!("{o}.{h}")));
     }
-    UniformPrior::new(names, vec![-2.0, -2.0, 0.0, 0.05, 0.0, 0.0, 0.05, 0.0], vec![2.0, 2.0, 1.0, 1.0, 2.0, 1.0, 1.0, 2.0]).unwrap()
+    UniformPrior::new(
+        names,
+        vec![-2.0, -2.0, 0.0, 0.05, 0.0, 0.0, 0.05, 0.0],
+        vec![2.0, 2.0, 1.0, 1.0, 2.0, 1.0, 1.0, 2.0],
+    )
+    .unwrap()
 }
 
 /// The same calibration on the joint likelihood's path, with φ free, on
@@ -144,6 +165,7 @@ fn linked_prior() -> UniformPrior {
 /// acceptance, screened by that block's marginal; the screen ignores the
 /// link, so this checks that its second stage leaves the posterior exact.
 #[test]
+#[ignore = "second tier: SBC over 200 data sets; cargo test --release -- --ignored"]
 fn joint_credible_intervals_have_nominal_coverage() {
     let prior = linked_prior();
     let x: Vec<f64> = (1..=6).map(|i| i as f64 / 6.0).collect();
@@ -157,7 +179,9 @@ fn joint_credible_intervals_have_nominal_coverage() {
             let mut truth = vec![0.0; dim];
             prior.sample(&mut rng, &mut truth);
             let lik = linked_line(&truth, &x, 0.2, 0.1, &mut rng);
-            let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() }).run(&prior, &lik, 91 + k as u64, &mdpipe::progress::Silent).unwrap();
+            let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() })
+                .run(&prior, &lik, 91 + k as u64, &mdpipe::progress::Silent)
+                .unwrap();
             let screens: u64 = out.replicates.iter().map(|r| r.term_evaluations).sum();
             let covered = (0..dim)
                 .map(|p| {
@@ -175,7 +199,10 @@ fn joint_credible_intervals_have_nominal_coverage() {
             (covered, screens)
         })
         .collect();
-    assert!(results.iter().all(|(_, screens)| *screens > 0), "every fit must take the screened (delayed-acceptance) path");
+    assert!(
+        results.iter().all(|(_, screens)| *screens > 0),
+        "every fit must take the screened (delayed-acceptance) path"
+    );
     let mut report = String::new();
     let mut failures = Vec::new();
     for p in 0..dim {
@@ -223,7 +250,10 @@ fn screened_and_plain_phi_moves_give_the_same_posterior() {
     let settings = SmcSettings { particles: 2000, replicates: 4, ..Default::default() };
     let screened = Smc::new(settings.clone()).run(&prior, &lik, 3, &mdpipe::progress::Silent).unwrap();
     let plain = Smc::new(settings).run(&prior, &Unscreened(&lik), 4, &mdpipe::progress::Silent).unwrap();
-    assert!(screened.replicates.iter().all(|r| r.term_evaluations > 0) && plain.replicates.iter().all(|r| r.term_evaluations == 0));
+    assert!(
+        screened.replicates.iter().all(|r| r.term_evaluations > 0)
+            && plain.replicates.iter().all(|r| r.term_evaluations == 0)
+    );
     let mut report = String::new();
     let mut failures = Vec::new();
     for p in 0..prior.dim() {
@@ -243,8 +273,12 @@ fn screened_and_plain_phi_moves_give_the_same_posterior() {
             failures.push(prior.names[p].clone());
         }
     }
-    let z_evidence = (screened.log_evidence - plain.log_evidence) / (screened.log_evidence_err.powi(2) + plain.log_evidence_err.powi(2)).sqrt();
-    report.push_str(&format!("log evidence {:.3} ± {:.3} vs {:.3} ± {:.3} (z {z_evidence:+.2})\n", screened.log_evidence, screened.log_evidence_err, plain.log_evidence, plain.log_evidence_err));
+    let z_evidence = (screened.log_evidence - plain.log_evidence)
+        / (screened.log_evidence_err.powi(2) + plain.log_evidence_err.powi(2)).sqrt();
+    report.push_str(&format!(
+        "log evidence {:.3} ± {:.3} vs {:.3} ± {:.3} (z {z_evidence:+.2})\n",
+        screened.log_evidence, screened.log_evidence_err, plain.log_evidence, plain.log_evidence_err
+    ));
     let (full_screened, full_plain) = (screened.likelihood_evaluations(), plain.likelihood_evaluations());
     report.push_str(&format!("whole evaluations: {full_screened} screened, {full_plain} plain\n"));
     println!("{report}");

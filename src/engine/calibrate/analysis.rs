@@ -54,16 +54,23 @@ impl Analysis {
             None => None,
         };
         let truth = truth_family.as_ref().map(|(f, t)| f.true_process(config, t)).transpose()?;
-        let config_units = Units { parameters: config.parameters.iter().map(|(n, p)| (n.clone(), p.units.clone())).collect(), ..Units::default() };
+        let config_units = Units {
+            parameters: config.parameters.iter().map(|(n, p)| (n.clone(), p.units.clone())).collect(),
+            ..Units::default()
+        };
         let mut units = family.units(config);
         if let Some((f, _)) = &truth_family {
             units = units.or(&f.units(config));
         }
-        let kernel = DiscrepancyKernel::parse(&config.discrepancy.kernel)
-            .ok_or_else(|| anyhow!("{file}: discrepancy.kernel: unknown kernel {:?} (use none, I or II)", config.discrepancy.kernel))?;
+        let kernel = DiscrepancyKernel::parse(&config.discrepancy.kernel).ok_or_else(|| {
+            anyhow!("{file}: discrepancy.kernel: unknown kernel {:?} (use none, I or II)", config.discrepancy.kernel)
+        })?;
         let observables = simulator.observable_names();
         if let Some(name) = config.discrepancy.inputs.keys().find(|n| !observables.contains(n)) {
-            bail!("{file}: [discrepancy.inputs.{name}]: the model has no observable '{name}' (it has: {})", observables.join(", "));
+            bail!(
+                "{file}: [discrepancy.inputs.{name}]: the model has no observable '{name}' (it has: {})",
+                observables.join(", ")
+            );
         }
         let sampler: SamplerConfig = config.decode(&config.sampler, "sampler")?;
         sampler.validate().map_err(|e| anyhow!("{file}: [sampler]: {e}"))?;
@@ -115,7 +122,9 @@ impl Analysis {
 
     /// Bounds of a discrepancy hyperparameter.
     pub fn hyper_bounds(&self, hyper: &str) -> Result<[f64; 2]> {
-        self.hyper_bounds.get(hyper).copied().ok_or_else(|| anyhow!("{}: [discrepancy.bounds] has no bounds for hyperparameter '{hyper}'", self.config_path.display()))
+        self.hyper_bounds.get(hyper).copied().ok_or_else(|| {
+            anyhow!("{}: [discrepancy.bounds] has no bounds for hyperparameter '{hyper}'", self.config_path.display())
+        })
     }
 
     /// θ's true values, where the config gives them.

@@ -34,7 +34,13 @@ struct Saved<S> {
 
 impl Checkpointing {
     pub fn new(dir: &Path, key: String, time_limit: Option<Duration>) -> Self {
-        Checkpointing { dir: dir.to_path_buf(), key, time_limit, min_interval: Duration::from_secs(10), started: Instant::now() }
+        Checkpointing {
+            dir: dir.to_path_buf(),
+            key,
+            time_limit,
+            min_interval: Duration::from_secs(10),
+            started: Instant::now(),
+        }
     }
 
     pub fn path(&self, name: &str) -> PathBuf {
@@ -52,7 +58,10 @@ impl Checkpointing {
         match serde_json::from_str::<Saved<S>>(&text) {
             Ok(v) if v.key == self.key => Some(v.state),
             Ok(_) => {
-                eprintln!("note: ignoring checkpoint {} (made by another run: data, settings or seed differ)", path.display());
+                eprintln!(
+                    "note: ignoring checkpoint {} (made by another run: data, settings or seed differ)",
+                    path.display()
+                );
                 None
             }
             Err(e) => {

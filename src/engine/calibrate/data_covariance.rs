@@ -6,8 +6,8 @@
 //! observables not calibrated on are skipped; entries naming a point that is
 //! not in the measurements are errors.
 
-use super::joint::CrossEntry;
 use super::block::ObservableBlock;
+use super::joint::CrossEntry;
 use crate::base::artifacts::Measurement;
 use crate::base::covariance::{read_covariance, CovarianceEntry};
 use crate::engine::gp::CholeskyWorkspace;
@@ -24,18 +24,30 @@ fn same_x(a: f64, b: f64) -> bool {
 
 /// Sets each block's `covariance` from `entries`, and returns the entries
 /// between two blocks.
-pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measurements: &[Measurement], path: &Path, data_path: &Path) -> Result<Vec<CrossEntry>> {
+pub fn attach(
+    blocks: &mut [ObservableBlock],
+    entries: &[CovarianceEntry],
+    measurements: &[Measurement],
+    path: &Path,
+    data_path: &Path,
+) -> Result<Vec<CrossEntry>> {
     let mut across: Vec<(CrossEntry, &CovarianceEntry)> = Vec::new();
     let mut set: Vec<Vec<bool>> = blocks.iter().map(|b| vec![false; b.len() * b.len()]).collect();
     for e in entries {
         for (obs, x, field) in [(&e.observable_a, e.x_a, "a"), (&e.observable_b, e.x_b, "b")] {
             if !measurements.iter().any(|m| &m.observable == obs && same_x(m.x, x)) {
-                bail!("{}, fields 'observable_{field}', 'x_{field}': {} has no measurement of '{obs}' at x = {x}", e.location(path), data_path.display());
+                bail!(
+                    "{}, fields 'observable_{field}', 'x_{field}': {} has no measurement of '{obs}' at x = {x}",
+                    e.location(path),
+                    data_path.display()
+                );
             }
         }
         let find = |obs: &str| blocks.iter().position(|b| b.name == obs);
         let (Some(ba), Some(bb)) = (find(&e.observable_a), find(&e.observable_b)) else { continue };
-        let index = |b: usize, x: f64| blocks[b].x.iter().position(|&bx| same_x(bx, x)).expect("checked against the measurements");
+        let index = |b: usize, x: f64| {
+            blocks[b].x.iter().position(|&bx| same_x(bx, x)).expect("checked against the measurements")
+        };
         let (i, j) = (index(ba, e.x_a), index(bb, e.x_b));
         if ba != bb {
             let cross = CrossEntry { block_a: ba, index_a: i, block_b: bb, index_b: j, covariance: e.covariance };
@@ -48,7 +60,12 @@ pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measu
         let n = block.len();
         let c = block.covariance.get_or_insert_with(|| vec![0.0; n * n]);
         if set[ba][j * n + i] && !same_x(c[j * n + i], e.covariance) {
-            bail!("{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})", e.location(path), e.covariance, c[j * n + i]);
+            bail!(
+                "{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})",
+                e.location(path),
+                e.covariance,
+                c[j * n + i]
+            );
         }
         c[j * n + i] = e.covariance;
         c[i * n + j] = e.covariance;
@@ -60,7 +77,11 @@ pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measu
         chol.factor.fill(0.0);
         block.add_data_covariance(1.0, &mut chol.factor);
         if !chol.factorize_exact() {
-            bail!("{}: the covariance of '{}' with its errors² on the diagonal is not positive definite", path.display(), block.name);
+            bail!(
+                "{}: the covariance of '{}' with its errors² on the diagonal is not positive definite",
+                path.display(),
+                block.name
+            );
         }
     }
     let across: Vec<CrossEntry> = across.into_iter().map(|(c, _)| c).collect();
@@ -76,10 +97,23 @@ pub fn attach(blocks: &mut [ObservableBlock], entries: &[CovarianceEntry], measu
 }
 
 /// Whether the pair was given before (in either order); if so, it must agree.
-fn already_given(seen: &[(CrossEntry, &CovarianceEntry)], new: &CrossEntry, e: &CovarianceEntry, path: &Path) -> Result<bool> {
-    let same_pair = |c: &CrossEntry| (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_a, new.index_a, new.block_b, new.index_b) || (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_b, new.index_b, new.block_a, new.index_a);
+fn already_given(
+    seen: &[(CrossEntry, &CovarianceEntry)],
+    new: &CrossEntry,
+    e: &CovarianceEntry,
+    path: &Path,
+) -> Result<bool> {
+    let same_pair = |c: &CrossEntry| {
+        (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_a, new.index_a, new.block_b, new.index_b)
+            || (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_b, new.index_b, new.block_a, new.index_a)
+    };
     match seen.iter().find(|(c, _)| same_pair(c)) {
-        Some((c, _)) if !same_x(c.covariance, new.covariance) => bail!("{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})", e.location(path), e.covariance, c.covariance),
+        Some((c, _)) if !same_x(c.covariance, new.covariance) => bail!(
+            "{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})",
+            e.location(path),
+            e.covariance,
+            c.covariance
+        ),
         Some(_) => Ok(true),
         None => Ok(false),
     }
@@ -109,7 +143,12 @@ mod tests {
     }
 
     fn data() -> Vec<Measurement> {
-        vec![Measurement::new("a", 0.0, 1.1, 0.1), Measurement::new("a", 1.0, 1.9, 0.2), Measurement::new("b", 0.0, 1.0, 0.1), Measurement::new("b", 2.0, 3.2, 0.1)]
+        vec![
+            Measurement::new("a", 0.0, 1.1, 0.1),
+            Measurement::new("a", 1.0, 1.9, 0.2),
+            Measurement::new("b", 0.0, 1.0, 0.1),
+            Measurement::new("b", 2.0, 3.2, 0.1),
+        ]
     }
 
     fn entry(oa: &str, xa: f64, ob: &str, xb: f64, c: f64, line: usize) -> CovarianceEntry {
@@ -117,14 +156,24 @@ mod tests {
     }
 
     fn blocks(m: &[Measurement]) -> Vec<ObservableBlock> {
-        ["a", "b"].iter().enumerate().map(|(k, o)| ObservableBlock::new(o, k, &m.iter().filter(|r| r.observable == *o).collect::<Vec<_>>()).unwrap()).collect()
+        ["a", "b"]
+            .iter()
+            .enumerate()
+            .map(|(k, o)| {
+                ObservableBlock::new(o, k, &m.iter().filter(|r| r.observable == *o).collect::<Vec<_>>()).unwrap()
+            })
+            .collect()
     }
 
     #[test]
     fn the_likelihood_is_the_gaussian_density_with_the_whole_covariance() {
         let m = data();
         let mut b = blocks(&m);
-        let entries = [entry("a", 0.0, "a", 1.0, 0.012, 2), entry("a", 0.0, "a", 0.0, 0.005, 3), entry("a", 0.0, "b", 0.0, 0.003, 4)];
+        let entries = [
+            entry("a", 0.0, "a", 1.0, 0.012, 2),
+            entry("a", 0.0, "a", 0.0, 0.005, 3),
+            entry("a", 0.0, "b", 0.0, 0.003, 4),
+        ];
         attach(&mut b, &entries, &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
         let lik = MdLikelihood::new(Arc::new(Line), b, None);
         let theta = [1.0, 0.95];
@@ -148,11 +197,17 @@ mod tests {
             let j = |i: usize, k: usize| if k == 0 { 1.0 } else { xa[i] };
             j(0, p) * (inv[0] * j(0, q) + inv[1] * j(1, q)) + j(1, p) * (inv[1] * j(0, q) + inv[2] * j(1, q))
         };
-        let fb = |p: usize, q: usize| (0..2).map(|i| if p == 0 { 1.0 } else { xb[i] } * if q == 0 { 1.0 } else { xb[i] } / 0.01).sum::<f64>();
+        let fb = |p: usize, q: usize| {
+            (0..2).map(|i| if p == 0 { 1.0 } else { xb[i] } * if q == 0 { 1.0 } else { xb[i] } / 0.01).sum::<f64>()
+        };
         for p in 0..2 {
             for q in 0..2 {
                 let expect = fa(p, q) + fb(p, q);
-                assert!((f[p + 2 * q] - expect).abs() < 1e-6 * expect.abs().max(1.0), "F[{p},{q}] = {} vs {expect}", f[p + 2 * q]);
+                assert!(
+                    (f[p + 2 * q] - expect).abs() < 1e-6 * expect.abs().max(1.0),
+                    "F[{p},{q}] = {} vs {expect}",
+                    f[p + 2 * q]
+                );
             }
         }
     }
@@ -161,19 +216,40 @@ mod tests {
     fn bad_covariance_files_are_refused_naming_the_row() {
         let m = data();
         let cases = [
-            (vec![entry("a", 0.5, "a", 1.0, 0.01, 7)], "cov.csv: line 7, fields 'observable_a', 'x_a': data.csv has no measurement of 'a' at x = 0.5"),
-            (vec![entry("a", 0.0, "a", 1.0, 0.01, 2), entry("a", 1.0, "a", 0.0, 0.02, 3)], "cov.csv: line 3, field 'covariance': 0.02 contradicts"),
-            (vec![entry("a", 0.0, "a", 1.0, 0.5, 2)], "the covariance of 'a' with its errors² on the diagonal is not positive definite"),
+            (
+                vec![entry("a", 0.5, "a", 1.0, 0.01, 7)],
+                "cov.csv: line 7, fields 'observable_a', 'x_a': data.csv has no measurement of 'a' at x = 0.5",
+            ),
+            (
+                vec![entry("a", 0.0, "a", 1.0, 0.01, 2), entry("a", 1.0, "a", 0.0, 0.02, 3)],
+                "cov.csv: line 3, field 'covariance': 0.02 contradicts",
+            ),
+            (
+                vec![entry("a", 0.0, "a", 1.0, 0.5, 2)],
+                "the covariance of 'a' with its errors² on the diagonal is not positive definite",
+            ),
         ];
         for (entries, expect) in cases {
             let mut b = blocks(&m);
-            let msg = format!("{:#}", attach(&mut b, &entries, &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap_err());
+            let msg =
+                format!("{:#}", attach(&mut b, &entries, &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap_err());
             assert!(msg.contains(expect), "{msg}");
         }
         // Both orders of a pair, agreeing, are fine; an unselected observable's entries are skipped.
         let mut b = blocks(&m);
         b.truncate(1);
-        attach(&mut b, &[entry("a", 0.0, "a", 1.0, 0.01, 2), entry("a", 1.0, "a", 0.0, 0.01, 3), entry("b", 0.0, "b", 2.0, 0.001, 4)], &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
+        attach(
+            &mut b,
+            &[
+                entry("a", 0.0, "a", 1.0, 0.01, 2),
+                entry("a", 1.0, "a", 0.0, 0.01, 3),
+                entry("b", 0.0, "b", 2.0, 0.001, 4),
+            ],
+            &m,
+            Path::new("cov.csv"),
+            Path::new("data.csv"),
+        )
+        .unwrap();
         assert_eq!(b[0].covariance.as_ref().unwrap()[1], 0.01);
     }
 

@@ -70,9 +70,7 @@ fn z_scale(chains: &[Vec<f64>]) -> Vec<Vec<f64>> {
     let mut offset = 0;
     for c in chains {
         out.push(
-            (0..c.len())
-                .map(|k| normal.inverse_cdf((ranks[offset + k] - 0.375) / (total as f64 + 0.25)))
-                .collect(),
+            (0..c.len()).map(|k| normal.inverse_cdf((ranks[offset + k] - 0.375) / (total as f64 + 0.25))).collect(),
         );
         offset += c.len();
     }
@@ -190,7 +188,8 @@ pub fn ess_tail(chains: &[Vec<f64>]) -> f64 {
     let mut worst = f64::INFINITY;
     for q in [0.05, 0.95] {
         let cut = quantile(&all, q);
-        let ind: Vec<Vec<f64>> = split.iter().map(|c| c.iter().map(|&x| if x <= cut { 1.0 } else { 0.0 }).collect()).collect();
+        let ind: Vec<Vec<f64>> =
+            split.iter().map(|c| c.iter().map(|&x| if x <= cut { 1.0 } else { 0.0 }).collect()).collect();
         worst = worst.min(ess_basic(&ind));
     }
     worst

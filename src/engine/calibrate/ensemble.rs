@@ -56,7 +56,13 @@ impl Ensemble {
         Ensemble { settings }
     }
 
-    pub fn run(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, observer: &dyn Observer) -> EnsembleOutput {
+    pub fn run(
+        &self,
+        prior: &UniformPrior,
+        likelihood: &dyn LogLikelihood,
+        seed: u64,
+        observer: &dyn Observer,
+    ) -> EnsembleOutput {
         let dim = prior.dim();
         let mut n_walkers = if self.settings.walkers == 0 { (4 * dim).max(32) } else { self.settings.walkers.max(4) };
         n_walkers += n_walkers % 2;
@@ -78,7 +84,14 @@ impl Ensemble {
                 let mut rng = master.clone();
                 let mut x = vec![0.0; dim];
                 prior.sample(&mut rng, &mut x);
-                Walker { x, prop: vec![0.0; dim], log_post: f64::NEG_INFINITY, rng, accepted: 0, trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim) }
+                Walker {
+                    x,
+                    prop: vec![0.0; dim],
+                    log_post: f64::NEG_INFINITY,
+                    rng,
+                    accepted: 0,
+                    trace: Vec::with_capacity(self.settings.steps / self.settings.thin.max(1) * dim + dim),
+                }
             })
             .collect();
         walkers.par_iter_mut().for_each(|w| w.log_post = log_post(&w.x));
@@ -121,7 +134,8 @@ impl Ensemble {
             }
             observer.advance(1);
         }
-        let acceptance = walkers.iter().map(|w| w.accepted).sum::<u64>() as f64 / (n_walkers * self.settings.steps.max(1)) as f64;
+        let acceptance =
+            walkers.iter().map(|w| w.accepted).sum::<u64>() as f64 / (n_walkers * self.settings.steps.max(1)) as f64;
         let chains = Chains { names: prior.names.clone(), dim, chains: walkers.into_iter().map(|w| w.trace).collect() };
         EnsembleOutput { chains, acceptance, likelihood_evaluations: evaluations }
     }

@@ -77,7 +77,16 @@ impl MdLikelihood {
         let n_theta = simulator.parameter_names().len();
         let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
         let model_covariance = simulator.has_model_covariance();
-        MdLikelihood { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), simulator, blocks, kernel, n_theta, log_jacobian, model_covariance, joint: None }
+        MdLikelihood {
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+            simulator,
+            blocks,
+            kernel,
+            n_theta,
+            log_jacobian,
+            model_covariance,
+            joint: None,
+        }
     }
 
     /// This likelihood as one Gaussian over all points, with the data's
@@ -189,7 +198,8 @@ impl MdLikelihood {
     /// factorization instead of N × N. `None` for the block form (its terms
     /// are exact) and without δ.
     pub fn screening_term(&self, params: &[f64], b: usize) -> Option<f64> {
-        (self.joint.is_some() && self.kernel.is_some()).then(|| self.with_workspace(|ws| self.block_log_likelihood(params, b, ws)))
+        (self.joint.is_some() && self.kernel.is_some())
+            .then(|| self.with_workspace(|ws| self.block_log_likelihood(params, b, ws)))
     }
 
     /// Fisher information of θ for the model without MD at `theta`,
@@ -203,7 +213,8 @@ impl MdLikelihood {
             return None;
         }
         let d = self.n_theta;
-        let jacobians: Vec<Vec<f64>> = self.blocks.iter().map(|b| self.standardized_jacobian(b, theta, steps)).collect();
+        let jacobians: Vec<Vec<f64>> =
+            self.blocks.iter().map(|b| self.standardized_jacobian(b, theta, steps)).collect();
         let whitened: Vec<(Vec<f64>, usize)> = match &self.joint {
             Some(joint) => {
                 let n = joint.len();
@@ -211,7 +222,8 @@ impl MdLikelihood {
                 for (b, jac) in jacobians.iter().enumerate() {
                     let nb = self.blocks[b].len();
                     for k in 0..d {
-                        whole[k * n + joint.offsets[b]..k * n + joint.offsets[b] + nb].copy_from_slice(&jac[k * nb..(k + 1) * nb]);
+                        whole[k * n + joint.offsets[b]..k * n + joint.offsets[b] + nb]
+                            .copy_from_slice(&jac[k * nb..(k + 1) * nb]);
                     }
                 }
                 vec![(whiten(joint.data.clone(), n, whole, d)?, n)]
@@ -296,7 +308,15 @@ impl MdLikelihood {
     /// standardized residuals at `params`: the θ-dependent base (see
     /// `joint_base`) plus each block's δ (`with_delta`; then `params` holds φ
     /// after θ).
-    fn fill_joint(&self, joint: &JointLayout, params: &[f64], with_delta: bool, ws: &mut Workspace, lower: &mut [f64], resid: &mut [f64]) {
+    fn fill_joint(
+        &self,
+        joint: &JointLayout,
+        params: &[f64],
+        with_delta: bool,
+        ws: &mut Workspace,
+        lower: &mut [f64],
+        resid: &mut [f64],
+    ) {
         let base = self.joint_base(joint, &params[..self.n_theta], ws);
         copy_lower(&ws.joint_bases[base].lower, lower, joint.len());
         resid.copy_from_slice(&ws.joint_bases[base].resid);
@@ -320,12 +340,20 @@ impl MdLikelihood {
         }
         let n_all = joint.len();
         let slot = if ws.joint_bases.len() < JOINT_BASES {
-            ws.joint_bases.push(JointBase { theta: Vec::new(), lower: vec![0.0; n_all * n_all], resid: vec![0.0; n_all], last_used: 0 });
+            ws.joint_bases.push(JointBase {
+                theta: Vec::new(),
+                lower: vec![0.0; n_all * n_all],
+                resid: vec![0.0; n_all],
+                last_used: 0,
+            });
             ws.joint_bases.len() - 1
         } else {
             (0..ws.joint_bases.len()).min_by_key(|&i| ws.joint_bases[i].last_used).unwrap_or(0)
         };
-        let mut base = std::mem::replace(&mut ws.joint_bases[slot], JointBase { theta: Vec::new(), lower: Vec::new(), resid: Vec::new(), last_used: 0 });
+        let mut base = std::mem::replace(
+            &mut ws.joint_bases[slot],
+            JointBase { theta: Vec::new(), lower: Vec::new(), resid: Vec::new(), last_used: 0 },
+        );
         base.theta.clear();
         base.theta.extend_from_slice(theta);
         base.last_used = ws.clock;
@@ -341,7 +369,13 @@ impl MdLikelihood {
             if own_model {
                 let factor = &mut ws.chol[b].factor;
                 factor.iter_mut().for_each(|v| *v = 0.0);
-                self.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), factor);
+                self.simulator.add_model_covariance(
+                    block.model_index,
+                    &block.x,
+                    theta,
+                    1.0 / (block.scale * block.scale),
+                    factor,
+                );
                 add_lower_block(factor, n, at, &mut base.lower, n_all);
             }
         }
@@ -393,11 +427,23 @@ impl MdLikelihood {
         } else {
             let chol = &mut ws.chol[b];
             match self.kernel {
-                Some(kernel) => block.gram.fill_lower(kernel, self.hyper_of(params, b), &mut chol.factor, &mut ws.xr[..n], &mut ws.corr),
+                Some(kernel) => block.gram.fill_lower(
+                    kernel,
+                    self.hyper_of(params, b),
+                    &mut chol.factor,
+                    &mut ws.xr[..n],
+                    &mut ws.corr,
+                ),
                 None => chol.factor.iter_mut().for_each(|v| *v = 0.0),
             }
             if self.model_covariance {
-                self.simulator.add_model_covariance(block.model_index, &block.x, theta, inv_scale * inv_scale, &mut chol.factor);
+                self.simulator.add_model_covariance(
+                    block.model_index,
+                    &block.x,
+                    theta,
+                    inv_scale * inv_scale,
+                    &mut chol.factor,
+                );
             }
             block.add_data_covariance(inv_scale * inv_scale, &mut chol.factor);
             if chol.factorize().is_err() {

@@ -23,12 +23,12 @@ use crate::base::artifacts::{self, Measurement, Provenance};
 use crate::base::progress::Observer;
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::Simulator;
-use anyhow::{anyhow, bail, Context, Result};
 pub use analysis::Analysis;
+use anyhow::{anyhow, bail, Context, Result};
 pub use block::ObservableBlock;
 pub use likelihood::MdLikelihood;
-pub use settings::{SamplerConfig, SamplerKind};
 pub use prior::UniformPrior;
+pub use settings::{SamplerConfig, SamplerKind};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -83,7 +83,8 @@ impl LogLikelihood for MdLikelihood {
         if nh == 0 {
             return None;
         }
-        let own = (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
+        let own =
+            (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
         Some(TermStructure { shared: (0..self.n_theta).collect(), own, separable: self.joint.is_none() })
     }
     fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64 {
@@ -158,7 +159,11 @@ impl Problem {
         check_observables_known(analysis, &simulator, &measurements, &data_path)?;
         let selected: Vec<String> = match (&overrides.observables, &analysis.observables) {
             (Some(o), _) | (None, Some(o)) => o.clone(),
-            (None, None) => simulator.observable_names().into_iter().filter(|o| measurements.iter().any(|m| &m.observable == o)).collect(),
+            (None, None) => simulator
+                .observable_names()
+                .into_iter()
+                .filter(|o| measurements.iter().any(|m| &m.observable == o))
+                .collect(),
         };
         let mut blocks: Vec<ObservableBlock> = observable_blocks(&simulator, &selected, &measurements, &data_path)?
             .into_iter()
@@ -169,7 +174,8 @@ impl Problem {
             .collect();
         let across = match (&analysis.covariance, &overrides.data) {
             (Some(path), None) => {
-                let entries = data_covariance::read(path).with_context(|| format!("{}: [data] covariance", analysis.config_path.display()))?;
+                let entries = data_covariance::read(path)
+                    .with_context(|| format!("{}: [data] covariance", analysis.config_path.display()))?;
                 data_covariance::attach(&mut blocks, &entries, &measurements, path, &data_path)?
             }
             (Some(path), Some(_)) => {
@@ -201,29 +207,52 @@ impl Problem {
     }
 
     pub fn provenance(&self, seed: u64, command: &str) -> Provenance {
-        Provenance::new(self.analysis.config_hash.clone(), artifacts::measurements_hash(&self.measurements), seed, command)
+        Provenance::new(
+            self.analysis.config_hash.clone(),
+            artifacts::measurements_hash(&self.measurements),
+            seed,
+            command,
+        )
     }
 }
 
 /// Every row must belong to an observable the model knows, so that a
 /// misspelt name is an error, never silently dropped data.
-fn check_observables_known(analysis: &Analysis, simulator: &Arc<dyn Simulator>, measurements: &[Measurement], data_path: &Path) -> Result<()> {
+fn check_observables_known(
+    analysis: &Analysis,
+    simulator: &Arc<dyn Simulator>,
+    measurements: &[Measurement],
+    data_path: &Path,
+) -> Result<()> {
     let model_obs = simulator.observable_names();
     if let Some(m) = measurements.iter().find(|m| !model_obs.contains(&m.observable)) {
-        bail!("{}, field 'observable': unknown observable '{}' (model '{}' predicts: {})", m.location(data_path), m.observable, analysis.name, model_obs.join(", "));
+        bail!(
+            "{}, field 'observable': unknown observable '{}' (model '{}' predicts: {})",
+            m.location(data_path),
+            m.observable,
+            analysis.name,
+            model_obs.join(", ")
+        );
     }
     Ok(())
 }
 
 /// One standardized block per selected observable, checked against the model.
-fn observable_blocks(simulator: &Arc<dyn Simulator>, selected: &[String], measurements: &[Measurement], data_path: &Path) -> Result<Vec<ObservableBlock>> {
+fn observable_blocks(
+    simulator: &Arc<dyn Simulator>,
+    selected: &[String],
+    measurements: &[Measurement],
+    data_path: &Path,
+) -> Result<Vec<ObservableBlock>> {
     if selected.is_empty() {
         bail!("no observables selected");
     }
     let model_obs = simulator.observable_names();
     let mut blocks = Vec::new();
     for name in selected {
-        let idx = model_obs.iter().position(|o| o == name).ok_or_else(|| anyhow!("unknown observable '{name}' requested (model predicts: {})", model_obs.join(", ")))?;
+        let idx = model_obs.iter().position(|o| o == name).ok_or_else(|| {
+            anyhow!("unknown observable '{name}' requested (model predicts: {})", model_obs.join(", "))
+        })?;
         let rows: Vec<&Measurement> = measurements.iter().filter(|m| &m.observable == name).collect();
         if rows.is_empty() {
             bail!("{}: no measurements of observable '{name}'", data_path.display());
@@ -242,7 +271,10 @@ fn prior_of(analysis: &Analysis, likelihood: &MdLikelihood) -> Result<UniformPri
     let theta_names = likelihood.simulator.parameter_names();
     let (mut lower, mut upper) = (Vec::new(), Vec::new());
     for name in &theta_names {
-        let spec = analysis.parameters.get(name).ok_or_else(|| anyhow!("{file}: [parameters] has no bounds for model parameter '{name}'"))?;
+        let spec = analysis
+            .parameters
+            .get(name)
+            .ok_or_else(|| anyhow!("{file}: [parameters] has no bounds for model parameter '{name}'"))?;
         lower.push(spec.min);
         upper.push(spec.max);
     }
@@ -288,8 +320,17 @@ pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
         problem.analysis.sampler.smc,
         // The data's covariance beyond the errors, and the joint form, change the likelihood too.
         (
-            problem.likelihood.blocks.iter().map(|b| b.covariance.as_ref().map(|c| c.iter().map(|v| v.to_bits()).collect::<Vec<u64>>())).collect::<Vec<_>>(),
-            problem.likelihood.joint.as_ref().map(|j| (j.data.iter().map(|v| v.to_bits()).collect::<Vec<u64>>(), j.model_spans))
+            problem
+                .likelihood
+                .blocks
+                .iter()
+                .map(|b| b.covariance.as_ref().map(|c| c.iter().map(|v| v.to_bits()).collect::<Vec<u64>>()))
+                .collect::<Vec<_>>(),
+            problem
+                .likelihood
+                .joint
+                .as_ref()
+                .map(|j| (j.data.iter().map(|v| v.to_bits()).collect::<Vec<u64>>(), j.model_spans))
         )
     );
     artifacts::sha256_hex(material.as_bytes())
@@ -306,7 +347,13 @@ struct Sampled {
 /// Calibrates with checkpoints in `checkpoint`, writes the outputs into
 /// `dir`, and only then clears the checkpoint: a failed write (a full disk)
 /// keeps the sampled state, and the same command finishes from it.
-pub fn run_and_write(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: &checkpoint::Checkpointing, dir: &Path) -> Result<Calibration> {
+pub fn run_and_write(
+    problem: &Problem,
+    seed: u64,
+    observer: &dyn Observer,
+    checkpoint: &checkpoint::Checkpointing,
+    dir: &Path,
+) -> Result<Calibration> {
     let cal = run_checkpointed(problem, seed, observer, Some(checkpoint))?;
     write_outputs(dir, problem, &cal)?;
     checkpoint.clear();
@@ -317,25 +364,50 @@ pub fn run_and_write(problem: &Problem, seed: u64, observer: &dyn Observer, chec
 /// resumes from a matching saved state (the caller clears it once the
 /// outputs are safe: [`run_and_write`]). Stopped at the checkpoint's time
 /// limit it returns a `checkpoint::Stopped` error.
-pub fn run_checkpointed(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: Option<&checkpoint::Checkpointing>) -> Result<Calibration> {
+pub fn run_checkpointed(
+    problem: &Problem,
+    seed: u64,
+    observer: &dyn Observer,
+    checkpoint: Option<&checkpoint::Checkpointing>,
+) -> Result<Calibration> {
     let start = std::time::Instant::now();
     let jitter_before = crate::engine::gp::jitter_events();
     let failures_before = problem.simulator.failures();
     guard::check(problem, seed)?;
-    let label = format!("{} kernel={} obs={}", problem.analysis.name, DiscrepancyKernel::label(problem.likelihood.kernel), problem.observables().join("+"));
+    let label = format!(
+        "{} kernel={} obs={}",
+        problem.analysis.name,
+        DiscrepancyKernel::label(problem.likelihood.kernel),
+        problem.observables().join("+")
+    );
     let sampled = match problem.sampler {
         SamplerKind::Smc => run_smc(problem, seed, observer, checkpoint, &label)?,
         SamplerKind::Ensemble => run_ensemble(problem, seed, observer, &label),
     };
     let wall = start.elapsed().as_secs_f64();
     let jitter = crate::engine::gp::jitter_events() - jitter_before;
-    let mut summary = summary::summarize(problem, &sampled.chains, sampled.evidence, sampled.details, sampled.evaluations, wall, jitter, seed);
+    let mut summary = summary::summarize(
+        problem,
+        &sampled.chains,
+        sampled.evidence,
+        sampled.details,
+        sampled.evaluations,
+        wall,
+        jitter,
+        seed,
+    );
     summary.diagnostics.note_model_failures(problem.simulator.failures() - failures_before);
     let predictions = summary::predictions(problem, &sampled.chains, seed)?;
     Ok(Calibration { chains: sampled.chains, summary, predictions })
 }
 
-fn run_smc(problem: &Problem, seed: u64, observer: &dyn Observer, checkpoint: Option<&checkpoint::Checkpointing>, label: &str) -> Result<Sampled> {
+fn run_smc(
+    problem: &Problem,
+    seed: u64,
+    observer: &dyn Observer,
+    checkpoint: Option<&checkpoint::Checkpointing>,
+    label: &str,
+) -> Result<Sampled> {
     let settings = problem.analysis.sampler.smc.clone();
     observer.begin(&format!("SMC {label}"), 1000 * settings.replicates as u64);
     let out = smc::Smc::new(settings).run_checkpointed(&problem.prior, &problem.likelihood, seed, observer, checkpoint);
@@ -359,9 +431,16 @@ fn run_ensemble(problem: &Problem, seed: u64, observer: &dyn Observer, label: &s
 pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let prov = &cal.summary.provenance;
-    let mut cols: Vec<(String, Vec<f64>)> = (0..cal.chains.dim).map(|p| (cal.chains.names[p].clone(), cal.chains.param(p))).collect();
+    let mut cols: Vec<(String, Vec<f64>)> =
+        (0..cal.chains.dim).map(|p| (cal.chains.names[p].clone(), cal.chains.param(p))).collect();
     // Which chain each draw came from, so diagnostics can be recomputed.
-    let chain_ids: Vec<f64> = cal.chains.chains.iter().enumerate().flat_map(|(k, c)| std::iter::repeat_n(k as f64, c.len() / cal.chains.dim)).collect();
+    let chain_ids: Vec<f64> = cal
+        .chains
+        .chains
+        .iter()
+        .enumerate()
+        .flat_map(|(k, c)| std::iter::repeat_n(k as f64, c.len() / cal.chains.dim))
+        .collect();
     cols.push(("chain".into(), chain_ids));
     let mut df = artifacts::f64_frame(cols)?;
     // All four or none: a full disk must not leave a new posterior beside an old summary.
@@ -371,7 +450,8 @@ pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result
     let mut pred = summary::predictions_frame(&cal.predictions)?;
     staged.parquet(&dir.join("predictions.parquet"), &mut pred, Some(prov))?;
     // The measurements fitted, so that reports and re-analyses need nothing else.
-    let used: Vec<Measurement> = problem.measurements.iter().filter(|m| problem.observables().contains(&m.observable)).cloned().collect();
+    let used: Vec<Measurement> =
+        problem.measurements.iter().filter(|m| problem.observables().contains(&m.observable)).cloned().collect();
     artifacts::stage_measurements(&mut staged, &dir.join("measurements.parquet"), &used, Some(prov))?;
     staged.commit()
 }

@@ -18,7 +18,12 @@ impl UniformPrior {
         assert_eq!(names.len(), upper.len());
         for i in 0..names.len() {
             if !(lower[i].is_finite() && upper[i].is_finite() && lower[i] < upper[i]) {
-                bail!("prior bounds for '{}' must be finite with min < max, got ({}, {})", names[i], lower[i], upper[i]);
+                bail!(
+                    "prior bounds for '{}' must be finite with min < max, got ({}, {})",
+                    names[i],
+                    lower[i],
+                    upper[i]
+                );
             }
         }
         let log_density = -(0..names.len()).map(|i| (upper[i] - lower[i]).ln()).sum::<f64>();
@@ -121,10 +126,12 @@ mod tests {
         assert!((fused - prior.log_density_unbounded(&u)).abs() < 1e-12);
         // Far tails: still finite and equal to the slow form.
         let far = [-40.0, 35.0];
-        assert!((prior.from_unbounded_with_log_density(&far, &mut back) - prior.log_density_unbounded(&far)).abs() < 1e-9);
+        assert!(
+            (prior.from_unbounded_with_log_density(&far, &mut back) - prior.log_density_unbounded(&far)).abs() < 1e-9
+        );
         // The logistic density integrates to one.
         let h = 0.001;
-        let total: f64 = (-40000..40000).map(|k| (prior.log_density_unbounded(&[k as f64 * h]) ).exp() * h).sum();
+        let total: f64 = (-40000..40000).map(|k| (prior.log_density_unbounded(&[k as f64 * h])).exp() * h).sum();
         assert!((total - 1.0).abs() < 1e-6, "{total}");
     }
 }

@@ -47,12 +47,42 @@ impl SamplerConfig {
         let checks: [(bool, &str, String); 8] = [
             (s.particles >= 2, "smc.particles", format!("{} (need at least 2)", s.particles)),
             (s.replicates >= 1, "smc.replicates", format!("{} (need at least 1)", s.replicates)),
-            (s.ess_fraction > 0.0 && s.ess_fraction < 1.0, "smc.ess_fraction", format!("{} (need 0 < ess_fraction < 1: at 1 no tempering step can keep the ESS)", s.ess_fraction)),
-            (s.steps_per_dim > 0.0 && s.steps_per_dim.is_finite() && s.max_steps_per_dim >= s.steps_per_dim && s.max_steps_per_dim.is_finite(), "smc.steps_per_dim", format!("{} with max_steps_per_dim {} (need 0 < steps_per_dim <= max_steps_per_dim, finite)", s.steps_per_dim, s.max_steps_per_dim)),
-            (s.final_steps_per_dim >= 0.0 && s.final_steps_per_dim.is_finite(), "smc.final_steps_per_dim", format!("{} (need a finite number >= 0)", s.final_steps_per_dim)),
-            (s.target_acceptance > 0.0 && s.target_acceptance < 1.0, "smc.target_acceptance", format!("{} (need 0 < target_acceptance < 1)", s.target_acceptance)),
-            (self.ensemble.steps >= 1 && self.ensemble.thin >= 1, "ensemble.steps/thin", format!("{} / {} (need at least 1 each)", self.ensemble.steps, self.ensemble.thin)),
-            (self.ensemble.stretch > 1.0 && self.ensemble.stretch.is_finite(), "ensemble.stretch", format!("{} (need a finite a > 1)", self.ensemble.stretch)),
+            (
+                s.ess_fraction > 0.0 && s.ess_fraction < 1.0,
+                "smc.ess_fraction",
+                format!("{} (need 0 < ess_fraction < 1: at 1 no tempering step can keep the ESS)", s.ess_fraction),
+            ),
+            (
+                s.steps_per_dim > 0.0
+                    && s.steps_per_dim.is_finite()
+                    && s.max_steps_per_dim >= s.steps_per_dim
+                    && s.max_steps_per_dim.is_finite(),
+                "smc.steps_per_dim",
+                format!(
+                    "{} with max_steps_per_dim {} (need 0 < steps_per_dim <= max_steps_per_dim, finite)",
+                    s.steps_per_dim, s.max_steps_per_dim
+                ),
+            ),
+            (
+                s.final_steps_per_dim >= 0.0 && s.final_steps_per_dim.is_finite(),
+                "smc.final_steps_per_dim",
+                format!("{} (need a finite number >= 0)", s.final_steps_per_dim),
+            ),
+            (
+                s.target_acceptance > 0.0 && s.target_acceptance < 1.0,
+                "smc.target_acceptance",
+                format!("{} (need 0 < target_acceptance < 1)", s.target_acceptance),
+            ),
+            (
+                self.ensemble.steps >= 1 && self.ensemble.thin >= 1,
+                "ensemble.steps/thin",
+                format!("{} / {} (need at least 1 each)", self.ensemble.steps, self.ensemble.thin),
+            ),
+            (
+                self.ensemble.stretch > 1.0 && self.ensemble.stretch.is_finite(),
+                "ensemble.stretch",
+                format!("{} (need a finite a > 1)", self.ensemble.stretch),
+            ),
         ];
         match checks.into_iter().find(|(ok, _, _)| !ok) {
             Some((_, field, got)) => Err(format!("{field} = {got}")),

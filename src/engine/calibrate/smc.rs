@@ -129,14 +129,27 @@ impl Smc {
     }
 
     /// Runs every replicate; an error when tempering cannot go on.
-    pub fn run(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, observer: &dyn Observer) -> Result<SmcOutput, Stopped> {
+    pub fn run(
+        &self,
+        prior: &UniformPrior,
+        likelihood: &dyn LogLikelihood,
+        seed: u64,
+        observer: &dyn Observer,
+    ) -> Result<SmcOutput, Stopped> {
         self.run_checkpointed(prior, likelihood, seed, observer, None)
     }
 
     /// As `run`, saving each replicate's state after tempering steps and
     /// resuming from what an earlier, interrupted run of the same problem saved
     /// (`replicate_<k>` while it runs, `replicate_<k>.done` once finished).
-    pub fn run_checkpointed(&self, prior: &UniformPrior, likelihood: &dyn LogLikelihood, seed: u64, observer: &dyn Observer, ck: Option<&Checkpointing>) -> Result<SmcOutput, Stopped> {
+    pub fn run_checkpointed(
+        &self,
+        prior: &UniformPrior,
+        likelihood: &dyn LogLikelihood,
+        seed: u64,
+        observer: &dyn Observer,
+        ck: Option<&Checkpointing>,
+    ) -> Result<SmcOutput, Stopped> {
         let k = self.settings.replicates.max(1);
         let kernel = Kernel::new(&self.settings, prior, likelihood);
         let started = std::time::Instant::now();
@@ -147,7 +160,11 @@ impl Smc {
                 kernel.run_replicate(rseed, observer, ck.map(|c| (c, r)))
             })
             .collect();
-        let stopped = |reason| Stopped { dir: ck.map(|c| c.dir.clone()).unwrap_or_default(), seconds: started.elapsed().as_secs_f64(), reason };
+        let stopped = |reason| Stopped {
+            dir: ck.map(|c| c.dir.clone()).unwrap_or_default(),
+            seconds: started.elapsed().as_secs_f64(),
+            reason,
+        };
         let mut replicates = Vec::with_capacity(k);
         for (r, end) in results.into_iter().enumerate() {
             match end {
@@ -162,7 +179,11 @@ impl Smc {
         let log_evidence = log_sum_exp(&logs) - (k as f64).ln();
         let rel_var: f64 = replicates.iter().map(|r| r.relative_variance.max(0.0)).sum::<f64>() / (k * k) as f64;
         let log_evidence_err = rel_var.ln_1p().sqrt();
-        let chains = Chains { names: prior.names.clone(), dim: prior.dim(), chains: replicates.iter().map(|r| r.particles.clone()).collect() };
+        let chains = Chains {
+            names: prior.names.clone(),
+            dim: prior.dim(),
+            chains: replicates.iter().map(|r| r.particles.clone()).collect(),
+        };
         Ok(SmcOutput { chains, log_evidence, log_evidence_err, replicates })
     }
 }
@@ -304,7 +325,12 @@ struct MoveGroup {
 /// term, not the whole likelihood, which is what makes many observables with
 /// their own discrepancy hyperparameters affordable.
 fn move_groups(dim: usize, structure: Option<&TermStructure>) -> Vec<MoveGroup> {
-    let group = |coords: Vec<usize>, term| MoveGroup { scale: 2.38 / (coords.len() as f64).sqrt(), factor: Vec::new(), coords, term };
+    let group = |coords: Vec<usize>, term| MoveGroup {
+        scale: 2.38 / (coords.len() as f64).sqrt(),
+        factor: Vec::new(),
+        coords,
+        term,
+    };
     let mut groups = vec![group((0..dim).collect(), None)];
     if let Some(st) = structure {
         if !st.shared.is_empty() {
@@ -389,9 +415,21 @@ impl MoveCounts {
 /// `sweeps` rounds of random-walk Metropolis moves, one per group in turn, of
 /// every particle at inverse temperature β (target `L(x(u))^β π_u(u)`).
 #[allow(clippy::too_many_arguments)]
-fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGroup], beta: f64, sweeps: usize, prior: &UniformPrior, likelihood: &dyn LogLikelihood) -> MoveCounts {
+fn mutate(
+    cloud: &mut Cloud,
+    rngs: &mut [Xoshiro256PlusPlus],
+    groups: &[MoveGroup],
+    beta: f64,
+    sweeps: usize,
+    prior: &UniformPrior,
+    likelihood: &dyn LogLikelihood,
+) -> MoveCounts {
     let (dim, nt) = (cloud.dim, cloud.n_terms);
-    let mut term_chunks: Vec<&mut [f64]> = if nt > 0 { cloud.terms.chunks_mut(nt).collect() } else { (0..cloud.loglik.len()).map(|_| &mut [][..]).collect() };
+    let mut term_chunks: Vec<&mut [f64]> = if nt > 0 {
+        cloud.terms.chunks_mut(nt).collect()
+    } else {
+        (0..cloud.loglik.len()).map(|_| &mut [][..]).collect()
+    };
     cloud
         .x
         .par_chunks_mut(dim)
@@ -400,8 +438,10 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
         .zip(term_chunks.par_iter_mut())
         .zip(rngs.par_iter_mut())
         .map(|((((xi, li), pi), ti), rng)| {
-            let (mut z, mut prop, mut prop_x, mut cur_x, mut prop_terms) = (vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; nt]);
-            let mut counts = MoveCounts { accepted: vec![0; groups.len()], proposed: vec![0; groups.len()], ..Default::default() };
+            let (mut z, mut prop, mut prop_x, mut cur_x, mut prop_terms) =
+                (vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; nt]);
+            let mut counts =
+                MoveCounts { accepted: vec![0; groups.len()], proposed: vec![0; groups.len()], ..Default::default() };
             // Each term's screen at the current point, NaN until computed;
             // reset whenever a move changes the shared parameters.
             let mut screens = vec![f64::NAN; groups.iter().filter_map(|g| g.term).max().map_or(0, |t| t + 1)];
@@ -431,7 +471,9 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
                     // Terms that are not separable (nt = 0) move at the cost of a
                     // whole evaluation, paid only for moves their screen lets through.
                     let screened = match g.term {
-                        Some(t) if nt == 0 => screen_change(likelihood, prior, xi, &prop_x, &mut cur_x, &mut screens[t], t),
+                        Some(t) if nt == 0 => {
+                            screen_change(likelihood, prior, xi, &prop_x, &mut cur_x, &mut screens[t], t)
+                        }
                         None | Some(_) => None,
                     };
                     if let Some((ds, _)) = screened {
@@ -449,7 +491,11 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
                         }
                         _ => {
                             counts.full_evaluations += 1;
-                            let lp = if nt > 0 { likelihood.log_likelihood_terms(&prop_x, &mut prop_terms) } else { likelihood.log_likelihood(&prop_x) };
+                            let lp = if nt > 0 {
+                                likelihood.log_likelihood_terms(&prop_x, &mut prop_terms)
+                            } else {
+                                likelihood.log_likelihood(&prop_x)
+                            };
                             (lp, f64::NAN)
                         }
                     };
@@ -460,7 +506,13 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
                         Some((ds, _)) => -beta * ds,
                         None => lpi - *pi,
                     };
-                    let log_ratio = if li.is_finite() { beta * (lp - *li) + second } else if lp.is_finite() { f64::INFINITY } else { f64::NEG_INFINITY };
+                    let log_ratio = if li.is_finite() {
+                        beta * (lp - *li) + second
+                    } else if lp.is_finite() {
+                        f64::INFINITY
+                    } else {
+                        f64::NEG_INFINITY
+                    };
                     let u: f64 = rng.random();
                     if u.ln() < log_ratio {
                         xi.copy_from_slice(&prop);
@@ -497,7 +549,15 @@ fn mutate(cloud: &mut Cloud, rngs: &mut [Xoshiro256PlusPlus], groups: &[MoveGrou
 /// point (NaN: not yet computed; then it is). Returns the change and the
 /// screen at the proposal.
 #[allow(clippy::too_many_arguments)]
-fn screen_change(likelihood: &dyn LogLikelihood, prior: &UniformPrior, u: &[f64], prop_x: &[f64], cur_x: &mut [f64], at_cur: &mut f64, t: usize) -> Option<(f64, f64)> {
+fn screen_change(
+    likelihood: &dyn LogLikelihood,
+    prior: &UniformPrior,
+    u: &[f64],
+    prop_x: &[f64],
+    cur_x: &mut [f64],
+    at_cur: &mut f64,
+    t: usize,
+) -> Option<(f64, f64)> {
     let at_prop = likelihood.screening_term(prop_x, t)?;
     if at_cur.is_nan() {
         prior.from_unbounded(u, cur_x);
@@ -509,11 +569,18 @@ fn screen_change(likelihood: &dyn LogLikelihood, prior: &UniformPrior, u: &[f64]
 
 /// Draws the particles from the prior, in the unbounded coordinates u (see
 /// `UniformPrior::to_unbounded`), with their log-likelihoods (and terms).
-fn initial_cloud(prior: &UniformPrior, likelihood: &dyn LogLikelihood, rngs: &mut [Xoshiro256PlusPlus], n: usize, n_terms: usize) -> Cloud {
+fn initial_cloud(
+    prior: &UniformPrior,
+    likelihood: &dyn LogLikelihood,
+    rngs: &mut [Xoshiro256PlusPlus],
+    n: usize,
+    n_terms: usize,
+) -> Cloud {
     let dim = prior.dim();
     let mut x = vec![0.0; n * dim];
     let mut terms = vec![0.0; n * n_terms];
-    let mut term_chunks: Vec<&mut [f64]> = if n_terms > 0 { terms.chunks_mut(n_terms).collect() } else { (0..n).map(|_| &mut [][..]).collect() };
+    let mut term_chunks: Vec<&mut [f64]> =
+        if n_terms > 0 { terms.chunks_mut(n_terms).collect() } else { (0..n).map(|_| &mut [][..]).collect() };
     let loglik: Vec<f64> = x
         .par_chunks_mut(dim)
         .zip(rngs.par_iter_mut())
@@ -591,7 +658,8 @@ impl<'a> Kernel<'a> {
         let structure = likelihood.term_structure();
         // A sweep moves every group once, so its length is set by the largest group
         // that is not the joint move (or by the joint move when it is alone).
-        let sweep_dim = move_groups(dim, structure.as_ref()).iter().skip(1).map(|g| g.coords.len()).max().unwrap_or(dim);
+        let sweep_dim =
+            move_groups(dim, structure.as_ref()).iter().skip(1).map(|g| g.coords.len()).max().unwrap_or(dim);
         let base_steps = (settings.steps_per_dim * sweep_dim as f64).ceil().max(1.0);
         Kernel {
             settings,
@@ -610,7 +678,8 @@ impl<'a> Kernel<'a> {
     /// One replicate from the prior (or from its saved state), to its end or
     /// until it stops (time limit, no progress) with its state saved.
     fn run_replicate(&self, seed: u64, observer: &dyn Observer, ck: Option<(&Checkpointing, usize)>) -> ReplicateEnd {
-        let (state_name, done_name) = (ck.map(|(_, r)| format!("replicate_{r}")), ck.map(|(_, r)| format!("replicate_{r}.done")));
+        let (state_name, done_name) =
+            (ck.map(|(_, r)| format!("replicate_{r}")), ck.map(|(_, r)| format!("replicate_{r}.done")));
         if let (Some((c, _)), Some(name)) = (ck, &done_name) {
             if let Some(done) = c.load::<ReplicateOutput>(name) {
                 observer.advance(1000);
@@ -682,7 +751,10 @@ impl<'a> Kernel<'a> {
     /// [`MAX_TEMPERING_STEPS`] steps.
     fn step(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<Option<Vec<f64>>, String> {
         if !st.cloud.loglik.iter().any(|l| l.is_finite()) {
-            return Err(format!("tempering made no progress at β = {:.3e}: no particle has a finite likelihood", st.beta));
+            return Err(format!(
+                "tempering made no progress at β = {:.3e}: no particle has a finite likelihood",
+                st.beta
+            ));
         }
         if st.stages >= MAX_TEMPERING_STEPS {
             return Err(format!("tempering made no progress: β = {:.3e} after {} steps; the likelihood is too sharp or nearly nowhere finite under this prior", st.beta, st.stages));
@@ -690,7 +762,12 @@ impl<'a> Kernel<'a> {
         let n = self.n;
         let delta = next_increment(&st.cloud.loglik, st.beta, self.target_ess);
         let next = if 1.0 - (st.beta + delta) < 1e-12 { 1.0 } else { st.beta + delta };
-        let logw: Vec<f64> = st.cloud.loglik.iter().map(|&l| if l.is_finite() { (next - st.beta) * l } else { f64::NEG_INFINITY }).collect();
+        let logw: Vec<f64> = st
+            .cloud
+            .loglik
+            .iter()
+            .map(|&l| if l.is_finite() { (next - st.beta) * l } else { f64::NEG_INFINITY })
+            .collect();
         let lse = log_sum_exp(&logw);
         st.log_z += lse - (n as f64).ln();
         st.stages += 1;
@@ -703,7 +780,9 @@ impl<'a> Kernel<'a> {
         st.cloud.resample(&ancestors);
         st.eve = ancestors.iter().map(|&a| st.eve[a]).collect();
         update_factors(&mut st.groups, &st.cloud.x, self.dim);
-        let steps = ((self.base_steps * (self.settings.target_acceptance / st.last_acceptance.max(1e-3)).max(1.0)).ceil() as usize).min(self.max_steps);
+        let steps = ((self.base_steps * (self.settings.target_acceptance / st.last_acceptance.max(1e-3)).max(1.0))
+            .ceil() as usize)
+            .min(self.max_steps);
         let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, next, steps, self.prior, self.likelihood);
         st.evaluations += counts.full_evaluations;
         st.term_evaluations += counts.term_evaluations;
@@ -711,7 +790,12 @@ impl<'a> Kernel<'a> {
             g.scale *= (2.0 * (counts.acceptance(gi) - self.settings.target_acceptance)).exp();
         }
         st.last_acceptance = (0..st.groups.len()).map(|gi| counts.acceptance(gi)).fold(f64::INFINITY, f64::min);
-        st.steps.push(SmcStep { beta: next, mcmc_steps: steps, acceptance: counts.acceptance(0), group_acceptance: (0..st.groups.len()).map(|gi| counts.acceptance(gi)).collect() });
+        st.steps.push(SmcStep {
+            beta: next,
+            mcmc_steps: steps,
+            acceptance: counts.acceptance(0),
+            group_acceptance: (0..st.groups.len()).map(|gi| counts.acceptance(gi)).collect(),
+        });
         st.beta = next;
         Ok(None)
     }
@@ -734,8 +818,14 @@ impl<'a> Kernel<'a> {
         let unique_fraction = unique.len() as f64 / nf;
         st.cloud.resample(&ancestors);
         update_factors(&mut st.groups, &st.cloud.x, self.dim);
-        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, self.final_steps, self.prior, self.likelihood);
-        st.steps.push(SmcStep { beta: 1.0, mcmc_steps: self.final_steps, acceptance: counts.acceptance(0), group_acceptance: (0..st.groups.len()).map(|gi| counts.acceptance(gi)).collect() });
+        let counts =
+            mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, self.final_steps, self.prior, self.likelihood);
+        st.steps.push(SmcStep {
+            beta: 1.0,
+            mcmc_steps: self.final_steps,
+            acceptance: counts.acceptance(0),
+            group_acceptance: (0..st.groups.len()).map(|gi| counts.acceptance(gi)).collect(),
+        });
         let mut particles = vec![0.0; st.cloud.x.len()];
         for (u, out) in st.cloud.x.chunks(self.dim).zip(particles.chunks_mut(self.dim)) {
             self.prior.from_unbounded(u, out);

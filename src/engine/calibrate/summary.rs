@@ -5,8 +5,8 @@ use super::diagnostics::{self, ParamDiagnostics};
 use super::smc::{SmcOutput, SmcStep};
 use super::{Chains, Problem};
 use crate::base::artifacts::Provenance;
-use crate::engine::model::Units;
 use crate::engine::gp::{discrepancy_cross_cov, pow_r, CholeskyWorkspace, DiscrepancyKernel};
+use crate::engine::model::Units;
 use anyhow::Result;
 use polars::prelude::*;
 use rand::SeedableRng;
@@ -81,7 +81,12 @@ pub struct SmcStepRecord {
 
 impl From<&SmcStep> for SmcStepRecord {
     fn from(s: &SmcStep) -> Self {
-        SmcStepRecord { beta: s.beta, mcmc_steps: s.mcmc_steps, acceptance: s.acceptance, group_acceptance: s.group_acceptance.clone() }
+        SmcStepRecord {
+            beta: s.beta,
+            mcmc_steps: s.mcmc_steps,
+            acceptance: s.acceptance,
+            group_acceptance: s.group_acceptance.clone(),
+        }
     }
 }
 
@@ -92,7 +97,11 @@ impl SamplerDetails {
             particles_per_replicate: out.chains.chains.first().map(|c| c.len() / out.chains.dim).unwrap_or(0),
             replicate_log_evidence: out.replicates.iter().map(|r| r.log_evidence).collect(),
             tempering_steps: out.replicates.iter().map(|r| r.steps.len()).collect(),
-            schedule: out.replicates.first().map(|r| r.steps.iter().map(SmcStepRecord::from).collect()).unwrap_or_default(),
+            schedule: out
+                .replicates
+                .first()
+                .map(|r| r.steps.iter().map(SmcStepRecord::from).collect())
+                .unwrap_or_default(),
             unique_fraction: out.replicates.iter().map(|r| r.unique_fraction).collect(),
             term_evaluations: out.replicates.iter().map(|r| r.term_evaluations).sum(),
         }
@@ -123,7 +132,9 @@ impl Diagnostics {
     pub fn note_model_failures(&mut self, failures: u64) {
         self.model_failures = failures;
         if failures > 0 {
-            self.warnings.push(format!("the model could not be computed at {failures} parameter points (given zero likelihood)"));
+            self.warnings.push(format!(
+                "the model could not be computed at {failures} parameter points (given zero likelihood)"
+            ));
         }
     }
 }
@@ -237,7 +248,9 @@ pub fn summarize(
         parameters,
         truth: problem.analysis.truth_values(),
         units: problem.analysis.units.clone(),
-        prior_bounds: (0..problem.prior.dim()).map(|i| (problem.prior.names[i].clone(), [problem.prior.lower[i], problem.prior.upper[i]])).collect(),
+        prior_bounds: (0..problem.prior.dim())
+            .map(|i| (problem.prior.names[i].clone(), [problem.prior.lower[i], problem.prior.upper[i]]))
+            .collect(),
         log_evidence: evidence.map(|e| e.0),
         log_evidence_err: evidence.map(|e| e.1),
         fit: fit_quality(problem, &theta_median),
@@ -286,7 +299,8 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
                     r.iter().map(|z| z * z).sum()
                 }
                 Err(_) => {
-                    model_share += (0..n_b).map(|i| model[i * n_b + i] / (model[i * n_b + i] + data_diag[i])).sum::<f64>();
+                    model_share +=
+                        (0..n_b).map(|i| model[i * n_b + i] / (model[i * n_b + i] + data_diag[i])).sum::<f64>();
                     f64::INFINITY
                 }
             }
@@ -304,7 +318,14 @@ pub fn fit_quality(problem: &Problem, theta: &[f64]) -> FitQuality {
     }
     let dof = n.saturating_sub(theta.len()).max(1);
     let model_variance_share = worst_share(per_observable_share.values().copied());
-    FitQuality { chi2, dof, chi2_per_dof: chi2 / dof as f64, per_observable, model_variance_share, per_observable_share }
+    FitQuality {
+        chi2,
+        dof,
+        chi2_per_dof: chi2 / dof as f64,
+        per_observable,
+        model_variance_share,
+        per_observable_share,
+    }
 }
 
 /// The largest share; one that is not a number (an emulator whose variance
@@ -398,7 +419,8 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
             .par_iter()
             .enumerate()
             .map(|(d, params)| {
-                let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ ((b as u64) << 40) ^ (d as u64).wrapping_mul(0x9E37_79B9));
+                let mut rng =
+                    Xoshiro256PlusPlus::seed_from_u64(seed ^ ((b as u64) << 40) ^ (d as u64).wrapping_mul(0x9E37_79B9));
                 let theta = &params[..n_theta];
                 let mut eta = vec![0.0; m];
                 problem.simulator.predict(block.model_index, &xq, theta, &mut eta);
@@ -431,7 +453,14 @@ pub fn predictions(problem: &Problem, chains: &Chains, seed: u64) -> Result<Vec<
 
 /// One draw of δ(xq) and its conditional mean, given the data residuals (of
 /// every observable, when the likelihood is joint).
-fn conditional_delta(kernel: DiscrepancyKernel, params: &[f64], b: usize, xq: &[f64], problem: &Problem, rng: &mut Xoshiro256PlusPlus) -> (Vec<f64>, Vec<f64>) {
+fn conditional_delta(
+    kernel: DiscrepancyKernel,
+    params: &[f64],
+    b: usize,
+    xq: &[f64],
+    problem: &Problem,
+    rng: &mut Xoshiro256PlusPlus,
+) -> (Vec<f64>, Vec<f64>) {
     let lik = &problem.likelihood;
     let (block, hyper) = (&lik.blocks[b], lik.hyper_of(params, b));
     let m = xq.len();
@@ -445,7 +474,13 @@ fn conditional_delta(kernel: DiscrepancyKernel, params: &[f64], b: usize, xq: &[
             problem.simulator.predict(block.model_index, &block.x, theta, &mut eta);
             let mut lower = vec![0.0; n * n];
             discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &block.kernel_x, &mut lower);
-            problem.simulator.add_model_covariance(block.model_index, &block.x, theta, 1.0 / (block.scale * block.scale), &mut lower);
+            problem.simulator.add_model_covariance(
+                block.model_index,
+                &block.x,
+                theta,
+                1.0 / (block.scale * block.scale),
+                &mut lower,
+            );
             block.add_data_covariance(1.0 / (block.scale * block.scale), &mut lower);
             (lower, (0..n).map(|i| (block.y[i] - eta[i]) / block.scale).collect(), 0..n)
         }
@@ -556,7 +591,9 @@ mod tests {
         assert!((share(&scaled, &d_scaled) - base).abs() < 1e-9 * base);
         // A ratio of summed variances is not invariant: the point in large
         // units outvotes the others (0.621 becomes 0.538, its own fraction).
-        let summed = |m: &[f64], d: &[f64]| (0..3).map(|i| m[i * 3 + i]).sum::<f64>() / (0..3).map(|i| m[i * 3 + i] + d[i]).sum::<f64>();
+        let summed = |m: &[f64], d: &[f64]| {
+            (0..3).map(|i| m[i * 3 + i]).sum::<f64>() / (0..3).map(|i| m[i * 3 + i] + d[i]).sum::<f64>()
+        };
         assert!((summed(&lower, &d) - 1.64 / 2.64).abs() < 1e-12);
         assert!((summed(&scaled, &d_scaled) - 0.35 / 0.65).abs() < 1e-3);
         assert!(base > 0.0 && base < 3.0, "{base}");

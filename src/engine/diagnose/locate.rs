@@ -5,12 +5,23 @@ use super::{ObservableMismatch, Region};
 use crate::engine::calibrate::summary::PredictionRow;
 use crate::engine::calibrate::{Calibration, Problem};
 
-pub(super) fn locate(md_problem: &Problem, md: &Calibration, base_problem: &Problem, base: &Calibration) -> Vec<ObservableMismatch> {
-    let theta_median: Vec<f64> = base_problem.simulator.parameter_names().iter().map(|n| base.summary.parameters[n].median).collect();
+pub(super) fn locate(
+    md_problem: &Problem,
+    md: &Calibration,
+    base_problem: &Problem,
+    base: &Calibration,
+) -> Vec<ObservableMismatch> {
+    let theta_median: Vec<f64> =
+        base_problem.simulator.parameter_names().iter().map(|n| base.summary.parameters[n].median).collect();
     let mut out = Vec::new();
     for b in &md_problem.likelihood.blocks {
         let (x_lo, x_hi) = (b.x[0], b.x[b.len() - 1]);
-        let in_range = |kind: &str| -> Vec<&PredictionRow> { md.predictions.iter().filter(|r| r.observable == b.name && r.kind == kind && r.x >= x_lo - 1e-12 && r.x <= x_hi + 1e-12).collect() };
+        let in_range = |kind: &str| -> Vec<&PredictionRow> {
+            md.predictions
+                .iter()
+                .filter(|r| r.observable == b.name && r.kind == kind && r.x >= x_lo - 1e-12 && r.x <= x_hi + 1e-12)
+                .collect()
+        };
         // An emulated model predicts only at its training outputs (no grid
         // rows): its regions come from δ at the data points.
         let mut grid = in_range("grid");
@@ -20,7 +31,13 @@ pub(super) fn locate(md_problem: &Problem, md: &Calibration, base_problem: &Prob
         let mut regions: Vec<Region> = Vec::new();
         let mut open: Option<(f64, f64, &str)> = None;
         for r in &grid {
-            let sign = if r.delta[0] > 0.0 { Some("above") } else if r.delta[4] < 0.0 { Some("below") } else { None };
+            let sign = if r.delta[0] > 0.0 {
+                Some("above")
+            } else if r.delta[4] < 0.0 {
+                Some("below")
+            } else {
+                None
+            };
             open = match (open, sign) {
                 (Some((from, _, s)), Some(s2)) if s == s2 => Some((from, r.x, s)),
                 (Some((from, to, s)), other) => {
@@ -33,16 +50,21 @@ pub(super) fn locate(md_problem: &Problem, md: &Calibration, base_problem: &Prob
         if let Some((from, to, s)) = open {
             regions.push(Region { x_from: from, x_to: to, sign: s.to_string() });
         }
-        let map: Vec<(f64, f64)> = b
-            .x
-            .iter()
-            .enumerate()
-            .map(|(i, &x)| {
-                let d = md.predictions.iter().find(|r| r.observable == b.name && r.kind == "data" && r.x == x).map(|r| r.delta_mean).unwrap_or(0.0);
-                (x, d / b.error[i])
-            })
-            .collect();
-        let (x_at_max, max_sigma) = map.iter().fold((x_lo, 0.0f64), |acc, &(x, z)| if z.abs() > acc.1 { (x, z.abs()) } else { acc });
+        let map: Vec<(f64, f64)> =
+            b.x.iter()
+                .enumerate()
+                .map(|(i, &x)| {
+                    let d = md
+                        .predictions
+                        .iter()
+                        .find(|r| r.observable == b.name && r.kind == "data" && r.x == x)
+                        .map(|r| r.delta_mean)
+                        .unwrap_or(0.0);
+                    (x, d / b.error[i])
+                })
+                .collect();
+        let (x_at_max, max_sigma) =
+            map.iter().fold((x_lo, 0.0f64), |acc, &(x, z)| if z.abs() > acc.1 { (x, z.abs()) } else { acc });
         let sign = match regions.first() {
             None => "none".to_string(),
             Some(first) if regions.iter().all(|r| r.sign == first.sign) => first.sign.clone(),
@@ -58,9 +80,11 @@ pub(super) fn locate(md_problem: &Problem, md: &Calibration, base_problem: &Prob
         base_problem.simulator.add_model_covariance(b.model_index, &b.x, &theta_median, 1.0, &mut model_cov);
         let residuals: Vec<(f64, f64)> = (0..n)
             .map(|i| {
-                let band = base.predictions.iter().find(|r| r.observable == b.name && r.kind == "data" && r.x == b.x[i]);
+                let band =
+                    base.predictions.iter().find(|r| r.observable == b.name && r.kind == "data" && r.x == b.x[i]);
                 // 95% band width / 3.92 = the posterior sd of η for a normal posterior.
-                let (centre, sd_theta) = band.map(|r| (r.model[2], (r.model[4] - r.model[0]) / 3.92)).unwrap_or((eta[i], 0.0));
+                let (centre, sd_theta) =
+                    band.map(|r| (r.model[2], (r.model[4] - r.model[0]) / 3.92)).unwrap_or((eta[i], 0.0));
                 let var = b.error[i] * b.error[i] + sd_theta * sd_theta + model_cov[i * n + i];
                 (b.x[i], (b.y[i] - centre) / var.sqrt())
             })
@@ -113,7 +137,11 @@ pub(super) fn mismatch_phrase(mismatch: &[ObservableMismatch]) -> String {
         .iter()
         .take(3)
         .map(|m| {
-            let ranges: Vec<String> = m.residual_regions.iter().map(|r| format!("{} the model for x in [{:.2}, {:.2}]", r.sign, r.x_from, r.x_to)).collect();
+            let ranges: Vec<String> = m
+                .residual_regions
+                .iter()
+                .map(|r| format!("{} the model for x in [{:.2}, {:.2}]", r.sign, r.x_from, r.x_to))
+                .collect();
             format!("{} lies {} (up to {:.1}σ)", m.observable, ranges.join(" and "), peak(m))
         })
         .collect();
@@ -127,7 +155,13 @@ fn residual_regions(z: &[(f64, f64)]) -> Vec<Region> {
     let mut out = Vec::new();
     let mut i = 0;
     while i < z.len() {
-        let sign = if z[i].1 > 2.0 { 1.0 } else if z[i].1 < -2.0 { -1.0 } else { 0.0 };
+        let sign = if z[i].1 > 2.0 {
+            1.0
+        } else if z[i].1 < -2.0 {
+            -1.0
+        } else {
+            0.0
+        };
         if sign == 0.0 {
             i += 1;
             continue;
@@ -138,9 +172,12 @@ fn residual_regions(z: &[(f64, f64)]) -> Vec<Region> {
         }
         let run = &z[start..i];
         if run.len() >= 2 || run.iter().any(|p| p.1.abs() > 3.0) {
-            out.push(Region { x_from: run[0].0, x_to: run[run.len() - 1].0, sign: if sign > 0.0 { "above" } else { "below" }.into() });
+            out.push(Region {
+                x_from: run[0].0,
+                x_to: run[run.len() - 1].0,
+                sign: if sign > 0.0 { "above" } else { "below" }.into(),
+            });
         }
     }
     out
 }
-

@@ -53,10 +53,10 @@ use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::CandidateModel;
 use anyhow::Result;
 use locate::{locate, mismatch_phrase};
-pub use suggest::Suggestion;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::BTreeMap;
 use std::path::Path;
+pub use suggest::Suggestion;
 
 #[derive(Clone, Debug)]
 pub struct DiagnoseSettings {
@@ -255,7 +255,13 @@ struct Diagnoser<'a> {
 
 impl Diagnoser<'_> {
     /// Calibrates `analysis` with `kernel` (None: no MD) and writes it to `out/name`.
-    fn calibrate(&self, analysis: &Analysis, kernel: Option<DiscrepancyKernel>, seed: u64, name: &str) -> Result<(Problem, Calibration)> {
+    fn calibrate(
+        &self,
+        analysis: &Analysis,
+        kernel: Option<DiscrepancyKernel>,
+        seed: u64,
+        name: &str,
+    ) -> Result<(Problem, Calibration)> {
         let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..self.overrides.clone() })?;
         let cal = calibrate::run(&problem, seed, self.observer)?;
         if let Some(dir) = self.out {
@@ -268,7 +274,12 @@ impl Diagnoser<'_> {
     fn explain(&self, analysis: &Analysis, seed: u64, (z_base, e_base): (f64, f64)) -> Result<Vec<CandidateRun>> {
         let mut runs = Vec::new();
         for (k, candidate) in analysis.candidates()?.into_iter().enumerate() {
-            let (problem, calibration) = self.calibrate(&analysis.with_candidate(&candidate), None, seed.wrapping_add(10 + k as u64), &format!("candidate_{}", candidate.name))?;
+            let (problem, calibration) = self.calibrate(
+                &analysis.with_candidate(&candidate),
+                None,
+                seed.wrapping_add(10 + k as u64),
+                &format!("candidate_{}", candidate.name),
+            )?;
             let (z, e) = evidence(&calibration.summary);
             let result = CandidateResult {
                 name: candidate.name.clone(),
@@ -277,7 +288,12 @@ impl Diagnoser<'_> {
                 log_evidence_err: e,
                 log_bayes_factor: z - z_base,
                 log_bayes_factor_err: (e * e + e_base * e_base).sqrt(),
-                parameters: problem.simulator.parameter_names().iter().map(|n| (n.clone(), calibration.summary.parameters[n].clone())).collect(),
+                parameters: problem
+                    .simulator
+                    .parameter_names()
+                    .iter()
+                    .map(|n| (n.clone(), calibration.summary.parameters[n].clone()))
+                    .collect(),
                 chi2_per_dof: calibration.summary.fit.chi2_per_dof,
                 p_value: p_value(calibration.summary.fit.chi2, calibration.summary.fit.dof),
                 converged: calibration.summary.diagnostics.converged,
@@ -310,7 +326,9 @@ fn occam(ranked: &[&CandidateResult], strong: f64) -> usize {
         .enumerate()
         .filter(|(_, r)| {
             let (inner, outer) = (members(&r.name), members(&ranked[chosen].name));
-            inner.len() < outer.len() && inner.is_subset(&outer) && ranked[chosen].log_evidence - r.log_evidence <= strong
+            inner.len() < outer.len()
+                && inner.is_subset(&outer)
+                && ranked[chosen].log_evidence - r.log_evidence <= strong
         })
         .max_by(|a, b| a.1.log_evidence.total_cmp(&b.1.log_evidence))
     {
@@ -327,7 +345,14 @@ fn runner_up<'c>(winner: &CandidateResult, ranked: &'c [CandidateResult]) -> Opt
 }
 
 /// Runs the whole diagnosis. `out`, when given, receives every calibration.
-pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &DiagnoseSettings, out: Option<&Path>, observer: &dyn Observer) -> Result<DiagnoseRun> {
+pub fn run(
+    analysis: &Analysis,
+    overrides: &Overrides,
+    seed: u64,
+    settings: &DiagnoseSettings,
+    out: Option<&Path>,
+    observer: &dyn Observer,
+) -> Result<DiagnoseRun> {
     let d = Diagnoser { overrides, strong_log_bf: settings.strong_log_bf, out, observer };
     let (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
     let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
@@ -340,10 +365,14 @@ pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &Dia
     let rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
     let suggestion = rivals.first().and_then(|r| {
         let other = runs.iter().find(|run| run.result.name == r.name)?;
-        let goal = suggest::Goal { lead: runs[0].result.log_evidence - other.result.log_evidence, decisive: decisive_lead(&runs[0].result, &other.result, settings) };
+        let goal = suggest::Goal {
+            lead: runs[0].result.log_evidence - other.result.log_evidence,
+            decisive: decisive_lead(&runs[0].result, &other.result, settings),
+        };
         suggest::suggest(&runs[0].fit(), &other.fit(), goal)
     });
-    let verdict = decide(&candidates, named, (&rivals, suggestion), &runs, &mismatch, &base.summary, settings, (z_base, z_md));
+    let verdict =
+        decide(&candidates, named, (&rivals, suggestion), &runs, &mismatch, &base.summary, settings, (z_base, z_md));
 
     // Repair: refit the winner with MD on top, to show δ shrink.
     let mut improvement = None;
@@ -352,19 +381,38 @@ pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &Dia
     let named_alone = named.is_some_and(|c| rivals.is_empty() && !rests_on_emulator(c));
     if named_alone && settings.repair {
         let winner = &runs[0];
-        let (rep_md_problem, rep_md) = d.calibrate(&analysis.with_candidate(&winner.candidate), Some(settings.kernel), seed.wrapping_add(99), "repaired_md")?;
+        let (rep_md_problem, rep_md) = d.calibrate(
+            &analysis.with_candidate(&winner.candidate),
+            Some(settings.kernel),
+            seed.wrapping_add(99),
+            "repaired_md",
+        )?;
         let before = vec![figures("model, no MD", &base_problem, &base), figures("model + MD", &md_problem, &md)];
         let after = vec![
             figures(&format!("model + {}", winner.candidate.name), &winner.problem, &winner.calibration),
             figures(&format!("model + {} + MD", winner.candidate.name), &rep_md_problem, &rep_md),
         ];
-        let interval_narrowing =
-            base_problem.simulator.parameter_names().iter().map(|n| (n.clone(), md.summary.parameters[n].width95() / winner.calibration.summary.parameters[n].width95())).collect();
+        let interval_narrowing = base_problem
+            .simulator
+            .parameter_names()
+            .iter()
+            .map(|n| {
+                (n.clone(), md.summary.parameters[n].width95() / winner.calibration.summary.parameters[n].width95())
+            })
+            .collect();
         let information_limit = information_limit(&winner.problem, &winner.calibration, &md);
         improvement = Some(Improvement { before, after, interval_narrowing, information_limit });
         repaired_md = Some(rep_md);
     }
-    let diagnosis = Diagnosis { mismatch, candidates, verdict, improvement, base_log_evidence: z_base, md_log_evidence: z_md, provenance: base_problem.provenance(seed, "diagnose") };
+    let diagnosis = Diagnosis {
+        mismatch,
+        candidates,
+        verdict,
+        improvement,
+        base_log_evidence: z_base,
+        md_log_evidence: z_md,
+        provenance: base_problem.provenance(seed, "diagnose"),
+    };
     if let Some(dir) = out {
         artifacts::write_json_atomic(&dir.join("diagnosis.json"), &diagnosis)?;
     }
@@ -374,15 +422,27 @@ pub fn run(analysis: &Analysis, overrides: &Overrides, seed: u64, settings: &Dia
 
 /// The best candidate, when it beats the base model by more than
 /// `strong_log_bf`, fits adequately and is not itself beaten by the MD fit.
-fn named_candidate<'c>(candidates: &'c [CandidateResult], settings: &DiagnoseSettings, z_md: f64) -> Option<&'c CandidateResult> {
-    candidates.first().filter(|c| c.log_bayes_factor > settings.strong_log_bf && c.p_value >= settings.min_p_value && c.log_evidence > z_md - settings.strong_log_bf)
+fn named_candidate<'c>(
+    candidates: &'c [CandidateResult],
+    settings: &DiagnoseSettings,
+    z_md: f64,
+) -> Option<&'c CandidateResult> {
+    candidates.first().filter(|c| {
+        c.log_bayes_factor > settings.strong_log_bf
+            && c.p_value >= settings.min_p_value
+            && c.log_evidence > z_md - settings.strong_log_bf
+    })
 }
 
 /// The other explanations `best` does not beat decisively: candidates that
 /// neither contain it nor are contained in it (Occam's rule settled those),
 /// fit adequately, and trail it by no more than `strong_log_bf` plus twice
 /// the Monte Carlo error of the difference.
-fn rivals<'c>(best: &CandidateResult, candidates: &'c [CandidateResult], settings: &DiagnoseSettings) -> Vec<&'c CandidateResult> {
+fn rivals<'c>(
+    best: &CandidateResult,
+    candidates: &'c [CandidateResult],
+    settings: &DiagnoseSettings,
+) -> Vec<&'c CandidateResult> {
     let mine = members(&best.name);
     candidates
         .iter()
@@ -424,7 +484,14 @@ fn decide(
     let lse = crate::engine::calibrate::smc::log_sum_exp(&all_z);
     let prob = |z: f64| (z - lse).exp();
     let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
-    let verdict = |best: &str, statement: String, confidence: f64| Verdict { best: best.into(), standing: Vec::new(), suggestion: None, refine: Vec::new(), statement, confidence };
+    let verdict = |best: &str, statement: String, confidence: f64| Verdict {
+        best: best.into(),
+        standing: Vec::new(),
+        suggestion: None,
+        refine: Vec::new(),
+        statement,
+        confidence,
+    };
     let emulator_limited = |standing: Vec<&CandidateResult>| {
         let refine = to_refine(&standing);
         Verdict {
@@ -472,12 +539,28 @@ fn decide(
 }
 
 /// "…the data cannot yet choose between A (…) and B (…): …; to separate them, measure …".
-fn ambiguous_statement(standing: &[&CandidateResult], suggestion: Option<&Suggestion>, mismatch: &[ObservableMismatch], strong: f64) -> String {
+fn ambiguous_statement(
+    standing: &[&CandidateResult],
+    suggestion: Option<&Suggestion>,
+    mismatch: &[ObservableMismatch],
+    strong: f64,
+) -> String {
     let who: Vec<String> = standing
         .iter()
         .map(|c| {
-            let fitted: Vec<String> = c.parameters.iter().map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975)).collect();
-            format!("{} ({}; log BF {:.1} ± {:.1} against the model as it is; {})", c.name, c.description, c.log_bayes_factor, c.log_bayes_factor_err, fitted.join(", "))
+            let fitted: Vec<String> = c
+                .parameters
+                .iter()
+                .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
+                .collect();
+            format!(
+                "{} ({}; log BF {:.1} ± {:.1} against the model as it is; {})",
+                c.name,
+                c.description,
+                c.log_bayes_factor,
+                c.log_bayes_factor_err,
+                fitted.join(", ")
+            )
         })
         .collect();
     let (a, b) = (standing[0], standing[1]);
@@ -506,9 +589,16 @@ fn rests_on_emulator(c: &CandidateResult) -> bool {
 /// so rejecting them would be as unfounded as naming them; only refinement
 /// can decide (a coarse emulator's mean can miss by more than its sd, and a
 /// χ²/dof of 2 at 98% emulator share says exactly that).
-fn unnamed_on_emulator<'c>(candidates: &'c [CandidateResult], settings: &DiagnoseSettings) -> Option<Vec<&'c CandidateResult>> {
+fn unnamed_on_emulator<'c>(
+    candidates: &'c [CandidateResult],
+    settings: &DiagnoseSettings,
+) -> Option<Vec<&'c CandidateResult>> {
     let leader = candidates.first().filter(|c| c.log_bayes_factor > settings.strong_log_bf && rests_on_emulator(c))?;
-    let trailing = candidates[1..].iter().filter(|c| rests_on_emulator(c) && c.log_bayes_factor > settings.strong_log_bf && leader.log_evidence - c.log_evidence <= decisive_lead(leader, c, settings));
+    let trailing = candidates[1..].iter().filter(|c| {
+        rests_on_emulator(c)
+            && c.log_bayes_factor > settings.strong_log_bf
+            && leader.log_evidence - c.log_evidence <= decisive_lead(leader, c, settings)
+    });
     Some(std::iter::once(leader).chain(trailing).collect())
 }
 
@@ -519,12 +609,26 @@ fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
 
 /// The observable where the emulator carries the largest share ("" when none does).
 fn worst_share_observable(fit: &crate::engine::calibrate::summary::FitQuality) -> String {
-    fit.per_observable_share.iter().filter(|(_, v)| **v > 0.0).max_by(|a, b| a.1.total_cmp(b.1)).map(|(k, _)| k.clone()).unwrap_or_default()
+    fit.per_observable_share
+        .iter()
+        .filter(|(_, v)| **v > 0.0)
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(k, _)| k.clone())
+        .unwrap_or_default()
 }
 
 /// "…the data lead to X, but its emulator carries N% of the variance: refine …".
-fn emulator_limited_statement(c: &CandidateResult, refine: &[String], mismatch: &[ObservableMismatch], min_p_value: f64) -> String {
-    let poor = if c.p_value < min_p_value { format!(" (its χ²/dof of {:.2} cannot yet tell a wrong candidate from a coarse emulator)", c.chi2_per_dof) } else { String::new() };
+fn emulator_limited_statement(
+    c: &CandidateResult,
+    refine: &[String],
+    mismatch: &[ObservableMismatch],
+    min_p_value: f64,
+) -> String {
+    let poor = if c.p_value < min_p_value {
+        format!(" (its χ²/dof of {:.2} cannot yet tell a wrong candidate from a coarse emulator)", c.chi2_per_dof)
+    } else {
+        String::new()
+    };
     format!(
         "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data{}, so the emulator, not the data, decides how well it fits{poor}: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
         mismatch_phrase(mismatch),
@@ -542,19 +646,37 @@ fn emulator_limited_statement(c: &CandidateResult, refine: &[String], mismatch: 
 }
 
 /// "…the data favour X (what it is), k = … over the runner-up by log BF = …".
-fn named_statement(c: &CandidateResult, model: &CandidateModel, runner_up: Option<&CandidateResult>, mismatch: &[ObservableMismatch]) -> String {
+fn named_statement(
+    c: &CandidateResult,
+    model: &CandidateModel,
+    runner_up: Option<&CandidateResult>,
+    mismatch: &[ObservableMismatch],
+) -> String {
     let fitted: Vec<String> = model
         .extra_parameters
         .iter()
         .map(|(n, spec)| {
             let p = &c.parameters[n];
-            format!("{n} = {:.3} [{:.3}, {:.3}]{}", p.median, p.q025, p.q975, if spec.units.is_empty() { String::new() } else { format!(" {}", spec.units) })
+            format!(
+                "{n} = {:.3} [{:.3}, {:.3}]{}",
+                p.median,
+                p.q025,
+                p.q975,
+                if spec.units.is_empty() { String::new() } else { format!(" {}", spec.units) }
+            )
         })
         .collect();
     let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
     let trend = mismatch_phrase(mismatch);
-    let runner = runner_up.map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence)).unwrap_or_default();
-    format!("{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.", c.name.replace('_', " "), c.description, c.log_bayes_factor)
+    let runner = runner_up
+        .map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence))
+        .unwrap_or_default();
+    format!(
+        "{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.",
+        c.name.replace('_', " "),
+        c.description,
+        c.log_bayes_factor
+    )
 }
 
 /// MD 95% width over the repaired model's Cramér–Rao 95% width, per
@@ -564,7 +686,8 @@ fn information_limit(rep_problem: &Problem, rep: &Calibration, md: &Calibration)
     let names = rep_problem.simulator.parameter_names();
     let theta: Vec<f64> = names.iter().map(|n| rep.summary.parameters[n].median).collect();
     // Central differences at 1e-5 of the prior range: truncation ~1e-10 relative.
-    let steps: Vec<f64> = (0..lik.n_theta).map(|k| 1e-5 * (rep_problem.prior.upper[k] - rep_problem.prior.lower[k])).collect();
+    let steps: Vec<f64> =
+        (0..lik.n_theta).map(|k| 1e-5 * (rep_problem.prior.upper[k] - rep_problem.prior.lower[k])).collect();
     let Some(sd) = lik.cramer_rao_sd(&theta, &steps) else {
         return BTreeMap::new();
     };
@@ -599,22 +722,47 @@ pub fn print(d: &Diagnosis) {
             show(&m.residual_regions)
         );
     }
-    println!("Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):", d.md_log_evidence - d.base_log_evidence);
+    println!(
+        "Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):",
+        d.md_log_evidence - d.base_log_evidence
+    );
     for c in &d.candidates {
-        let share = if c.emulator_share > 0.0 { format!("   emulator share {:.0}% ({})", 100.0 * c.emulator_share, c.emulator_share_observable) } else { String::new() };
-        println!("  {:<16} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof);
+        let share = if c.emulator_share > 0.0 {
+            format!("   emulator share {:.0}% ({})", 100.0 * c.emulator_share, c.emulator_share_observable)
+        } else {
+            String::new()
+        };
+        println!(
+            "  {:<16} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}",
+            c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof
+        );
     }
     println!("Verdict: {} (confidence {:.2})", d.verdict.best, d.verdict.confidence);
     println!("  {}", d.verdict.statement);
     if let Some(imp) = &d.improvement {
         println!("Repair (before → after):");
         for f in imp.before.iter().chain(&imp.after) {
-            let g: Vec<String> = f.parameters.iter().map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975)).collect();
+            let g: Vec<String> = f
+                .parameters
+                .iter()
+                .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
+                .collect();
             let dmax = f.delta_max_sigma.values().cloned().fold(0.0, f64::max);
-            println!("  {:<34} χ²/dof {:>6.2}  log Z {:>8.2}  max|δ| {:>4.1}σ  {}", f.label, f.chi2_per_dof, f.log_evidence, dmax, g.join(", "));
+            println!(
+                "  {:<34} χ²/dof {:>6.2}  log Z {:>8.2}  max|δ| {:>4.1}σ  {}",
+                f.label,
+                f.chi2_per_dof,
+                f.log_evidence,
+                dmax,
+                g.join(", ")
+            );
         }
         for (n, r) in &imp.interval_narrowing {
-            let limit = imp.information_limit.get(n).map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)")).unwrap_or_default();
+            let limit = imp
+                .information_limit
+                .get(n)
+                .map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)"))
+                .unwrap_or_default();
             println!("  95% interval of {n}: {r:.1}x narrower than with MD alone{limit}");
         }
     }
@@ -652,7 +800,10 @@ mod tests {
     #[test]
     fn a_pair_is_named_only_when_it_beats_what_it_contains_decisively() {
         // The ball drop's case: the pair leads its member by 0.6.
-        assert_eq!(named(&[("quadratic_drag+field_gradient", -4.4), ("quadratic_drag", -5.0), ("field_gradient", -590.0)]), "quadratic_drag");
+        assert_eq!(
+            named(&[("quadratic_drag+field_gradient", -4.4), ("quadratic_drag", -5.0), ("field_gradient", -590.0)]),
+            "quadratic_drag"
+        );
         // Two effects that each need the other: the pair leads both by more than 3.
         assert_eq!(named(&[("a+b", 0.0), ("a", -5.0), ("b", -6.0)]), "a+b");
         // Of two members within 3, the better one.
@@ -675,10 +826,16 @@ mod tests {
         r[1].emulator_share = EMULATOR_DOMINATES;
         assert!(!rests_on_emulator(&r[1]));
         // Of the standing (a and its rival b), only a's emulator needs runs; c is out of the race.
-        let standing: Vec<&CandidateResult> = std::iter::once(&r[0]).chain(rivals(&r[0], &r, &DiagnoseSettings::default())).collect();
+        let standing: Vec<&CandidateResult> =
+            std::iter::once(&r[0]).chain(rivals(&r[0], &r, &DiagnoseSettings::default())).collect();
         assert_eq!(to_refine(&standing), ["a"]);
         let text = emulator_limited_statement(&r[0], &to_refine(&standing), &[], 1e-3);
-        assert!(text.contains("80%") && text.contains("no candidate is named") && text.contains("emulator of a with runs where its posterior lies"), "{text}");
+        assert!(
+            text.contains("80%")
+                && text.contains("no candidate is named")
+                && text.contains("emulator of a with runs where its posterior lies"),
+            "{text}"
+        );
     }
 
     #[test]

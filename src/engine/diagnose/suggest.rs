@@ -97,7 +97,12 @@ pub fn suggest(a: &Fit, b: &Fit, goal: Goal) -> Option<Suggestion> {
     let mut best: Option<((usize, f64), Suggestion)> = None;
     for block in &a.problem.likelihood.blocks {
         for ra in a.calibration.predictions.iter().filter(|r| r.observable == block.name) {
-            let Some(rb) = b.calibration.predictions.iter().find(|r| r.observable == ra.observable && r.kind == ra.kind && r.x == ra.x) else {
+            let Some(rb) = b
+                .calibration
+                .predictions
+                .iter()
+                .find(|r| r.observable == ra.observable && r.kind == ra.kind && r.x == ra.x)
+            else {
                 continue;
             };
             let error = error_at(&block.x, &block.error, ra.x);
@@ -143,7 +148,9 @@ pub fn phrase(s: &Suggestion) -> String {
             s.observable, s.x
         );
     }
-    let predicts = |k: usize| format!("{} predicts {} ± {}", s.candidates[k], sig(s.predicted_mean[k], 4), sig(s.predicted_sd[k], 2));
+    let predicts = |k: usize| {
+        format!("{} predicts {} ± {}", s.candidates[k], sig(s.predicted_mean[k], 4), sig(s.predicted_sd[k], 2))
+    };
     let how_often = match s.repeats {
         Some(1) => "once".to_string(),
         Some(n) => format!("{n} times"),

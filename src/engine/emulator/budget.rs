@@ -84,7 +84,14 @@ mod tests {
         let uniform = rand_distr::Uniform::new(0.0, 1.0).unwrap();
         let unit: Vec<f64> = (0..2 * n).map(|_| uniform.sample(&mut rng)).collect();
         let noise = rand_distr::Normal::new(0.0, 1.0).unwrap();
-        let values: Vec<f64> = unit.chunks(2).flat_map(|u| (0..m).map(|j| ((1.0 + j as f64) * u[0]).sin() + u[1] * j as f64 * 0.3 + error * noise.sample(&mut rng)).collect::<Vec<_>>()).collect();
+        let values: Vec<f64> = unit
+            .chunks(2)
+            .flat_map(|u| {
+                (0..m)
+                    .map(|j| ((1.0 + j as f64) * u[0]).sin() + u[1] * j as f64 * 0.3 + error * noise.sample(&mut rng))
+                    .collect::<Vec<_>>()
+            })
+            .collect();
         let table = TrainingTable {
             path: "synthetic".into(),
             parameter_names: vec!["a".into(), "b".into()],
@@ -95,7 +102,8 @@ mod tests {
             noise_correlation: None,
             values,
         };
-        let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 2").unwrap();
+        let settings: EmulatorSettings =
+            toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 2").unwrap();
         train(&table, &settings, 1).unwrap().0
     }
 
@@ -110,8 +118,15 @@ mod tests {
                 let m = emu.n_outputs();
                 for (j, b) in emu.variance_budget(&theta).iter().enumerate() {
                     let want = prediction.cov[j * m + j];
-                    assert!((b.total() - want).abs() <= 1e-10 * want.abs().max(1e-12), "output {j}: {} vs {want}", b.total());
-                    assert!(b.latent >= 0.0 && b.excess_scatter >= 0.0 && b.dropped >= -1e-12 * want && b.pca_noise >= 0.0, "{b:?}");
+                    assert!(
+                        (b.total() - want).abs() <= 1e-10 * want.abs().max(1e-12),
+                        "output {j}: {} vs {want}",
+                        b.total()
+                    );
+                    assert!(
+                        b.latent >= 0.0 && b.excess_scatter >= 0.0 && b.dropped >= -1e-12 * want && b.pca_noise >= 0.0,
+                        "{b:?}"
+                    );
                     assert!(b.floor() <= b.total());
                     if error == 0.0 {
                         assert_eq!(b.pca_noise, 0.0);

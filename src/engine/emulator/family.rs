@@ -45,7 +45,10 @@ impl CandidateDeclaration {
 impl EmulatorFamily {
     /// A `[model]` table naming the emulator in `artifact`.
     pub fn model_table(artifact: &std::path::Path) -> toml::Table {
-        toml::Table::from_iter([("kind".to_string(), "emulator".into()), ("artifact".to_string(), artifact.display().to_string().into())])
+        toml::Table::from_iter([
+            ("kind".to_string(), "emulator".into()),
+            ("artifact".to_string(), artifact.display().to_string().into()),
+        ])
     }
 }
 
@@ -57,9 +60,15 @@ impl ModelFamily for EmulatorFamily {
     fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>> {
         let table: EmulatorModelTable = config.decode_family_table(&config.model, "model")?;
         let dir = config.resolve(&table.artifact);
-        let model = EmulatedModel::load(&dir).with_context(|| format!("{}: [model] artifact", config.path.display()))?;
-        let priors: Vec<(String, &str, &ParamSpec)> = config.parameters.iter().map(|(n, s)| (format!("[parameters.{n}]"), n.as_str(), s)).collect();
-        check_priors_inside_box(&model, &priors, &format!("{}: the emulator {}", config.path.display(), dir.display()))?;
+        let model =
+            EmulatedModel::load(&dir).with_context(|| format!("{}: [model] artifact", config.path.display()))?;
+        let priors: Vec<(String, &str, &ParamSpec)> =
+            config.parameters.iter().map(|(n, s)| (format!("[parameters.{n}]"), n.as_str(), s)).collect();
+        check_priors_inside_box(
+            &model,
+            &priors,
+            &format!("{}: the emulator {}", config.path.display(), dir.display()),
+        )?;
         Ok(Arc::new(model))
     }
 
@@ -80,10 +89,17 @@ impl ModelFamily for EmulatorFamily {
 fn declared_candidate(config: &Config, c: &CandidateDeclaration) -> Result<CandidateModel> {
     let file = config.path.display();
     let dir = config.resolve(&c.emulator);
-    let model = EmulatedModel::load(&dir).with_context(|| format!("{file}: [[candidates]] {}: loading the variant emulator {}", c.name, dir.display()))?;
+    let model = EmulatedModel::load(&dir).with_context(|| {
+        format!("{file}: [[candidates]] {}: loading the variant emulator {}", c.name, dir.display())
+    })?;
     let names = model.parameter_names();
     if let Some(missing) = config.parameters.keys().find(|p| !names.contains(p)) {
-        bail!("{file}: [[candidates]] {}: the variant emulator {} lacks the model parameter '{missing}' (it has {})", c.name, dir.display(), names.join(", "));
+        bail!(
+            "{file}: [[candidates]] {}: the variant emulator {} lacks the model parameter '{missing}' (it has {})",
+            c.name,
+            dir.display(),
+            names.join(", ")
+        );
     }
     let mut extra = Vec::new();
     for n in names.iter().filter(|n| !config.parameters.contains_key(*n)) {
@@ -92,12 +108,26 @@ fn declared_candidate(config: &Config, c: &CandidateDeclaration) -> Result<Candi
         extra.push((n.clone(), spec.clone()));
     }
     if let Some(unused) = c.parameters.keys().find(|k| !names.contains(k)) {
-        bail!("{file}: [[candidates]] {}: parameter '{unused}' is not one of the variant emulator's ({})", c.name, names.join(", "));
+        bail!(
+            "{file}: [[candidates]] {}: parameter '{unused}' is not one of the variant emulator's ({})",
+            c.name,
+            names.join(", ")
+        );
     }
     let own = extra.iter().map(|(n, s)| (format!("[candidates.parameters.{n}]"), n.as_str(), s));
-    let priors: Vec<(String, &str, &ParamSpec)> = config.parameters.iter().map(|(n, s)| (format!("[parameters.{n}]"), n.as_str(), s)).chain(own).collect();
-    check_priors_inside_box(&model, &priors, &format!("{file}: [[candidates]] {}: the variant emulator {}", c.name, dir.display()))?;
-    Ok(CandidateModel { name: c.name.clone(), description: c.description.clone(), extra_parameters: extra, simulator: Arc::new(model) })
+    let priors: Vec<(String, &str, &ParamSpec)> =
+        config.parameters.iter().map(|(n, s)| (format!("[parameters.{n}]"), n.as_str(), s)).chain(own).collect();
+    check_priors_inside_box(
+        &model,
+        &priors,
+        &format!("{file}: [[candidates]] {}: the variant emulator {}", c.name, dir.display()),
+    )?;
+    Ok(CandidateModel {
+        name: c.name.clone(),
+        description: c.description.clone(),
+        extra_parameters: extra,
+        simulator: Arc::new(model),
+    })
 }
 
 /// Refuses priors that reach well beyond the emulator's training points:

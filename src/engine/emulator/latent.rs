@@ -70,14 +70,19 @@ impl Emulator {
             self.cross_kernel(gp, &unit, &mut kstar, |q, mean| means[q * kc + c] = mean);
             // W = L⁻¹ K_XC; the covariance is K_CC − WᵀW.
             let l = faer::MatRef::from_column_major_slice(&gp.factor, n, n);
-            faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b), faer::Par::Seq);
+            faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+                l,
+                faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b),
+                faer::Par::Seq,
+            );
             let w = faer::MatRef::from_column_major_slice(&kstar, n, b);
             let mut cov = vec![0.0; b * b];
             let cm = faer::MatMut::from_column_major_slice_mut(&mut cov, b, b);
             faer::linalg::matmul::matmul(cm, faer::Accum::Replace, w.transpose(), w, -1.0, faer::Par::Seq);
             for j in 0..b {
                 for i in 0..b {
-                    cov[j * b + i] += kern(scaled_sq_dist(&unit[i * d..(i + 1) * d], &unit[j * d..(j + 1) * d], &gp.inv_l2));
+                    cov[j * b + i] +=
+                        kern(scaled_sq_dist(&unit[i * d..(i + 1) * d], &unit[j * d..(j + 1) * d], &gp.inv_l2));
                 }
             }
             covs.push(cov);
@@ -89,7 +94,11 @@ impl Emulator {
     /// without the truncated components (which more runs do not reduce).
     pub fn output_var_from_component_vars(&self, comp_var: &[f64], j: usize, jac: f64) -> f64 {
         let m = self.n_outputs();
-        let v: f64 = comp_var.iter().enumerate().map(|(k, v)| v * (self.component_sd[k] * self.parts.basis[k * m + j]).powi(2)).sum();
+        let v: f64 = comp_var
+            .iter()
+            .enumerate()
+            .map(|(k, v)| v * (self.component_sd[k] * self.parts.basis[k * m + j]).powi(2))
+            .sum();
         v * jac * jac
     }
 }

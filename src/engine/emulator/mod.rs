@@ -134,12 +134,25 @@ impl Emulator {
         let d = parts.parameter_names.len();
         let m = parts.outputs.len();
         let r = parts.singular_values.len();
-        if parts.basis.len() != m * r || parts.scores.len() != parts.n_components * n || parts.hypers.len() != parts.n_components {
-            bail!("emulator parts are inconsistent (basis {}, scores {}, hyperparameter sets {})", parts.basis.len(), parts.scores.len(), parts.hypers.len());
+        if parts.basis.len() != m * r
+            || parts.scores.len() != parts.n_components * n
+            || parts.hypers.len() != parts.n_components
+        {
+            bail!(
+                "emulator parts are inconsistent (basis {}, scores {}, hyperparameter sets {})",
+                parts.basis.len(),
+                parts.scores.len(),
+                parts.hypers.len()
+            );
         }
         let mut unit_inputs = vec![0.0; n * d];
         for i in 0..n {
-            scale_to_unit(&parts.input_lo, &parts.input_hi, &parts.train_inputs[i * d..(i + 1) * d], &mut unit_inputs[i * d..(i + 1) * d]);
+            scale_to_unit(
+                &parts.input_lo,
+                &parts.input_hi,
+                &parts.train_inputs[i * d..(i + 1) * d],
+                &mut unit_inputs[i * d..(i + 1) * d],
+            );
         }
         let mut gps = Vec::with_capacity(parts.n_components);
         for (k, hyper) in parts.hypers.iter().enumerate() {
@@ -229,10 +242,15 @@ impl Emulator {
         for (c, gp) in self.gps.iter().enumerate() {
             self.cross_kernel(gp, &unit, &mut kstar, |q, mean| means[q * kc + c] = mean);
             let l = faer::MatRef::from_column_major_slice(&gp.factor, n, n);
-            faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b), faer::Par::Seq);
+            faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+                l,
+                faer::MatMut::from_column_major_slice_mut(&mut kstar, n, b),
+                faer::Par::Seq,
+            );
             for q in 0..b {
                 let w = &kstar[q * n..(q + 1) * n];
-                vars[q * kc + c] = (gp.signal_var + gp.constant + gp.noise_var - dot(w, w)).max(gp.noise_var) - self.run_noise[c];
+                vars[q * kc + c] =
+                    (gp.signal_var + gp.constant + gp.noise_var - dot(w, w)).max(gp.noise_var) - self.run_noise[c];
             }
         }
     }
@@ -306,7 +324,14 @@ impl Emulator {
     /// components' loadings at the points. With an emulator across every
     /// observable this is a large part of a θ move.
     /// `loadings` is scratch of length at least 2 n K.
-    pub fn add_points_covariance(&self, comp_var: &[f64], idx: &[usize], g: &[f64], lower: &mut [f64], loadings: &mut [f64]) {
+    pub fn add_points_covariance(
+        &self,
+        comp_var: &[f64],
+        idx: &[usize],
+        g: &[f64],
+        lower: &mut [f64],
+        loadings: &mut [f64],
+    ) {
         let (n, m, kc) = (idx.len(), self.n_outputs(), comp_var.len());
         for j in 0..n {
             let row = &self.truncation_cov[idx[j] * m..(idx[j] + 1) * m];
@@ -390,7 +415,8 @@ impl Emulator {
             let (y, dy_dz) = self.output_mean_from_components(&cm, j);
             mean[j] = y;
             for p in 0..d {
-                let dz: f64 = (0..kc).map(|c| dcm[c * d + p] * self.component_sd[c] * self.parts.basis[c * m + j]).sum();
+                let dz: f64 =
+                    (0..kc).map(|c| dcm[c * d + p] * self.component_sd[c] * self.parts.basis[c * m + j]).sum();
                 jac[j * d + p] = dy_dz * dz;
             }
         }
@@ -498,19 +524,37 @@ fn scale_to_unit(lo: &[f64], hi: &[f64], theta: &[f64], out: &mut [f64]) {
 
 /// `mdpipe train-emulator`: reads the settings and the table, trains, stores.
 /// With `design`, every design point must have runs in the table.
-pub fn train_and_save(config: &std::path::Path, training: &std::path::Path, design: Option<&std::path::Path>, out: &std::path::Path, seed: u64) -> Result<(Emulator, TrainingReport)> {
+pub fn train_and_save(
+    config: &std::path::Path,
+    training: &std::path::Path,
+    design: Option<&std::path::Path>,
+    out: &std::path::Path,
+    seed: u64,
+) -> Result<(Emulator, TrainingReport)> {
     use anyhow::Context;
     let settings = EmulatorSettings::load(config)?;
-    let config_hash = crate::base::artifacts::sha256_hex(&std::fs::read(config).with_context(|| format!("reading {}", config.display()))?);
+    let config_hash = crate::base::artifacts::sha256_hex(
+        &std::fs::read(config).with_context(|| format!("reading {}", config.display()))?,
+    );
     let command = format!("train-emulator {} --training {}", config.display(), training.display());
     train_with_settings(&settings, &config_hash, &command, training, design, out, seed)
 }
 
 /// Trains on the table at `training` with explicit settings and stores the
 /// emulator, with `config_hash` and `command` as its provenance.
-pub fn train_with_settings(settings: &EmulatorSettings, config_hash: &str, command: &str, training: &std::path::Path, design: Option<&std::path::Path>, out: &std::path::Path, seed: u64) -> Result<(Emulator, TrainingReport)> {
+pub fn train_with_settings(
+    settings: &EmulatorSettings,
+    config_hash: &str,
+    command: &str,
+    training: &std::path::Path,
+    design: Option<&std::path::Path>,
+    out: &std::path::Path,
+    seed: u64,
+) -> Result<(Emulator, TrainingReport)> {
     use anyhow::Context;
-    let data_hash = crate::base::artifacts::sha256_hex(&std::fs::read(training).with_context(|| format!("reading {}", training.display()))?);
+    let data_hash = crate::base::artifacts::sha256_hex(
+        &std::fs::read(training).with_context(|| format!("reading {}", training.display()))?,
+    );
     let table = table::read_training_table_selected(training, &settings.parameters, &settings.observables)?;
     if let Some(design) = design {
         check_against_design(&table, design)?;

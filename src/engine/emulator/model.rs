@@ -2,8 +2,8 @@
 //! It predicts only at the x where it was trained (the analysis bins), and it
 //! carries its own predictive covariance into the likelihood.
 
-use crate::engine::model::Simulator;
 use super::{Emulator, PredictScratch};
+use crate::engine::model::Simulator;
 use anyhow::{bail, Result};
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -42,7 +42,15 @@ impl EmulatedModel {
         let observables = emulator.observable_names();
         let outputs_by_observable = observables
             .iter()
-            .map(|name| emulator.outputs().iter().enumerate().filter(|(_, o)| &o.observable == name).map(|(j, o)| (o.x, j)).collect())
+            .map(|name| {
+                emulator
+                    .outputs()
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, o)| &o.observable == name)
+                    .map(|(j, o)| (o.x, j))
+                    .collect()
+            })
             .collect();
         EmulatedModel { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), emulator, observables, outputs_by_observable }
     }
@@ -66,10 +74,20 @@ impl EmulatedModel {
                             list.remove(lru);
                         }
                         let k = self.emulator.n_components();
-                        list.push(Cached { id: self.id, last_used: 0, theta: Vec::new(), means: vec![0.0; k], vars: vec![0.0; k], scratch: self.emulator.scratch() });
+                        list.push(Cached {
+                            id: self.id,
+                            last_used: 0,
+                            theta: Vec::new(),
+                            means: vec![0.0; k],
+                            vars: vec![0.0; k],
+                            scratch: self.emulator.scratch(),
+                        });
                         list.len() - 1
                     } else {
-                        (0..list.len()).filter(|&i| list[i].id == self.id).min_by_key(|&i| list[i].last_used).unwrap_or(0)
+                        (0..list.len())
+                            .filter(|&i| list[i].id == self.id)
+                            .min_by_key(|&i| list[i].last_used)
+                            .unwrap_or(0)
                     };
                     let c = &mut list[slot];
                     self.emulator.predict_components(theta, &mut c.means, &mut c.vars, &mut c.scratch);
@@ -87,7 +105,11 @@ impl EmulatedModel {
     fn output(&self, observable: usize, x: f64) -> usize {
         // check_inputs has verified every x the likelihood will ask for.
         let matches = |xo: f64| (xo - x).abs() <= 1e-9 * x.abs().max(1.0);
-        self.outputs_by_observable[observable].iter().find(|(xo, _)| matches(*xo)).map(|&(_, j)| j).unwrap_or_else(|| panic!("{} has no emulator output at x = {x}", self.observables[observable]))
+        self.outputs_by_observable[observable]
+            .iter()
+            .find(|(xo, _)| matches(*xo))
+            .map(|&(_, j)| j)
+            .unwrap_or_else(|| panic!("{} has no emulator output at x = {x}", self.observables[observable]))
     }
 }
 
@@ -109,7 +131,8 @@ impl Simulator for EmulatedModel {
         let name = &self.observables[observable];
         for &xi in x {
             if self.emulator.output_index(name, xi).is_none() {
-                let have: Vec<String> = self.emulator.outputs().iter().filter(|o| &o.observable == name).map(|o| o.x.to_string()).collect();
+                let have: Vec<String> =
+                    self.emulator.outputs().iter().filter(|o| &o.observable == name).map(|o| o.x.to_string()).collect();
                 bail!("observable '{name}' is measured at x = {xi}, where the emulator has no output (it was trained at x = {})", have.join(", "));
             }
         }
@@ -136,7 +159,13 @@ impl Simulator for EmulatedModel {
     fn model_covariance_spans_observables(&self) -> bool {
         self.observables.len() > 1
     }
-    fn add_joint_model_covariance(&self, points: &[(usize, f64)], inv_scales: &[f64], theta: &[f64], lower: &mut [f64]) {
+    fn add_joint_model_covariance(
+        &self,
+        points: &[(usize, f64)],
+        inv_scales: &[f64],
+        theta: &[f64],
+        lower: &mut [f64],
+    ) {
         self.with_components(theta, |means, vars| {
             with_point_scratch(points.len(), self.emulator.n_components(), |idx, g, loading| {
                 for (i, &(observable, xi)) in points.iter().enumerate() {
@@ -205,7 +234,9 @@ mod tests {
             noise_correlation: None,
             values,
         };
-        let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 3\nrestarts = 2\nlog_observables = [\"y\"]").unwrap();
+        let settings: EmulatorSettings =
+            toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 3\nrestarts = 2\nlog_observables = [\"y\"]")
+                .unwrap();
         train(&table, &settings, 1).unwrap().0
     }
 
@@ -225,7 +256,11 @@ mod tests {
             for i in j..4 {
                 let (oi, oj) = (model.output(points[i].0, points[i].1), model.output(points[j].0, points[j].1));
                 let expect = full.cov[oi * m + oj] * inv_scales[i] * inv_scales[j];
-                assert!((lower[i + j * 4] - expect).abs() <= 1e-12 * expect.abs().max(1e-300), "({i}, {j}): {} vs {expect}", lower[i + j * 4]);
+                assert!(
+                    (lower[i + j * 4] - expect).abs() <= 1e-12 * expect.abs().max(1e-300),
+                    "({i}, {j}): {} vs {expect}",
+                    lower[i + j * 4]
+                );
                 if points[i].0 != points[j].0 {
                     across = across.max(expect.abs());
                 }

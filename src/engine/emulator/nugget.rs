@@ -50,10 +50,23 @@ pub struct ExcessScatterTest {
 impl ExcessScatterTest {
     /// One component's test from the two fits' log marginal likelihoods,
     /// undecided until [`decide_by_holm`].
-    pub fn new(component: usize, fitted_noise_var: f64, reported_noise_var: f64, free_lml: f64, null_lml: f64) -> ExcessScatterTest {
+    pub fn new(
+        component: usize,
+        fitted_noise_var: f64,
+        reported_noise_var: f64,
+        free_lml: f64,
+        null_lml: f64,
+    ) -> ExcessScatterTest {
         // A null fit that found a higher likelihood (a local optimum of the free one) is no evidence.
         let statistic = (2.0 * (free_lml - null_lml)).max(0.0);
-        ExcessScatterTest { component, fitted_noise_var, reported_noise_var, statistic, p_value: boundary_p_value(statistic), excess_kept: false }
+        ExcessScatterTest {
+            component,
+            fitted_noise_var,
+            reported_noise_var,
+            statistic,
+            p_value: boundary_p_value(statistic),
+            excess_kept: false,
+        }
     }
 }
 
@@ -99,7 +112,18 @@ mod tests {
     }
 
     fn with_p(p_values: &[f64]) -> Vec<ExcessScatterTest> {
-        p_values.iter().enumerate().map(|(k, &p)| ExcessScatterTest { component: k, fitted_noise_var: 2.0, reported_noise_var: 1.0, statistic: 1.0, p_value: p, excess_kept: false }).collect()
+        p_values
+            .iter()
+            .enumerate()
+            .map(|(k, &p)| ExcessScatterTest {
+                component: k,
+                fitted_noise_var: 2.0,
+                reported_noise_var: 1.0,
+                statistic: 1.0,
+                p_value: p,
+                excess_kept: false,
+            })
+            .collect()
     }
 
     /// Holm steps down from the smallest p-value and stops at the first

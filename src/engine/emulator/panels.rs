@@ -84,7 +84,8 @@ impl InversePanels {
         let mut total = _mm256_setzero_pd();
         for r0 in (0..n).step_by(ROWS) {
             let cols = Self::columns(r0, n);
-            let (mut a0, mut a1, mut a2, mut a3) = (_mm256_setzero_pd(), _mm256_setzero_pd(), _mm256_setzero_pd(), _mm256_setzero_pd());
+            let (mut a0, mut a1, mut a2, mut a3) =
+                (_mm256_setzero_pd(), _mm256_setzero_pd(), _mm256_setzero_pd(), _mm256_setzero_pd());
             let mut t = 0;
             while t + 4 <= cols {
                 a0 = _mm256_fmadd_pd(_mm256_loadu_pd(p), _mm256_broadcast_sd(&*kp.add(t)), a0);
@@ -129,7 +130,11 @@ mod tests {
             // Only the summation order differs: a few ulps of the largest partial sums.
             let tol = 1e-12 * plain.abs().max(1.0);
             assert!((panels.quadratic(&k) - plain).abs() < tol, "n = {n}: {} vs {plain}", panels.quadratic(&k));
-            assert!((panels.quadratic_portable(&k) - plain).abs() < tol, "n = {n}: portable {} vs {plain}", panels.quadratic_portable(&k));
+            assert!(
+                (panels.quadratic_portable(&k) - plain).abs() < tol,
+                "n = {n}: portable {} vs {plain}",
+                panels.quadratic_portable(&k)
+            );
         }
     }
 }

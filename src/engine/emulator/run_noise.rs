@@ -53,12 +53,17 @@ pub fn output_noise_var(parts: &super::EmulatorParts) -> Vec<f64> {
                 return 0.0;
             }
             let scale = |i: usize| if parts.log_transform[j] { 1.0 / parts.train_values[i * m + j].abs() } else { 1.0 };
-            let mean_sq: f64 = (0..n).map(|i| (parts.train_errors[i * m + j] * scale(i)).powi(2)).sum::<f64>() / n as f64;
+            let mean_sq: f64 =
+                (0..n).map(|i| (parts.train_errors[i * m + j] * scale(i)).powi(2)).sum::<f64>() / n as f64;
             let v = mean_sq / (parts.output_std[j] * parts.output_std[j]);
             // An error whose square overflows says nothing usable about this
             // output's noise: remove none here rather than poison every
             // component's projection (and so every output) with an infinity.
-            if v.is_finite() { v } else { 0.0 }
+            if v.is_finite() {
+                v
+            } else {
+                0.0
+            }
         })
         .collect()
 }
@@ -128,7 +133,11 @@ pub fn pca_noise_cov(parts: &super::EmulatorParts) -> Vec<f64> {
         .take(kept)
         .map(|(v, s)| {
             let var = s * s / n;
-            if var > 0.0 { (1.0 - finite_or_zero(projected(v, &noise) / var)).max(0.0) } else { 0.0 }
+            if var > 0.0 {
+                (1.0 - finite_or_zero(projected(v, &noise) / var)).max(0.0)
+            } else {
+                0.0
+            }
         })
         .sum();
     // P = I − Σ_kept v vᵀ, then P N P.
@@ -171,7 +180,11 @@ pub fn removed_per_component(parts: &super::EmulatorParts, component_sd: &[f64],
     let removed_kept = (0..kept).map(|k| {
         let var = component_sd[k] * component_sd[k];
         // Remove nothing rather than a NaN (which `min` would turn into the cap).
-        if var > 0.0 { finite_or_zero(projected(k) / var).min(kept_noise_var[k]) } else { 0.0 }
+        if var > 0.0 {
+            finite_or_zero(projected(k) / var).min(kept_noise_var[k])
+        } else {
+            0.0
+        }
     });
     let dropped_var: f64 = component_sd[kept..].iter().map(|s| s * s).sum();
     let dropped_noise: f64 = (kept..component_sd.len()).map(projected).sum();
@@ -206,7 +219,10 @@ mod tests {
             input_lo: vec![0.0],
             input_hi: vec![1.0],
             kernel: crate::engine::gp::ArdKernel::Matern52,
-            outputs: vec![super::super::OutputKey { observable: "y".into(), x: 1.0 }, super::super::OutputKey { observable: "y".into(), x: 2.0 }],
+            outputs: vec![
+                super::super::OutputKey { observable: "y".into(), x: 1.0 },
+                super::super::OutputKey { observable: "y".into(), x: 2.0 },
+            ],
             log_transform: vec![false, false],
             output_mean: vec![0.0, 0.0],
             output_std: vec![1.0, 2.0],
@@ -287,8 +303,10 @@ mod tests {
             (0..outputs).map(|j| f_loading(j) * f + (0.7 * j as f64).sin() * g + 0.1 * j as f64).collect()
         };
         let sigma = 0.1;
-        let correlation: Vec<f64> = (0..outputs * outputs).map(|ab| if ab % (outputs + 1) == 0 { 1.0 } else { case.rho }).collect();
-        let (mut mean_z2, mut run_z2_vs_mean, mut run_z2_vs_runs, mut count, mut nugget_left) = (0.0, 0.0, 0.0, 0.0, 0.0f64);
+        let correlation: Vec<f64> =
+            (0..outputs * outputs).map(|ab| if ab % (outputs + 1) == 0 { 1.0 } else { case.rho }).collect();
+        let (mut mean_z2, mut run_z2_vs_mean, mut run_z2_vs_runs, mut count, mut nugget_left) =
+            (0.0, 0.0, 0.0, 0.0, 0.0f64);
         for seed in 0..5 {
             let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
             let uniform = rand_distr::Uniform::new(0.0, 1.0).unwrap();
@@ -298,7 +316,10 @@ mod tests {
                 (0..outputs).map(|_| case.rho.sqrt() * common + (1.0 - case.rho).sqrt() * noise.sample(rng)).collect()
             };
             let inputs: Vec<f64> = (0..2 * runs).map(|_| uniform.sample(&mut rng)).collect();
-            let values: Vec<f64> = inputs.chunks(2).flat_map(|u| truth(u).into_iter().zip(run_noise(&mut rng)).map(|(t, e)| t + e).collect::<Vec<_>>()).collect();
+            let values: Vec<f64> = inputs
+                .chunks(2)
+                .flat_map(|u| truth(u).into_iter().zip(run_noise(&mut rng)).map(|(t, e)| t + e).collect::<Vec<_>>())
+                .collect();
             let table = TrainingTable {
                 path: "synthetic".into(),
                 parameter_names: vec!["a".into(), "b".into()],
@@ -309,7 +330,8 @@ mod tests {
                 noise_correlation: case.told.then(|| correlation.clone()),
                 values,
             };
-            let settings: EmulatorSettings = toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 3").unwrap();
+            let settings: EmulatorSettings =
+                toml::from_str("parameters = [\"a\", \"b\"]\ncomponents = 2\nrestarts = 3").unwrap();
             let emu = train(&table, &settings, seed).unwrap().0;
             for (gp, removed) in emu.gps.iter().zip(&emu.run_noise) {
                 nugget_left = nugget_left.max(1.0 - removed / gp.noise_var);
@@ -327,7 +349,12 @@ mod tests {
                 }
             }
         }
-        let z2 = Z2 { mean_vs_mean: mean_z2 / count, run_vs_mean: run_z2_vs_mean / count, run_vs_runs: run_z2_vs_runs / count, nugget_left };
+        let z2 = Z2 {
+            mean_vs_mean: mean_z2 / count,
+            run_vs_mean: run_z2_vs_mean / count,
+            run_vs_runs: run_z2_vs_runs / count,
+            nugget_left,
+        };
         println!(
             "{outputs} outputs, {runs} runs, noise correlation {} ({}): z² against the true mean: {:.3} (mean prediction), {:.3} (run prediction); against fresh runs: {:.3}; largest nugget share left: {:.3}",
             case.rho,
@@ -341,7 +368,11 @@ mod tests {
     }
 
     fn assert_calibrated(z2: &Z2) {
-        assert!((0.58..=1.42).contains(&z2.mean_vs_mean), "mean prediction against the true mean: z² {:.3}", z2.mean_vs_mean);
+        assert!(
+            (0.58..=1.42).contains(&z2.mean_vs_mean),
+            "mean prediction against the true mean: z² {:.3}",
+            z2.mean_vs_mean
+        );
         assert_run_prediction_calibrated(z2);
     }
 
@@ -388,7 +419,16 @@ mod tests {
         assert!(told.nugget_left < 0.42, "with the correlation, {:.3} of a nugget was left", told.nugget_left);
         assert_run_prediction_calibrated(&told);
         let untold = z2_over_training_sets(40, 100, Noise { rho: 0.7, told: false });
-        assert!(untold.nugget_left > 0.9, "without the correlation, only {:.3} of the leading nugget should be left out", untold.nugget_left);
-        assert!(untold.mean_vs_mean < 0.5 * told.mean_vs_mean, "without the correlation the mean prediction should be far wider: z² {:.3} against {:.3}", untold.mean_vs_mean, told.mean_vs_mean);
+        assert!(
+            untold.nugget_left > 0.9,
+            "without the correlation, only {:.3} of the leading nugget should be left out",
+            untold.nugget_left
+        );
+        assert!(
+            untold.mean_vs_mean < 0.5 * told.mean_vs_mean,
+            "without the correlation the mean prediction should be far wider: z² {:.3} against {:.3}",
+            untold.mean_vs_mean,
+            told.mean_vs_mean
+        );
     }
 }

@@ -38,7 +38,13 @@ const FORMAT: u32 = 1;
 /// Writes the artifact folder as a whole: everything goes into a staging
 /// sibling that replaces `dir` only once complete, so an interrupted save
 /// never leaves old and new tables mixed.
-pub fn save(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report: &TrainingReport, provenance: &Provenance) -> Result<()> {
+pub fn save(
+    dir: &Path,
+    emu: &Emulator,
+    settings: &EmulatorSettings,
+    report: &TrainingReport,
+    provenance: &Provenance,
+) -> Result<()> {
     let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("emulator");
     let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
@@ -59,7 +65,13 @@ pub fn save(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report: &Tr
     Ok(())
 }
 
-fn write_folder(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report: &TrainingReport, provenance: &Provenance) -> Result<()> {
+fn write_folder(
+    dir: &Path,
+    emu: &Emulator,
+    settings: &EmulatorSettings,
+    report: &TrainingReport,
+    provenance: &Provenance,
+) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let p = &emu.parts;
     let (n, m, d, r) = (p.design_ids.len(), p.outputs.len(), p.parameter_names.len(), p.singular_values.len());
@@ -84,7 +96,10 @@ fn write_folder(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report:
             Column::new("output".into(), (0..m as i64).collect::<Vec<_>>()),
             Column::new("observable".into(), p.outputs.iter().map(|o| o.observable.as_str()).collect::<Vec<_>>()),
             Column::new("x".into(), p.outputs.iter().map(|o| o.x).collect::<Vec<_>>()),
-            Column::new("transform".into(), p.log_transform.iter().map(|&l| if l { "log" } else { "none" }).collect::<Vec<_>>()),
+            Column::new(
+                "transform".into(),
+                p.log_transform.iter().map(|&l| if l { "log" } else { "none" }).collect::<Vec<_>>(),
+            ),
             Column::new("mean".into(), p.output_mean.clone()),
             Column::new("std".into(), p.output_std.clone()),
         ],
@@ -95,7 +110,10 @@ fn write_folder(dir: &Path, emu: &Emulator, settings: &EmulatorSettings, report:
         m * r,
         vec![
             Column::new("component".into(), (0..r as i64).flat_map(|k| std::iter::repeat_n(k, m)).collect::<Vec<_>>()),
-            Column::new("singular_value".into(), p.singular_values.iter().flat_map(|&s| std::iter::repeat_n(s, m)).collect::<Vec<_>>()),
+            Column::new(
+                "singular_value".into(),
+                p.singular_values.iter().flat_map(|&s| std::iter::repeat_n(s, m)).collect::<Vec<_>>(),
+            ),
             Column::new("output".into(), (0..r).flat_map(|_| 0..m as i64).collect::<Vec<_>>()),
             Column::new("loading".into(), p.basis.clone()),
         ],
@@ -151,21 +169,35 @@ fn f64s(df: &DataFrame, file: &Path, name: &str) -> Result<Vec<f64>> {
     let c = df.column(name).map_err(|_| anyhow!("{}: missing column '{name}'", file.display()))?;
     let c = c.cast(&DataType::Float64)?;
     let ca = c.f64()?;
-    (0..df.height()).map(|i| ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", file.display(), i + 1))).collect()
+    (0..df.height())
+        .map(|i| ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", file.display(), i + 1)))
+        .collect()
 }
 
 fn strs(df: &DataFrame, file: &Path, name: &str) -> Result<Vec<String>> {
     let c = df.column(name).map_err(|_| anyhow!("{}: missing column '{name}'", file.display()))?;
     let ca = c.str().map_err(|_| anyhow!("{}: column '{name}' must be strings", file.display()))?;
-    (0..df.height()).map(|i| ca.get(i).map(String::from).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", file.display(), i + 1))).collect()
+    (0..df.height())
+        .map(|i| {
+            ca.get(i)
+                .map(String::from)
+                .ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", file.display(), i + 1))
+        })
+        .collect()
 }
 
 fn load_metadata(dir: &Path) -> Result<Metadata> {
     let meta_path = dir.join("emulator.json");
-    let meta: Metadata = serde_json::from_str(&std::fs::read_to_string(&meta_path).with_context(|| format!("reading {} (is this an emulator folder from `mdpipe train-emulator`?)", meta_path.display()))?)
-        .map_err(|e| anyhow!("{}: {e}", meta_path.display()))?;
+    let meta: Metadata = serde_json::from_str(&std::fs::read_to_string(&meta_path).with_context(|| {
+        format!("reading {} (is this an emulator folder from `mdpipe train-emulator`?)", meta_path.display())
+    })?)
+    .map_err(|e| anyhow!("{}: {e}", meta_path.display()))?;
     if meta.format != FORMAT {
-        bail!("{}: emulator format {} is not supported (this mdpipe reads format {FORMAT})", meta_path.display(), meta.format);
+        bail!(
+            "{}: emulator format {} is not supported (this mdpipe reads format {FORMAT})",
+            meta_path.display(),
+            meta.format
+        );
     }
     Ok(meta)
 }

@@ -83,7 +83,11 @@ impl TrainingTable {
     /// outputs (new runs of the same simulator).
     pub fn append(&mut self, other: &TrainingTable) -> Result<()> {
         if other.parameter_names != self.parameter_names || other.outputs != self.outputs {
-            bail!("{}: its parameters or outputs differ from those of {} (new runs must be of the same simulator)", other.path.display(), self.path.display());
+            bail!(
+                "{}: its parameters or outputs differ from those of {} (new runs must be of the same simulator)",
+                other.path.display(),
+                self.path.display()
+            );
         }
         if let Some(id) = other.design_ids.iter().find(|id| self.design_ids.contains(id)) {
             bail!("{}: design id {id} is already in {}", other.path.display(), self.path.display());
@@ -129,7 +133,15 @@ impl TrainingTable {
         for i in 0..self.n_points() {
             let params: Vec<String> = self.input(i).iter().map(|v| v.to_string()).collect();
             for (j, o) in self.outputs.iter().enumerate() {
-                text.push_str(&format!("{},{},{},{},{},{}\n", self.design_ids[i], o.observable, o.x, self.row(i)[j], self.row_errors(i)[j], params.join(",")));
+                text.push_str(&format!(
+                    "{},{},{},{},{},{}\n",
+                    self.design_ids[i],
+                    o.observable,
+                    o.x,
+                    self.row(i)[j],
+                    self.row_errors(i)[j],
+                    params.join(",")
+                ));
             }
         }
         text
@@ -153,7 +165,9 @@ impl TrainingTable {
         }
         let side = crate::base::covariance::noise_correlation_path(path);
         match std::fs::remove_file(&side) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(anyhow!("removing the stale {}: {e}", side.display())),
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                Err(anyhow!("removing the stale {}: {e}", side.display()))
+            }
             _ => Ok(()),
         }
     }
@@ -167,7 +181,14 @@ impl TrainingTable {
             for b in 0..a {
                 if r[a * m + b] != 0.0 {
                     let (oa, ob) = (&self.outputs[a], &self.outputs[b]);
-                    entries.push(crate::base::covariance::CovarianceEntry { observable_a: oa.observable.clone(), x_a: oa.x, observable_b: ob.observable.clone(), x_b: ob.x, covariance: r[a * m + b], line: 0 });
+                    entries.push(crate::base::covariance::CovarianceEntry {
+                        observable_a: oa.observable.clone(),
+                        x_a: oa.x,
+                        observable_b: ob.observable.clone(),
+                        x_b: ob.x,
+                        covariance: r[a * m + b],
+                        line: 0,
+                    });
                 }
             }
         }
@@ -221,7 +242,12 @@ impl RawTable {
             .trim(csv::Trim::All)
             .from_path(path)
             .with_context(|| format!("opening table {}", path.display()))?;
-        let headers: Vec<String> = reader.headers().with_context(|| format!("{}: reading header", path.display()))?.iter().map(String::from).collect();
+        let headers: Vec<String> = reader
+            .headers()
+            .with_context(|| format!("{}: reading header", path.display()))?
+            .iter()
+            .map(String::from)
+            .collect();
         let mut rows = Vec::new();
         for rec in reader.records() {
             let rec = rec.with_context(|| format!("{}: malformed CSV", path.display()))?;
@@ -269,7 +295,8 @@ impl RawTable {
                 rows.iter()
                     .map(|(line, cells)| {
                         let s = cells.get(k).map(String::as_str).unwrap_or("");
-                        s.parse::<f64>().map_err(|_| anyhow!("{file}: line {line}, field '{name}': cannot parse {s:?} as a number"))
+                        s.parse::<f64>()
+                            .map_err(|_| anyhow!("{file}: line {line}, field '{name}': cannot parse {s:?} as a number"))
                     })
                     .collect()
             }
@@ -277,7 +304,9 @@ impl RawTable {
                 let c = df.column(name).map_err(|_| self.missing(path, name))?;
                 let c = c.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?;
                 let ca = c.f64()?;
-                (0..df.height()).map(|i| ca.get(i).ok_or_else(|| anyhow!("{file}: row {}, field '{name}': missing value", i + 1))).collect()
+                (0..df.height())
+                    .map(|i| ca.get(i).ok_or_else(|| anyhow!("{file}: row {}, field '{name}': missing value", i + 1)))
+                    .collect()
             }
         }
     }
@@ -292,7 +321,11 @@ impl RawTable {
                 let c = df.column(name).map_err(|_| self.missing(path, name))?;
                 let ca = c.str().map_err(|_| anyhow!("{}: column '{name}' must be a string column", path.display()))?;
                 (0..df.height())
-                    .map(|i| ca.get(i).map(String::from).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", path.display(), i + 1)))
+                    .map(|i| {
+                        ca.get(i)
+                            .map(String::from)
+                            .ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", path.display(), i + 1))
+                    })
                     .collect()
             }
         }
@@ -301,7 +334,12 @@ impl RawTable {
 
 fn check_finite(path: &Path, raw: &RawTable, field: &str, values: &[f64]) -> Result<()> {
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-        bail!("{}: {}, field '{field}': value is {}, must be a finite number", path.display(), raw.location(i), values[i]);
+        bail!(
+            "{}: {}, field '{field}': value is {}, must be a finite number",
+            path.display(),
+            raw.location(i),
+            values[i]
+        );
     }
     Ok(())
 }
@@ -350,10 +388,24 @@ impl Cells {
     }
 
     /// Records one value; a second value for the same cell is an error naming both rows.
-    fn add(&mut self, raw: &RawTable, path: &Path, id: i64, key: OutputKey, (value, error): (f64, f64), row: usize) -> Result<()> {
+    fn add(
+        &mut self,
+        raw: &RawTable,
+        path: &Path,
+        id: i64,
+        key: OutputKey,
+        (value, error): (f64, f64),
+        row: usize,
+    ) -> Result<()> {
         let (point, out) = (self.point(id), self.output(key));
         if let Some((_, _, first)) = self.cells.insert((point, out), (value, error, row)) {
-            bail!("{}: {}: design point {id} has a second value for {} (first at {})", path.display(), raw.location(row), self.outputs[out], raw.location(first));
+            bail!(
+                "{}: {}: design point {id} has a second value for {} (first at {})",
+                path.display(),
+                raw.location(row),
+                self.outputs[out],
+                raw.location(first)
+            );
         }
         Ok(())
     }
@@ -361,7 +413,11 @@ impl Cells {
 
 /// As [`read_training_table`], keeping only the named observables (all if
 /// `observables` is empty); each named one must be in the table.
-pub fn read_training_table_selected(path: &Path, parameter_names: &[String], observables: &[String]) -> Result<TrainingTable> {
+pub fn read_training_table_selected(
+    path: &Path,
+    parameter_names: &[String],
+    observables: &[String],
+) -> Result<TrainingTable> {
     let raw = RawTable::read(path)?;
     let file = path.display();
     if raw.height() == 0 {
@@ -381,11 +437,24 @@ pub fn read_training_table_selected(path: &Path, parameter_names: &[String], obs
         params.push(v);
     }
     let keep = |o: &str| observables.is_empty() || observables.iter().any(|k| k == o);
-    let cells = if raw.has("observable") { read_long(&raw, path, &ids, &keep)? } else { read_wide(&raw, path, &ids, parameter_names, &keep)? };
+    let cells = if raw.has("observable") {
+        read_long(&raw, path, &ids, &keep)?
+    } else {
+        read_wide(&raw, path, &ids, parameter_names, &keep)?
+    };
     let inputs = point_inputs(&raw, path, &ids, &cells, parameter_names, &params)?;
     let (outputs, values, errors) = ordered_values(path, &cells, observables)?;
     let noise_correlation = read_noise_correlation_beside(path, &outputs)?;
-    Ok(TrainingTable { path: path.to_path_buf(), parameter_names: parameter_names.to_vec(), design_ids: cells.point_order, inputs, outputs, values, errors, noise_correlation })
+    Ok(TrainingTable {
+        path: path.to_path_buf(),
+        parameter_names: parameter_names.to_vec(),
+        design_ids: cells.point_order,
+        inputs,
+        outputs,
+        values,
+        errors,
+        noise_correlation,
+    })
 }
 
 /// The correlation matrix (m × m, unit diagonal) of `TABLE.noise_correlation.csv`
@@ -397,7 +466,8 @@ fn read_noise_correlation_beside(path: &Path, outputs: &[OutputKey]) -> Result<O
         return Ok(None);
     }
     let m = outputs.len();
-    let find = |o: &str, x: f64| outputs.iter().position(|k| k.observable == o && (k.x - x).abs() <= 1e-9 * x.abs().max(1.0));
+    let find =
+        |o: &str, x: f64| outputs.iter().position(|k| k.observable == o && (k.x - x).abs() <= 1e-9 * x.abs().max(1.0));
     let mut r = vec![0.0; m * m];
     for a in 0..m {
         r[a * m + a] = 1.0;
@@ -422,7 +492,8 @@ fn read_noise_correlation_beside(path: &Path, outputs: &[OutputKey]) -> Result<O
 /// file can break definiteness even though each run's matrix had it.
 fn positive_definite(r: Vec<f64>, m: usize, file: &Path) -> Vec<f64> {
     for lambda in [0.0, 1e-6, 1e-4, 1e-3, 1e-2, 0.03, 0.1, 0.2, 0.3, 0.5, 0.7, 0.9, 0.95, 0.99, 1.0] {
-        let shrunk: Vec<f64> = r.iter().enumerate().map(|(ab, v)| if ab % (m + 1) == 0 { 1.0 } else { (1.0 - lambda) * v }).collect();
+        let shrunk: Vec<f64> =
+            r.iter().enumerate().map(|(ab, v)| if ab % (m + 1) == 0 { 1.0 } else { (1.0 - lambda) * v }).collect();
         let mut chol = crate::engine::gp::CholeskyWorkspace::new(m);
         chol.factor.copy_from_slice(&shrunk);
         if chol.factorize_exact() {
@@ -450,14 +521,27 @@ fn read_long(raw: &RawTable, path: &Path, ids: &[i64], keep: &dyn Fn(&str) -> bo
             bail!("{}: {}, field 'observable': empty observable name", path.display(), raw.location(i));
         }
         if keep(&obs[i]) {
-            cells.add(raw, path, ids[i], OutputKey { observable: obs[i].clone(), x: xs[i] }, (values[i], errors[i]), i)?;
+            cells.add(
+                raw,
+                path,
+                ids[i],
+                OutputKey { observable: obs[i].clone(), x: xs[i] },
+                (values[i], errors[i]),
+                i,
+            )?;
         }
     }
     Ok(cells)
 }
 
 /// A wide table: one row per design point, one column `observable[x]` per output.
-fn read_wide(raw: &RawTable, path: &Path, ids: &[i64], parameter_names: &[String], keep: &dyn Fn(&str) -> bool) -> Result<Cells> {
+fn read_wide(
+    raw: &RawTable,
+    path: &Path,
+    ids: &[i64],
+    parameter_names: &[String],
+    keep: &dyn Fn(&str) -> bool,
+) -> Result<Cells> {
     let file = path.display();
     let reserved: Vec<&str> = std::iter::once("design_id").chain(parameter_names.iter().map(String::as_str)).collect();
     let out_cols: Vec<String> = raw.columns().into_iter().filter(|c| !reserved.contains(&c.as_str())).collect();
@@ -466,7 +550,8 @@ fn read_wide(raw: &RawTable, path: &Path, ids: &[i64], parameter_names: &[String
     }
     let mut cells = Cells::default();
     for c in &out_cols {
-        let key = parse_wide_column(c).ok_or_else(|| anyhow!("{file}: column '{c}': expected 'observable[x]' with a numeric x"))?;
+        let key = parse_wide_column(c)
+            .ok_or_else(|| anyhow!("{file}: column '{c}': expected 'observable[x]' with a numeric x"))?;
         if !keep(&key.observable) {
             continue;
         }
@@ -480,7 +565,14 @@ fn read_wide(raw: &RawTable, path: &Path, ids: &[i64], parameter_names: &[String
 }
 
 /// Each point's parameters, which must agree on every row of the point.
-fn point_inputs(raw: &RawTable, path: &Path, ids: &[i64], cells: &Cells, parameter_names: &[String], params: &[Vec<f64>]) -> Result<Vec<f64>> {
+fn point_inputs(
+    raw: &RawTable,
+    path: &Path,
+    ids: &[i64],
+    cells: &Cells,
+    parameter_names: &[String],
+    params: &[Vec<f64>],
+) -> Result<Vec<f64>> {
     let d = parameter_names.len();
     let mut inputs = vec![f64::NAN; cells.point_order.len() * d];
     for i in 0..raw.height() {
@@ -492,7 +584,15 @@ fn point_inputs(raw: &RawTable, path: &Path, ids: &[i64], cells: &Cells, paramet
             if slot.is_nan() {
                 *slot = v;
             } else if *slot != v {
-                bail!("{}: {}, field '{}': design point {} has {} here but {} on an earlier row", path.display(), raw.location(i), parameter_names[k], ids[i], v, slot);
+                bail!(
+                    "{}: {}, field '{}': design point {} has {} here but {} on an earlier row",
+                    path.display(),
+                    raw.location(i),
+                    parameter_names[k],
+                    ids[i],
+                    v,
+                    slot
+                );
             }
         }
     }
@@ -540,7 +640,12 @@ fn ordered_values(path: &Path, cells: &Cells, observables: &[String]) -> Result<
 /// left empty by a failed jackknife is caught here, not in the likelihood).
 fn check_run_errors(path: &Path, raw: &RawTable, errors: &[f64]) -> Result<()> {
     match errors.iter().position(|e| !e.is_finite() || *e < 0.0) {
-        Some(i) => bail!("{}: {}, field 'error': {} is not a statistical error (it must be finite and ≥ 0)", path.display(), raw.location(i), errors[i]),
+        Some(i) => bail!(
+            "{}: {}, field 'error': {} is not a statistical error (it must be finite and ≥ 0)",
+            path.display(),
+            raw.location(i),
+            errors[i]
+        ),
         None => Ok(()),
     }
 }
@@ -570,7 +675,12 @@ pub fn check_against_design(table: &TrainingTable, design: &Path) -> Result<()> 
             let i = table.design_ids.iter().position(|d| d == id).expect("checked above");
             let t = table.input(i)[k];
             if (t - v).abs() > 1e-9 * v.abs().max(1.0) {
-                bail!("{}: {}, field '{name}': design point {id} has {v} in the design but {t} in {}", design.display(), raw.location(row), table.path.display());
+                bail!(
+                    "{}: {}, field '{name}': design point {id} has {v} in the design but {t} in {}",
+                    design.display(),
+                    raw.location(row),
+                    table.path.display()
+                );
             }
         }
     }

@@ -78,7 +78,8 @@ impl EmulatorSettings {
     }
 
     pub fn kernel(&self) -> Result<ArdKernel> {
-        ArdKernel::parse(&self.kernel).ok_or_else(|| anyhow!("[emulator] kernel: unknown kernel {:?} (use matern52 or se)", self.kernel))
+        ArdKernel::parse(&self.kernel)
+            .ok_or_else(|| anyhow!("[emulator] kernel: unknown kernel {:?} (use matern52 or se)", self.kernel))
     }
 }
 
@@ -155,7 +156,8 @@ impl CostAndGradient for NegLogMarginal<'_> {
         self.evaluations.set(self.evaluations.get() + 1);
         // Far outside the box exp() overflows, so the likelihood is taken at the
         // point clamped to a margin around it and the wall does the rest.
-        let clamped: Vec<f64> = p.iter().zip(&self.bounds).map(|(&v, &(lo, hi))| v.clamp(lo - CLAMP_MARGIN, hi + CLAMP_MARGIN)).collect();
+        let clamped: Vec<f64> =
+            p.iter().zip(&self.bounds).map(|(&v, &(lo, hi))| v.clamp(lo - CLAMP_MARGIN, hi + CLAMP_MARGIN)).collect();
         let mut grad = vec![0.0; p.len()];
         let hyper = ArdHyper { log_params: clamped.clone() };
         let (cost, grad) = match ard_log_marginal_likelihood(self.kernel, &hyper, self.x, self.y, Some(&mut grad)) {
@@ -166,7 +168,13 @@ impl CostAndGradient for NegLogMarginal<'_> {
                     if clamped[k] != p[k] {
                         g[k] = 0.0;
                     }
-                    let excess = if p[k] < lo { p[k] - lo } else if p[k] > hi { p[k] - hi } else { 0.0 };
+                    let excess = if p[k] < lo {
+                        p[k] - lo
+                    } else if p[k] > hi {
+                        p[k] - hi
+                    } else {
+                        0.0
+                    };
                     cost += WALL * excess * excess;
                     g[k] += 2.0 * WALL * excess;
                 }
@@ -224,17 +232,26 @@ struct Optimum {
 fn optimize(kernel: ArdKernel, x: &[f64], y: &[f64], start: Vec<f64>, max_iters: u64) -> Result<Optimum> {
     let d = start.len() - 3;
     let evaluations = std::cell::Cell::new(0);
-    let problem = NegLogMarginal { kernel, x, y, bounds: log_bounds(d), cache: RefCell::new(None), evaluations: &evaluations };
+    let problem =
+        NegLogMarginal { kernel, x, y, bounds: log_bounds(d), cache: RefCell::new(None), evaluations: &evaluations };
     minimize(problem, start, max_iters, &evaluations)
 }
 
 /// The same fit with the white-noise variance held at `exp(log_noise)`:
 /// `start` is every other log-hyperparameter, and the optimum's parameters
 /// come back with the fixed one appended.
-fn optimize_fixed_noise(kernel: ArdKernel, x: &[f64], y: &[f64], start: Vec<f64>, log_noise: f64, max_iters: u64) -> Result<Optimum> {
+fn optimize_fixed_noise(
+    kernel: ArdKernel,
+    x: &[f64],
+    y: &[f64],
+    start: Vec<f64>,
+    log_noise: f64,
+    max_iters: u64,
+) -> Result<Optimum> {
     let d = start.len() - 2;
     let evaluations = std::cell::Cell::new(0);
-    let full = NegLogMarginal { kernel, x, y, bounds: log_bounds(d), cache: RefCell::new(None), evaluations: &evaluations };
+    let full =
+        NegLogMarginal { kernel, x, y, bounds: log_bounds(d), cache: RefCell::new(None), evaluations: &evaluations };
     let mut optimum = minimize(FixedNoise { full, log_noise }, start, max_iters, &evaluations)?;
     optimum.log_params.push(log_noise);
     Ok(optimum)
@@ -256,30 +273,52 @@ impl CostAndGradient for FixedNoise<'_> {
 }
 
 /// L-BFGS on a negative log marginal likelihood from `start`.
-fn minimize<P: CostAndGradient>(problem: P, start: Vec<f64>, max_iters: u64, evaluations: &std::cell::Cell<u64>) -> Result<Optimum> {
-    let solver = LBFGS::new(MoreThuenteLineSearch::new(), 10).with_tolerance_grad(1e-5)?.with_tolerance_cost(COST_TOLERANCE)?;
-    let res = Executor::new(Lbfgs(problem), solver).configure(|s| s.param(start).max_iters(max_iters)).timer(false).run()?;
+fn minimize<P: CostAndGradient>(
+    problem: P,
+    start: Vec<f64>,
+    max_iters: u64,
+    evaluations: &std::cell::Cell<u64>,
+) -> Result<Optimum> {
+    let solver =
+        LBFGS::new(MoreThuenteLineSearch::new(), 10).with_tolerance_grad(1e-5)?.with_tolerance_cost(COST_TOLERANCE)?;
+    let res =
+        Executor::new(Lbfgs(problem), solver).configure(|s| s.param(start).max_iters(max_iters)).timer(false).run()?;
     let state = res.state();
     let best = state.get_best_param().cloned().ok_or_else(|| anyhow!("no parameters returned"))?;
     let outcome = match state.get_termination_reason() {
         Some(TerminationReason::MaxItersReached) => "max_iters".to_string(),
         // At the optimum, rounding makes the quasi-Newton direction fail the descent test.
-        Some(TerminationReason::SolverExit(s)) if s.contains("descent direction") => "converged (line search at optimum)".to_string(),
+        Some(TerminationReason::SolverExit(s)) if s.contains("descent direction") => {
+            "converged (line search at optimum)".to_string()
+        }
         Some(TerminationReason::SolverExit(s)) => format!("exit: {s}"),
         _ => "converged".to_string(),
     };
-    Ok(Optimum { log_params: best, log_marginal_likelihood: -state.get_best_cost(), iterations: state.get_iter(), evaluations: evaluations.get(), outcome })
+    Ok(Optimum {
+        log_params: best,
+        log_marginal_likelihood: -state.get_best_cost(),
+        iterations: state.get_iter(),
+        evaluations: evaluations.get(),
+        outcome,
+    })
 }
 
 /// Tests each kept component's white noise against what its runs report
 /// ([`super::nugget`]) and gives a component whose excess the runs do not
 /// show its fit with the noise held at the reported level.
-fn drop_unsupported_excess(kernel: ArdKernel, unit: &[f64], parts: &mut EmulatorParts, free_lml: &mut [f64], max_iters: u64) -> Vec<ExcessScatterTest> {
+fn drop_unsupported_excess(
+    kernel: ArdKernel,
+    unit: &[f64],
+    parts: &mut EmulatorParts,
+    free_lml: &mut [f64],
+    max_iters: u64,
+) -> Vec<ExcessScatterTest> {
     let n = parts.design_ids.len();
     let kept = parts.n_components;
     let component_sd: Vec<f64> = parts.singular_values.iter().map(|s| s / (n as f64).sqrt()).collect();
     let reported = super::run_noise::removed_per_component(parts, &component_sd, &vec![f64::INFINITY; kept]);
-    let jobs: Vec<usize> = (0..kept).filter(|&k| super::nugget::has_excess(parts.hypers[k].noise_var(), reported[k])).collect();
+    let jobs: Vec<usize> =
+        (0..kept).filter(|&k| super::nugget::has_excess(parts.hypers[k].noise_var(), reported[k])).collect();
     let null_fits: Vec<(usize, Result<Optimum>)> = jobs
         .par_iter()
         .map(|&k| {
@@ -292,8 +331,20 @@ fn drop_unsupported_excess(kernel: ArdKernel, unit: &[f64], parts: &mut Emulator
     let mut tested: Vec<(ExcessScatterTest, Vec<f64>, f64)> = Vec::new();
     for (k, fit) in null_fits {
         // A null fit that fails leaves the free fit, and its excess, in place.
-        let Ok(null) = fit.map_err(|e| eprintln!("warning: component {k}: the fit with the reported run noise failed ({e}); its fitted excess is kept")) else { continue };
-        let test = ExcessScatterTest::new(k, parts.hypers[k].noise_var(), reported[k], free_lml[k], null.log_marginal_likelihood);
+        let Ok(null) = fit.map_err(|e| {
+            eprintln!(
+                "warning: component {k}: the fit with the reported run noise failed ({e}); its fitted excess is kept"
+            )
+        }) else {
+            continue;
+        };
+        let test = ExcessScatterTest::new(
+            k,
+            parts.hypers[k].noise_var(),
+            reported[k],
+            free_lml[k],
+            null.log_marginal_likelihood,
+        );
         tested.push((test, null.log_params, null.log_marginal_likelihood));
     }
     let mut tests: Vec<ExcessScatterTest> = tested.iter().map(|t| t.0.clone()).collect();
@@ -340,7 +391,12 @@ fn input_box(table: &TrainingTable) -> Result<(Vec<f64>, Vec<f64>)> {
     }
     for p in 0..d {
         if lo[p] >= hi[p] {
-            bail!("{}: parameter '{}' is constant ({}) over the design; drop it from [emulator] parameters", table.path.display(), table.parameter_names[p], lo[p]);
+            bail!(
+                "{}: parameter '{}' is constant ({}) over the design; drop it from [emulator] parameters",
+                table.path.display(),
+                table.parameter_names[p],
+                lo[p]
+            );
         }
     }
     Ok((lo, hi))
@@ -358,7 +414,8 @@ struct Standardized {
 fn standardize(table: &TrainingTable, settings: &EmulatorSettings) -> Result<Standardized> {
     let file = table.path.display();
     let (n, m) = (table.n_points(), table.n_outputs());
-    let mut log_transform: Vec<bool> = table.outputs.iter().map(|o| settings.log_observables.contains(&o.observable)).collect();
+    let mut log_transform: Vec<bool> =
+        table.outputs.iter().map(|o| settings.log_observables.contains(&o.observable)).collect();
     let mut z = vec![0.0; n * m];
     let (mut mean, mut std) = (vec![0.0; m], vec![0.0; m]);
     for j in 0..m {
@@ -374,7 +431,12 @@ fn standardize(table: &TrainingTable, settings: &EmulatorSettings) -> Result<Sta
             let v = table.values[i * m + j];
             z[i * m + j] = if log_transform[j] {
                 if v <= 0.0 {
-                    bail!("{file}: design point {}, output {}: value {v} is not positive, but '{}' is in log_observables", table.design_ids[i], table.outputs[j], table.outputs[j].observable);
+                    bail!(
+                        "{file}: design point {}, output {}: value {v} is not positive, but '{}' is in log_observables",
+                        table.design_ids[i],
+                        table.outputs[j],
+                        table.outputs[j].observable
+                    );
                 }
                 v.ln()
             } else {
@@ -416,7 +478,9 @@ fn pca(z: &[f64], n: usize, m: usize, settings: &EmulatorSettings) -> Result<Pca
     let n_components = match settings.components {
         Some(k) => {
             if k == 0 || k > r {
-                bail!("[emulator] components = {k}, but at most {r} are possible with {n} design points and {m} outputs");
+                bail!(
+                    "[emulator] components = {k}, but at most {r} are possible with {n} design points and {m} outputs"
+                );
             }
             if k >= n {
                 bail!("[emulator] components = {k} must be fewer than the {n} design points");
@@ -458,10 +522,18 @@ struct Fitted {
     failures: usize,
 }
 
-fn fit_components(kernel: ArdKernel, unit: &[f64], pca: &Pca, n: usize, settings: &EmulatorSettings, seed: u64) -> Result<Fitted> {
+fn fit_components(
+    kernel: ArdKernel,
+    unit: &[f64],
+    pca: &Pca,
+    n: usize,
+    settings: &EmulatorSettings,
+    seed: u64,
+) -> Result<Fitted> {
     let d = unit.len() / n;
     // Every (component, restart) is independent work.
-    let jobs: Vec<(usize, usize)> = (0..pca.n_components).flat_map(|k| (0..settings.restarts).map(move |r| (k, r))).collect();
+    let jobs: Vec<(usize, usize)> =
+        (0..pca.n_components).flat_map(|k| (0..settings.restarts).map(move |r| (k, r))).collect();
     let bar = crate::base::progress::bar(jobs.len() as u64, "training GP emulators");
     let results: Vec<(usize, usize, Result<Optimum>)> = jobs
         .par_iter()
@@ -489,16 +561,37 @@ fn fit_components(kernel: ArdKernel, unit: &[f64], pca: &Pca, n: usize, settings
                 if best[k].as_ref().is_none_or(|(b, _)| lml > *b) {
                     best[k] = Some((lml, o.log_params));
                 }
-                runs.push(OptimizerRun { component: k, restart, log_marginal_likelihood: lml, iterations: o.iterations, evaluations: o.evaluations, outcome: o.outcome });
+                runs.push(OptimizerRun {
+                    component: k,
+                    restart,
+                    log_marginal_likelihood: lml,
+                    iterations: o.iterations,
+                    evaluations: o.evaluations,
+                    outcome: o.outcome,
+                });
             }
             Ok(o) => {
                 failures += 1;
                 let outcome = format!("failed: {} (log L {})", o.outcome, o.log_marginal_likelihood);
-                runs.push(OptimizerRun { component: k, restart, log_marginal_likelihood: f64::NAN, iterations: o.iterations, evaluations: o.evaluations, outcome });
+                runs.push(OptimizerRun {
+                    component: k,
+                    restart,
+                    log_marginal_likelihood: f64::NAN,
+                    iterations: o.iterations,
+                    evaluations: o.evaluations,
+                    outcome,
+                });
             }
             Err(e) => {
                 failures += 1;
-                runs.push(OptimizerRun { component: k, restart, log_marginal_likelihood: f64::NAN, iterations: 0, evaluations: 0, outcome: format!("failed: {e}") });
+                runs.push(OptimizerRun {
+                    component: k,
+                    restart,
+                    log_marginal_likelihood: f64::NAN,
+                    iterations: 0,
+                    evaluations: 0,
+                    outcome: format!("failed: {e}"),
+                });
             }
         }
     }
@@ -556,7 +649,8 @@ pub fn train(table: &TrainingTable, settings: &EmulatorSettings, seed: u64) -> R
         scores: pca.scores,
         hypers: fitted.hypers,
     };
-    let excess_scatter = drop_unsupported_excess(kernel, &unit, &mut parts, &mut fitted.log_marginal_likelihood, settings.max_iters);
+    let excess_scatter =
+        drop_unsupported_excess(kernel, &unit, &mut parts, &mut fitted.log_marginal_likelihood, settings.max_iters);
     let report = TrainingReport {
         n_points: n,
         n_outputs: m,

@@ -39,13 +39,20 @@ pub fn parity(emu: &Emulator, table: &TrainingTable, set: &str) -> Result<Vec<Pa
         .outputs()
         .iter()
         .map(|o| {
-            table.outputs.iter().position(|t| t.observable == o.observable && (t.x - o.x).abs() <= 1e-9 * o.x.abs().max(1.0)).ok_or_else(|| {
-                anyhow::anyhow!("{}: no column for emulator output {o}", table.path.display())
-            })
+            table
+                .outputs
+                .iter()
+                .position(|t| t.observable == o.observable && (t.x - o.x).abs() <= 1e-9 * o.x.abs().max(1.0))
+                .ok_or_else(|| anyhow::anyhow!("{}: no column for emulator output {o}", table.path.display()))
         })
         .collect::<Result<_>>()?;
     if table.parameter_names != emu.parts.parameter_names {
-        bail!("{}: parameters {:?} differ from the emulator's {:?}", table.path.display(), table.parameter_names, emu.parts.parameter_names);
+        bail!(
+            "{}: parameters {:?} differ from the emulator's {:?}",
+            table.path.display(),
+            table.parameter_names,
+            emu.parts.parameter_names
+        );
     }
     let mut rows = Vec::new();
     for i in 0..table.n_points() {
@@ -94,7 +101,8 @@ pub fn summarize(rows: &[ParityRow]) -> Vec<ObservableValidation> {
                 .sum::<f64>()
                 / xs.len() as f64;
             let spread = var_mean.sqrt();
-            let covered = |z: f64| sel.iter().filter(|r| (r.emulated - r.simulated).abs() <= z * r.sd).count() as f64 / n;
+            let covered =
+                |z: f64| sel.iter().filter(|r| (r.emulated - r.simulated).abs() <= z * r.sd).count() as f64 / n;
             ObservableValidation {
                 observable: name.to_string(),
                 n: sel.len(),
@@ -160,7 +168,12 @@ pub struct ValidationSummary {
 }
 
 /// `mdpipe validate-emulator`: writes `validation.json` and `validation_parity.parquet` into the emulator folder.
-pub fn run(dir: &std::path::Path, validation: Option<&std::path::Path>, folds: usize, seed: u64) -> Result<ValidationSummary> {
+pub fn run(
+    dir: &std::path::Path,
+    validation: Option<&std::path::Path>,
+    folds: usize,
+    seed: u64,
+) -> Result<ValidationSummary> {
     let emu = super::store::load(dir)?;
     let mut rows = Vec::new();
     let holdout = match validation {
@@ -202,7 +215,10 @@ pub fn run(dir: &std::path::Path, validation: Option<&std::path::Path>, folds: u
 /// Console table of one validation set.
 pub fn print(label: &str, rows: &[ObservableValidation]) {
     println!("{label}:");
-    println!("  {:<14} {:>6} {:>11} {:>11} {:>9} {:>8} {:>8}", "observable", "n", "RMSE", "spread", "RMSE/spr", "cov68", "cov95");
+    println!(
+        "  {:<14} {:>6} {:>11} {:>11} {:>9} {:>8} {:>8}",
+        "observable", "n", "RMSE", "spread", "RMSE/spr", "cov68", "cov95"
+    );
     for r in rows {
         println!(
             "  {:<14} {:>6} {:>11.4e} {:>11.4e} {:>9.4} {:>8.3} {:>8.3}",

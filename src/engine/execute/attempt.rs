@@ -124,7 +124,9 @@ pub fn has_ended(runs: &Path, id: i64, tag: &str) -> bool {
 
 /// Whether an attempt's script still holds its lock (it is running on this machine).
 pub fn is_running_here(runs: &Path, id: i64, tag: &str) -> bool {
-    let Ok(f) = std::fs::OpenOptions::new().write(true).open(attempt_path(runs, id, tag, ".lock")) else { return false };
+    let Ok(f) = std::fs::OpenOptions::new().write(true).open(attempt_path(runs, id, tag, ".lock")) else {
+        return false;
+    };
     match f.try_lock() {
         Ok(()) => false,
         Err(std::fs::TryLockError::WouldBlock) => true,
@@ -175,7 +177,8 @@ pub fn settle(runs: &Path, id: i64, tag: &str, output: OutputKind) -> Result<Att
     let exit_code = code_text.parse::<i32>().ok();
     let timed_out = matches!(exit_code, Some(124) | Some(137));
     let stderr_tail = tail(&attempt_path(runs, id, tag, ".log"), 5);
-    let mut record = AttemptRecord { tag: tag.to_string(), exit_code, timed_out, lost, seconds, problem: None, stderr_tail };
+    let mut record =
+        AttemptRecord { tag: tag.to_string(), exit_code, timed_out, lost, seconds, problem: None, stderr_tail };
     let staged = attempt_path(runs, id, tag, "");
     let done = runs.join(point_name(id));
     if record.exit_code == Some(0) && !lost {
@@ -184,7 +187,8 @@ pub fn settle(runs: &Path, id: i64, tag: &str, output: OutputKind) -> Result<Att
         }
         record.problem = missing_outputs(&staged, output);
         if record.problem.is_none() {
-            std::fs::rename(&staged, &done).with_context(|| format!("moving {} to {}", staged.display(), done.display()))?;
+            std::fs::rename(&staged, &done)
+                .with_context(|| format!("moving {} to {}", staged.display(), done.display()))?;
             return Ok(record);
         }
     }
@@ -194,10 +198,19 @@ pub fn settle(runs: &Path, id: i64, tag: &str, output: OutputKind) -> Result<Att
 }
 
 fn missing_outputs(dir: &Path, output: OutputKind) -> Option<String> {
-    let names: Vec<String> = std::fs::read_dir(dir).into_iter().flatten().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect();
+    let names: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
     match output {
-        OutputKind::Table if !names.iter().any(|n| n == "outputs.csv" || n == "outputs.parquet") => Some("exit code 0 but no outputs.csv or outputs.parquet in the point folder".into()),
-        OutputKind::IebeMusic if !names.iter().any(|n| n == "spvn_results.h5" || n.starts_with("spvn_results_")) => Some("exit code 0 but no spvn_results.h5 or spvn_results_<i>/ in the point folder".into()),
+        OutputKind::Table if !names.iter().any(|n| n == "outputs.csv" || n == "outputs.parquet") => {
+            Some("exit code 0 but no outputs.csv or outputs.parquet in the point folder".into())
+        }
+        OutputKind::IebeMusic if !names.iter().any(|n| n == "spvn_results.h5" || n.starts_with("spvn_results_")) => {
+            Some("exit code 0 but no spvn_results.h5 or spvn_results_<i>/ in the point folder".into())
+        }
         _ => None,
     }
 }

@@ -124,5 +124,12 @@ fn spawn(job: &Job, id: i64, tag: &str) -> Result<Child> {
     let script = attempt::attempts_dir(&job.runs).join(format!("{}.sh", attempt::point_name(id)));
     // Output goes to the attempt's log; nothing is inherited, so an attempt
     // outliving mdpipe holds none of its pipes.
-    Command::new("bash").arg(&script).arg(tag).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null()).spawn().with_context(|| format!("starting {}", script.display()))
+    Command::new("bash")
+        .arg(&script)
+        .arg(tag)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .with_context(|| format!("starting {}", script.display()))
 }

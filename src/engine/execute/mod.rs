@@ -114,13 +114,20 @@ pub fn run(job: &Job, executor: Executor, show_progress: bool) -> Result<Executi
             bail!("{tool} not found on PATH: the attempt scripts of `mdpipe run` need `timeout` (coreutils) and `flock` (util-linux)");
         }
     }
-    std::fs::create_dir_all(attempt::attempts_dir(&job.runs)).with_context(|| format!("creating {}", job.runs.display()))?;
+    std::fs::create_dir_all(attempt::attempts_dir(&job.runs))
+        .with_context(|| format!("creating {}", job.runs.display()))?;
     let mut todo = Vec::new();
     for p in &job.points {
         if job.runs.join(attempt::point_name(p.id)).exists() {
             continue;
         }
-        let paths = spec::PointPaths { id: p.id, folder: PathBuf::from("$MDPIPE_POINT"), param_file: abs(&p.param_file), design: abs(&job.design), mdpipe: job.mdpipe.clone() };
+        let paths = spec::PointPaths {
+            id: p.id,
+            folder: PathBuf::from("$MDPIPE_POINT"),
+            param_file: abs(&p.param_file),
+            design: abs(&job.design),
+            mdpipe: job.mdpipe.clone(),
+        };
         // The folder differs per attempt: the script exports it; the quoted
         // placeholder must expand, so it is left outside single quotes.
         let command = job.spec.render(&paths, &p.values).replace("'$MDPIPE_POINT'", "\"$MDPIPE_POINT\"");
@@ -148,14 +155,24 @@ pub fn run(job: &Job, executor: Executor, show_progress: bool) -> Result<Executi
         points: job.points.len(),
         already_done,
         succeeded: job.points.len() - failed.len(),
-        retried: tracker.records.iter().filter(|(_, r)| r.len() > 1 && r.last().is_some_and(AttemptRecord::succeeded)).map(|(id, _)| *id).collect(),
+        retried: tracker
+            .records
+            .iter()
+            .filter(|(_, r)| r.len() > 1 && r.last().is_some_and(AttemptRecord::succeeded))
+            .map(|(id, _)| *id)
+            .collect(),
         failed,
         seconds: start.elapsed().as_secs_f64(),
     };
     artifacts::write_json_atomic(&ExecutionReport::path(&job.runs), &report)?;
     if report.succeeded == 0 {
         report.print_failures();
-        bail!("{}: every design point failed (see {} and the logs in {})", job.label, ExecutionReport::path(&job.runs).display(), attempt::attempts_dir(&job.runs).display());
+        bail!(
+            "{}: every design point failed (see {} and the logs in {})",
+            job.label,
+            ExecutionReport::path(&job.runs).display(),
+            attempt::attempts_dir(&job.runs).display()
+        );
     }
     Ok(report)
 }
@@ -182,13 +199,29 @@ pub struct Tracker {
 impl Tracker {
     fn new(job: &Job, total: usize, show_progress: bool) -> Self {
         let bar = indicatif::ProgressBar::new(total as u64);
-        bar.set_style(indicatif::ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} points, ~{eta} left").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} points, ~{eta} left",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
         if !show_progress {
             bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
         }
         // In a batch log (no terminal) a plain line now and then replaces the bar.
         let plain = show_progress && !std::io::stderr().is_terminal();
-        Tracker { total, done: 0, failed: 0, running: 0, max_attempts: 1 + job.spec.retries as usize, records: BTreeMap::new(), bar, label: job.label.clone(), plain, last_line: std::time::Instant::now() }
+        Tracker {
+            total,
+            done: 0,
+            failed: 0,
+            running: 0,
+            max_attempts: 1 + job.spec.retries as usize,
+            records: BTreeMap::new(),
+            bar,
+            label: job.label.clone(),
+            plain,
+            last_line: std::time::Instant::now(),
+        }
     }
 
     /// Attempts of `id` that have ended so far.
@@ -205,7 +238,8 @@ impl Tracker {
     pub fn ended(&mut self, id: i64, record: AttemptRecord) -> bool {
         let ok = record.succeeded();
         if !ok {
-            self.bar.suspend(|| println!("  {}: point {:04} attempt {} {}", self.label, id, record.tag, record.describe()));
+            self.bar
+                .suspend(|| println!("  {}: point {:04} attempt {} {}", self.label, id, record.tag, record.describe()));
         }
         self.records.entry(id).or_default().push(record);
         if ok {
@@ -236,7 +270,13 @@ impl Tracker {
 
     pub fn set_running(&mut self, running: usize, pending: usize) {
         self.running = running;
-        let msg = format!("{}: {} done, {running} running, {pending} queued, {} failed, {} retried", self.label, self.done, self.failed, self.records.values().filter(|r| r.len() > 1).count());
+        let msg = format!(
+            "{}: {} done, {running} running, {pending} queued, {} failed, {} retried",
+            self.label,
+            self.done,
+            self.failed,
+            self.records.values().filter(|r| r.len() > 1).count()
+        );
         if self.plain && self.last_line.elapsed().as_secs() >= 30 {
             println!("  {msg} (of {})", self.total);
             self.last_line = std::time::Instant::now();

@@ -36,7 +36,9 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
     let poll = Duration::from_secs_f64(job.spec.slurm.poll_seconds.unwrap_or(10.0));
     let path = state_path(&job.runs);
     let mut state: State = match std::fs::read_to_string(&path) {
-        Ok(text) => serde_json::from_str(&text).with_context(|| format!("{}: not mdpipe's Slurm state", path.display()))?,
+        Ok(text) => {
+            serde_json::from_str(&text).with_context(|| format!("{}: not mdpipe's Slurm state", path.display()))?
+        }
         Err(_) => State::default(),
     };
     let done = |id: i64| job.runs.join(attempt::point_name(id)).exists();
@@ -102,9 +104,15 @@ fn submit(job: &Job, ids: &[i64]) -> Result<String> {
     let dir = std::path::absolute(attempt::attempts_dir(&job.runs))?;
     let s = &job.spec.slurm;
     let minutes = job.spec.time_limit_seconds().div_ceil(60) + 2;
-    let name: String = job.label.chars().map(|c| if c.is_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
+    let name: String =
+        job.label.chars().map(|c| if c.is_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
     let mut script = format!("#!/bin/bash\n# Made by mdpipe: one design point per array task (the task id is the design id).\n#SBATCH --job-name=mdpipe-{name}\n#SBATCH --output={}/slurm-%A_%a.out\n#SBATCH --time={minutes}\n", dir.display());
-    for (key, value) in [("partition", s.partition.clone()), ("account", s.account.clone()), ("cpus-per-task", s.cpus_per_task.map(|c| c.to_string())), ("mem", s.mem.clone())] {
+    for (key, value) in [
+        ("partition", s.partition.clone()),
+        ("account", s.account.clone()),
+        ("cpus-per-task", s.cpus_per_task.map(|c| c.to_string())),
+        ("mem", s.mem.clone()),
+    ] {
         if let Some(v) = value {
             script.push_str(&format!("#SBATCH --{key}={v}\n"));
         }
@@ -112,14 +120,23 @@ fn submit(job: &Job, ids: &[i64]) -> Result<String> {
     for extra in &s.extra {
         script.push_str(&format!("#SBATCH {extra}\n"));
     }
-    script.push_str(&format!("exec bash {}/\"$(printf '%04d' \"$SLURM_ARRAY_TASK_ID\")\".sh \"j$SLURM_ARRAY_JOB_ID\"\n", shell_quote(&dir.display().to_string())));
+    script.push_str(&format!(
+        "exec bash {}/\"$(printf '%04d' \"$SLURM_ARRAY_TASK_ID\")\".sh \"j$SLURM_ARRAY_JOB_ID\"\n",
+        shell_quote(&dir.display().to_string())
+    ));
     let path = dir.join("array.sbatch");
     artifacts::write_text_atomic(&path, &script)?;
     let mut array = ids.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(",");
     if let Some(p) = job.spec.parallel {
         array.push_str(&format!("%{p}"));
     }
-    let out = Command::new("sbatch").arg("--parsable").arg(format!("--array={array}")).arg(format!("--chdir={}", std::path::absolute(&job.workdir)?.display())).arg(&path).output().context("running sbatch")?;
+    let out = Command::new("sbatch")
+        .arg("--parsable")
+        .arg(format!("--array={array}"))
+        .arg(format!("--chdir={}", std::path::absolute(&job.workdir)?.display()))
+        .arg(&path)
+        .output()
+        .context("running sbatch")?;
     if !out.status.success() {
         bail!("sbatch {} failed: {}", path.display(), String::from_utf8_lossy(&out.stderr).trim());
     }
@@ -136,7 +153,10 @@ fn queued_tasks(job_id: &str) -> Result<Vec<(i64, String)>> {
     let mut last_error = String::new();
     // The controller can be briefly unreachable; a restart would follow the same array anyway.
     for _ in 0..10 {
-        let out = Command::new("squeue").args(["-h", "-r", "-j", job_id, "-o", "%i %t %r"]).output().context("running squeue")?;
+        let out = Command::new("squeue")
+            .args(["-h", "-r", "-j", job_id, "-o", "%i %t %r"])
+            .output()
+            .context("running squeue")?;
         let stderr = String::from_utf8_lossy(&out.stderr);
         if out.status.success() {
             return Ok(String::from_utf8_lossy(&out.stdout).lines().flat_map(parse_task_line).collect());

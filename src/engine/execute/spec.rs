@@ -80,10 +80,16 @@ impl SimulatorSpec {
         if self.slurm.poll_seconds.is_some_and(|p| !(p > 0.0)) {
             bail!("slurm.poll_seconds must be positive");
         }
-        let known: Vec<&str> = ["point", "param_file", "id", "design", "mdpipe"].into_iter().chain(parameters.iter().map(String::as_str)).collect();
+        let known: Vec<&str> = ["point", "param_file", "id", "design", "mdpipe"]
+            .into_iter()
+            .chain(parameters.iter().map(String::as_str))
+            .collect();
         for name in placeholders(&self.command) {
             if !known.contains(&name.as_str()) {
-                bail!("command: unknown placeholder {{{name}}} (known: {})", known.iter().map(|k| format!("{{{k}}}")).collect::<Vec<_>>().join(", "));
+                bail!(
+                    "command: unknown placeholder {{{name}}} (known: {})",
+                    known.iter().map(|k| format!("{{{k}}}")).collect::<Vec<_>>().join(", ")
+                );
             }
         }
         Ok(())
@@ -129,7 +135,8 @@ fn placeholders(command: &str) -> Vec<String> {
         let Some(close) = rest[open..].find('}') else { break };
         let name = &rest[open + 1..open + close];
         // Shell braces such as ${HOME} or {a,b} are not ours.
-        let is_ours = !name.is_empty() && name.chars().all(|c| c.is_alphanumeric() || c == '_') && !rest[..open].ends_with('$');
+        let is_ours =
+            !name.is_empty() && name.chars().all(|c| c.is_alphanumeric() || c == '_') && !rest[..open].ends_with('$');
         if is_ours {
             out.push(name.to_string());
         }
@@ -190,12 +197,23 @@ mod tests {
 
     #[test]
     fn placeholders_are_checked_and_shell_braces_left_alone() {
-        let spec: SimulatorSpec = toml::from_str("command = \"run.sh {param_file} {point} {eta_s} ${HOME} {a,b}\"\noutput = \"table\"").unwrap();
+        let spec: SimulatorSpec =
+            toml::from_str("command = \"run.sh {param_file} {point} {eta_s} ${HOME} {a,b}\"\noutput = \"table\"")
+                .unwrap();
         spec.validate(&["eta_s".into()]).unwrap();
         let err = spec.validate(&[]).unwrap_err().to_string();
         assert!(err.contains("{eta_s}"), "{err}");
-        let paths = PointPaths { id: 7, folder: "/r/.attempts/0007.a1".into(), param_file: "/d/parameters/parameter_007".into(), design: "/d/design.parquet".into(), mdpipe: "/bin/mdpipe".into() };
+        let paths = PointPaths {
+            id: 7,
+            folder: "/r/.attempts/0007.a1".into(),
+            param_file: "/d/parameters/parameter_007".into(),
+            design: "/d/design.parquet".into(),
+            mdpipe: "/bin/mdpipe".into(),
+        };
         let values = BTreeMap::from([("eta_s".to_string(), 0.125)]);
-        assert_eq!(spec.render(&paths, &values), "run.sh '/d/parameters/parameter_007' '/r/.attempts/0007.a1' 0.125 ${HOME} {a,b}");
+        assert_eq!(
+            spec.render(&paths, &values),
+            "run.sh '/d/parameters/parameter_007' '/r/.attempts/0007.a1' 0.125 ${HOME} {a,b}"
+        );
     }
 }

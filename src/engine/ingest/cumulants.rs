@@ -43,7 +43,12 @@ pub fn binned_from_file(f: &EventFile) -> Result<BinnedEvent> {
         bail!("{origin}: {c} columns; a differential file has pT, dN/(2pi pT dpT dy), (Re, Im) pairs for n = 1..order_max-1 (at least 3), and the count");
     }
     let rows = f.rows();
-    let mut b = BinnedEvent { pt: Vec::with_capacity(rows), yield_: Vec::with_capacity(rows), count: Vec::with_capacity(rows), q: [Vec::with_capacity(rows), Vec::with_capacity(rows)] };
+    let mut b = BinnedEvent {
+        pt: Vec::with_capacity(rows),
+        yield_: Vec::with_capacity(rows),
+        count: Vec::with_capacity(rows),
+        q: [Vec::with_capacity(rows), Vec::with_capacity(rows)],
+    };
     for i in 0..rows {
         let r = f.row(i);
         for (k, v) in r.iter().enumerate() {
@@ -204,7 +209,11 @@ fn row_locations(events: &[BinnedEvent]) -> Vec<f64> {
     (0..events[0].pt.len())
         .map(|i| {
             let (num, den) = events.iter().fold((0.0, 0.0), |(a, b), e| (a + e.count[i] * e.pt[i], b + e.count[i]));
-            if den > 0.0 { num / den } else { events.iter().map(|e| e.pt[i]).sum::<f64>() / events.len() as f64 }
+            if den > 0.0 {
+                num / den
+            } else {
+                events.iter().map(|e| e.pt[i]).sum::<f64>() / events.len() as f64
+            }
         })
         .collect()
 }
@@ -212,7 +221,14 @@ fn row_locations(events: &[BinnedEvent]) -> Vec<f64> {
 /// Analyses one species against the charged reference over all events.
 /// `species` and `reference` hold one [`BinnedEvent`] per event, in the same
 /// order; every event must have the same rows.
-pub fn analyse(species: &Species, charged: &FileKind, events: &[BinnedEvent], reference: &[BinnedEvent], edges: &[f64], ref_pt: (f64, f64)) -> Result<SpeciesResult> {
+pub fn analyse(
+    species: &Species,
+    charged: &FileKind,
+    events: &[BinnedEvent],
+    reference: &[BinnedEvent],
+    edges: &[f64],
+    ref_pt: (f64, f64),
+) -> Result<SpeciesResult> {
     let n_ev = events.len();
     if n_ev < 2 {
         bail!("need at least 2 events for jackknife errors, have {n_ev}");
@@ -223,11 +239,17 @@ pub fn analyse(species: &Species, charged: &FileKind, events: &[BinnedEvent], re
     let bins: Vec<Vec<usize>> = edges.windows(2).map(|w| rows_in(&loc, w[0], w[1])).collect();
     for (b, r) in bins.iter().enumerate() {
         if r.is_empty() {
-            bail!("analysis bin [{}, {}) GeV holds no row of {}: the analysis bins must be wider than the file's", edges[b], edges[b + 1], species.kind.file_name());
+            bail!(
+                "analysis bin [{}, {}) GeV holds no row of {}: the analysis bins must be wider than the file's",
+                edges[b],
+                edges[b + 1],
+                species.kind.file_name()
+            );
         }
     }
     let ref_loc = row_locations(reference);
-    let ref_rows: Vec<usize> = (0..ref_loc.len()).filter(|&i| ref_loc[i] >= ref_pt.0 && ref_loc[i] < ref_pt.1).collect();
+    let ref_rows: Vec<usize> =
+        (0..ref_loc.len()).filter(|&i| ref_loc[i] >= ref_pt.0 && ref_loc[i] < ref_pt.1).collect();
     let in_ref = |pt: f64| pt >= ref_pt.0 && pt < ref_pt.1;
 
     // Per-event sums, laid out as: per bin the count; then for n in 2,3:
@@ -282,7 +304,11 @@ pub fn analyse(species: &Species, charged: &FileKind, events: &[BinnedEvent], re
     // Values or errors are NaN where a bin holds a handful of particles, or
     // where <|Q|² − M> ≤ 0 (v_n{2} undefined); the caller leaves those out.
     let est = |k: usize| Estimate { value: value[k], error: error[k] };
-    Ok(SpeciesResult { spectrum: (0..nb).map(est).collect(), vn: [(nb..2 * nb).map(est).collect(), (2 * nb..3 * nb).map(est).collect()], replicates })
+    Ok(SpeciesResult {
+        spectrum: (0..nb).map(est).collect(),
+        vn: [(nb..2 * nb).map(est).collect(), (2 * nb..3 * nb).map(est).collect()],
+        replicates,
+    })
 }
 
 #[cfg(test)]
@@ -305,11 +331,17 @@ mod tests {
         let (_, err, reps) = jackknife(&per_event, |s| vec![s[0] / s[2], s[1] / s[2]]);
         let cov = jackknife_covariance(&reps);
         let mean = |k: usize| per_event.iter().map(|e| e[k]).sum::<f64>() / n as f64;
-        let sample = |a: usize, b: usize| per_event.iter().map(|e| (e[a] - mean(a)) * (e[b] - mean(b))).sum::<f64>() / (n as f64 - 1.0);
+        let sample = |a: usize, b: usize| {
+            per_event.iter().map(|e| (e[a] - mean(a)) * (e[b] - mean(b))).sum::<f64>() / (n as f64 - 1.0)
+        };
         for a in 0..2 {
             for b in 0..2 {
                 let expect = sample(a, b) / n as f64;
-                assert!((cov[a * 2 + b] - expect).abs() < 1e-12 * expect.abs().max(1e-6), "cov[{a},{b}] = {} vs {expect}", cov[a * 2 + b]);
+                assert!(
+                    (cov[a * 2 + b] - expect).abs() < 1e-12 * expect.abs().max(1e-6),
+                    "cov[{a},{b}] = {} vs {expect}",
+                    cov[a * 2 + b]
+                );
             }
             assert!((cov[a * 2 + a].sqrt() - err[a]).abs() < 1e-12);
         }

@@ -17,7 +17,10 @@ pub struct UnreadableEvent {
 
 fn attr_text(value: &AttrValue) -> Option<String> {
     let s = match value {
-        AttrValue::String(s) | AttrValue::AsciiString(s) | AttrValue::VarLenString(s) | AttrValue::VarLenAsciiString(s) => s.clone(),
+        AttrValue::String(s)
+        | AttrValue::AsciiString(s)
+        | AttrValue::VarLenString(s)
+        | AttrValue::VarLenAsciiString(s) => s.clone(),
         AttrValue::StringSized { value, .. } | AttrValue::AsciiStringSized { value, .. } => value.clone(),
         AttrValue::U8Array(bytes) => String::from_utf8_lossy(bytes).into_owned(),
         _ => return None,
@@ -47,7 +50,9 @@ fn read_group(file: &hdf5_pure::File, path: &Path, label: &str) -> Result<Event>
         let file_bytes = std::fs::metadata(path).map(|m| m.len() as usize).unwrap_or(0);
         let most = (1100 * file_bytes / 4).min(MAX_VALUES);
         if rows.checked_mul(columns).is_none_or(|n| n > most) {
-            return Err(anyhow!("{origin}: shape {rows}×{columns} is impossible for a file of {file_bytes} bytes (damaged file?)"));
+            return Err(anyhow!(
+                "{origin}: shape {rows}×{columns} is impossible for a file of {file_bytes} bytes (damaged file?)"
+            ));
         }
         let values = ds.read_f64().map_err(|e| anyhow!("{origin}: cannot read data: {e}"))?;
         if values.len() != rows * columns {

@@ -149,7 +149,9 @@ pub fn parse_text_table(path: &Path, text: &str) -> Result<EventFile> {
         }
         let before = values.len();
         for (c, field) in trimmed.split_whitespace().enumerate() {
-            let v: f64 = field.parse().map_err(|_| anyhow!("{file}: line {line_no}, column {}: cannot parse {field:?} as a number", c + 1))?;
+            let v: f64 = field
+                .parse()
+                .map_err(|_| anyhow!("{file}: line {line_no}, column {}: cannot parse {field:?} as a number", c + 1))?;
             values.push(v);
         }
         let n = values.len() - before;
@@ -185,7 +187,9 @@ pub fn read_text_event(dir: &Path) -> Result<Event> {
 /// Whether a folder holds an event's text files.
 pub fn is_text_event_dir(dir: &Path) -> bool {
     std::fs::read_dir(dir)
-        .map(|rd| rd.filter_map(|e| e.ok()).any(|e| e.file_name().to_str().is_some_and(|n| FileKind::parse(n).is_some())))
+        .map(|rd| {
+            rd.filter_map(|e| e.ok()).any(|e| e.file_name().to_str().is_some_and(|n| FileKind::parse(n).is_some()))
+        })
         .unwrap_or(false)
 }
 

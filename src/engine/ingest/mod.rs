@@ -55,7 +55,12 @@ pub struct IngestSettings {
 
 impl Default for IngestSettings {
     fn default() -> Self {
-        IngestSettings { pt_edges: (0..=10).map(|k| 0.2 * k as f64).collect(), reference_pt: (0.2, 3.0), min_events: 10, format: RunFormat::Auto }
+        IngestSettings {
+            pt_edges: (0..=10).map(|k| 0.2 * k as f64).collect(),
+            reference_pt: (0.2, 3.0),
+            min_events: 10,
+            format: RunFormat::Auto,
+        }
     }
 }
 
@@ -121,7 +126,8 @@ pub struct Ingested {
 
 /// Trailing integer of a folder name (`0007`, `point_12`) = its design id.
 fn design_id_of(name: &str) -> Option<i64> {
-    let digits: String = name.chars().rev().take_while(|c| c.is_ascii_digit()).collect::<Vec<_>>().into_iter().rev().collect();
+    let digits: String =
+        name.chars().rev().take_while(|c| c.is_ascii_digit()).collect::<Vec<_>>().into_iter().rev().collect();
     digits.parse().ok()
 }
 
@@ -151,14 +157,21 @@ fn read_point_events(dir: &Path, format: RunFormat) -> Result<(String, Vec<Event
         }
         for f in &h5_files {
             let (good, bad) = hdf5::read_events(f)?;
-            let prefix = if h5_files.len() > 1 { format!("{}:", f.file_name().unwrap().to_string_lossy()) } else { String::new() };
+            let prefix = if h5_files.len() > 1 {
+                format!("{}:", f.file_name().unwrap().to_string_lossy())
+            } else {
+                String::new()
+            };
             events.extend(good.into_iter().map(|mut e| {
                 e.label = format!("{prefix}{}", e.label);
                 e
             }));
-            skipped.extend(bad.into_iter().map(|b| SkippedEvent { event: format!("{prefix}{}", b.label), reason: b.reason }));
+            skipped.extend(
+                bad.into_iter().map(|b| SkippedEvent { event: format!("{prefix}{}", b.label), reason: b.reason }),
+            );
         }
-        let names: Vec<String> = h5_files.iter().map(|f| f.file_name().unwrap().to_string_lossy().into_owned()).collect();
+        let names: Vec<String> =
+            h5_files.iter().map(|f| f.file_name().unwrap().to_string_lossy().into_owned()).collect();
         Ok((format!("hdf5: {}", names.join(", ")), events, skipped))
     } else {
         if text_dirs.is_empty() {
@@ -167,7 +180,10 @@ fn read_point_events(dir: &Path, format: RunFormat) -> Result<(String, Vec<Event
         for d in &text_dirs {
             match layout::read_text_event(d) {
                 Ok(e) => events.push(e),
-                Err(e) => skipped.push(SkippedEvent { event: d.file_name().unwrap().to_string_lossy().into_owned(), reason: format!("{e:#}") }),
+                Err(e) => skipped.push(SkippedEvent {
+                    event: d.file_name().unwrap().to_string_lossy().into_owned(),
+                    reason: format!("{e:#}"),
+                }),
             }
         }
         Ok((format!("text: {} event folders", text_dirs.len()), events, skipped))
@@ -175,13 +191,23 @@ fn read_point_events(dir: &Path, format: RunFormat) -> Result<(String, Vec<Event
 }
 
 /// Analyses the events of one design point: the observables, or why not.
-pub fn analyse_events(design_id: i64, events: &[Event], settings: &IngestSettings, skipped: &mut Vec<SkippedEvent>) -> Result<Vec<IngestedRow>> {
+pub fn analyse_events(
+    design_id: i64,
+    events: &[Event],
+    settings: &IngestSettings,
+    skipped: &mut Vec<SkippedEvent>,
+) -> Result<Vec<IngestedRow>> {
     Ok(analyse_events_with_covariance(design_id, events, settings, skipped)?.0)
 }
 
 /// [`analyse_events`], with the jackknife covariance between the rows that
 /// are defined (every pair of them, off the diagonal).
-pub fn analyse_events_with_covariance(design_id: i64, events: &[Event], settings: &IngestSettings, skipped: &mut Vec<SkippedEvent>) -> Result<(Vec<IngestedRow>, Vec<crate::base::covariance::CovarianceEntry>)> {
+pub fn analyse_events_with_covariance(
+    design_id: i64,
+    events: &[Event],
+    settings: &IngestSettings,
+    skipped: &mut Vec<SkippedEvent>,
+) -> Result<(Vec<IngestedRow>, Vec<crate::base::covariance::CovarianceEntry>)> {
     let species = analysis_species();
     // Per good event: one BinnedEvent per species (index 0 is charged, the reference).
     let mut binned: Vec<Vec<BinnedEvent>> = Vec::new();
@@ -198,7 +224,15 @@ pub fn analyse_events_with_covariance(design_id: i64, events: &[Event], settings
             Ok(b) => {
                 if let Some(first) = binned.first() {
                     if let Some(k) = (0..b.len()).find(|&k| first[k].pt.len() != b[k].pt.len()) {
-                        skipped.push(SkippedEvent { event: ev.label.clone(), reason: format!("{} has {} rows, earlier events have {}", species[k].1.kind.file_name(), b[k].pt.len(), first[k].pt.len()) });
+                        skipped.push(SkippedEvent {
+                            event: ev.label.clone(),
+                            reason: format!(
+                                "{} has {} rows, earlier events have {}",
+                                species[k].1.kind.file_name(),
+                                b[k].pt.len(),
+                                first[k].pt.len()
+                            ),
+                        });
                         continue;
                     }
                 }
@@ -220,12 +254,21 @@ pub fn analyse_events_with_covariance(design_id: i64, events: &[Event], settings
     let nb = mids.len();
     for (k, (tag, s)) in species.iter().enumerate() {
         let evs: Vec<BinnedEvent> = binned.iter().map(|b| b[k].clone()).collect();
-        let r = cumulants::analyse(s, &species[0].1.kind, &evs, &reference, &settings.pt_edges, settings.reference_pt).with_context(|| format!("{tag}"))?;
-        let kinds: &[(&str, usize)] = if *tag == "ch" { &[("spectrum", 0), ("v2", 1), ("v3", 2)] } else { &[("spectrum", 0), ("v2", 1)] };
+        let r = cumulants::analyse(s, &species[0].1.kind, &evs, &reference, &settings.pt_edges, settings.reference_pt)
+            .with_context(|| format!("{tag}"))?;
+        let kinds: &[(&str, usize)] =
+            if *tag == "ch" { &[("spectrum", 0), ("v2", 1), ("v3", 2)] } else { &[("spectrum", 0), ("v2", 1)] };
         for &(kind, slot) in kinds {
             let est = if slot == 0 { &r.spectrum } else { &r.vn[slot - 1] };
             for (b, (x, e)) in mids.iter().zip(est).enumerate() {
-                rows.push(IngestedRow { design_id, observable: format!("{tag}_{kind}"), x: *x, value: e.value, error: e.error, n_events: n_ev });
+                rows.push(IngestedRow {
+                    design_id,
+                    observable: format!("{tag}_{kind}"),
+                    x: *x,
+                    value: e.value,
+                    error: e.error,
+                    n_events: n_ev,
+                });
                 for (reps, r_ev) in replicates.iter_mut().zip(&r.replicates) {
                     reps.push(r_ev[slot * nb + b]);
                 }
@@ -240,7 +283,14 @@ pub fn analyse_events_with_covariance(design_id: i64, events: &[Event], settings
         for j in 0..i {
             let c = cov[i * m + j];
             if defined(&rows[i]) && defined(&rows[j]) && c.is_finite() {
-                entries.push(crate::base::covariance::CovarianceEntry { observable_a: rows[i].observable.clone(), x_a: rows[i].x, observable_b: rows[j].observable.clone(), x_b: rows[j].x, covariance: c, line: 0 });
+                entries.push(crate::base::covariance::CovarianceEntry {
+                    observable_a: rows[i].observable.clone(),
+                    x_a: rows[i].x,
+                    observable_b: rows[j].observable.clone(),
+                    x_b: rows[j].x,
+                    covariance: c,
+                    line: 0,
+                });
             }
         }
     }
@@ -250,7 +300,11 @@ pub fn analyse_events_with_covariance(design_id: i64, events: &[Event], settings
 /// Reads every design point folder under `runs_dir` (in parallel) and
 /// analyses it. `design` (default: `runs_dir/design.parquet` if present) names
 /// the expected points; points without a folder are reported.
-pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSettings) -> Result<(Ingested, Option<DataFrame>)> {
+pub fn ingest_runs(
+    runs_dir: &Path,
+    design: Option<&Path>,
+    settings: &IngestSettings,
+) -> Result<(Ingested, Option<DataFrame>)> {
     if settings.pt_edges.len() < 2 || settings.pt_edges.windows(2).any(|w| !(w[1] > w[0])) {
         bail!("--pt-bins: edges must be increasing, at least two (got {:?})", settings.pt_edges);
     }
@@ -263,7 +317,15 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
     let results: Vec<(PointReport, (Vec<IngestedRow>, Cov))> = folders
         .par_iter()
         .map(|(id, dir)| {
-            let mut report = PointReport { design_id: *id, folder: dir.display().to_string(), source: String::new(), good_events: 0, skipped: Vec::new(), flagged: None, undefined_bins: Vec::new() };
+            let mut report = PointReport {
+                design_id: *id,
+                folder: dir.display().to_string(),
+                source: String::new(),
+                good_events: 0,
+                skipped: Vec::new(),
+                flagged: None,
+                undefined_bins: Vec::new(),
+            };
             let rows = match read_point_events(dir, settings.format) {
                 Ok((source, events, mut skipped)) => {
                     report.source = source;
@@ -278,7 +340,8 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
             bar.inc(1);
             match rows {
                 Ok((rows, cov)) => {
-                    let (good, bad): (Vec<IngestedRow>, Vec<IngestedRow>) = rows.into_iter().partition(|r| r.value.is_finite() && r.error.is_finite());
+                    let (good, bad): (Vec<IngestedRow>, Vec<IngestedRow>) =
+                        rows.into_iter().partition(|r| r.value.is_finite() && r.error.is_finite());
                     report.undefined_bins = bad.iter().map(|r| format!("{}[{:.2}]", r.observable, r.x)).collect();
                     (report, (good, cov))
                 }
@@ -292,12 +355,24 @@ pub fn ingest_runs(runs_dir: &Path, design: Option<&Path>, settings: &IngestSett
     bar.finish_and_clear();
     let missing_points = missing_points(&folders, design_df.as_ref(), design_path.as_deref())?;
     let (points, analysed): (Vec<PointReport>, Vec<(Vec<IngestedRow>, Cov)>) = results.into_iter().unzip();
-    let covariance = points.iter().zip(&analysed).filter(|(_, (_, c))| !c.is_empty()).map(|(p, (_, c))| (p.design_id, c.clone())).collect();
+    let covariance = points
+        .iter()
+        .zip(&analysed)
+        .filter(|(_, (_, c))| !c.is_empty())
+        .map(|(p, (_, c))| (p.design_id, c.clone()))
+        .collect();
     let rows: Vec<Vec<IngestedRow>> = analysed.into_iter().map(|(r, _)| r).collect();
     // No config here: the analysis settings stand in for its hash.
     let settings_hash = artifacts::sha256_hex(format!("{settings:?}").as_bytes());
     let prov = Provenance::new(settings_hash, String::new(), 0, &format!("ingest {}", runs_dir.display()));
-    Ok((Ingested { rows: rows.into_iter().flatten().collect(), covariance, report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov } }, design_df))
+    Ok((
+        Ingested {
+            rows: rows.into_iter().flatten().collect(),
+            covariance,
+            report: IngestReport { runs_dir: runs_dir.display().to_string(), points, missing_points, provenance: prov },
+        },
+        design_df,
+    ))
 }
 
 /// The design point folders of a runs folder (named by design id, e.g. `0007`), sorted.
@@ -319,7 +394,10 @@ pub(crate) fn point_folders(runs_dir: &Path) -> Result<Vec<(i64, PathBuf)>> {
     }
     folders.sort();
     if folders.is_empty() {
-        bail!("{}: no design point folders (expected one folder per point, named by its design id, e.g. 0007)", runs_dir.display());
+        bail!(
+            "{}: no design point folders (expected one folder per point, named by its design id, e.g. 0007)",
+            runs_dir.display()
+        );
     }
     for w in folders.windows(2) {
         if w[0].0 == w[1].0 {
@@ -330,7 +408,11 @@ pub(crate) fn point_folders(runs_dir: &Path) -> Result<Vec<(i64, PathBuf)>> {
 }
 
 /// Design points without a folder; an error if a folder names a point the design lacks.
-pub(crate) fn missing_points(folders: &[(i64, PathBuf)], design_df: Option<&DataFrame>, design_path: Option<&Path>) -> Result<Vec<i64>> {
+pub(crate) fn missing_points(
+    folders: &[(i64, PathBuf)],
+    design_df: Option<&DataFrame>,
+    design_path: Option<&Path>,
+) -> Result<Vec<i64>> {
     let (Some(df), Some(path)) = (design_df, design_path) else { return Ok(Vec::new()) };
     let ids = design_ids(df, path)?;
     if let Some((id, dir)) = folders.iter().find(|(f, _)| !ids.contains(f)) {
@@ -340,7 +422,10 @@ pub(crate) fn missing_points(folders: &[(i64, PathBuf)], design_df: Option<&Data
 }
 
 fn design_ids(df: &DataFrame, path: &Path) -> Result<Vec<i64>> {
-    let c = df.column("design_id").map_err(|_| anyhow!("{}: missing column 'design_id'", path.display()))?.cast(&DataType::Int64)?;
+    let c = df
+        .column("design_id")
+        .map_err(|_| anyhow!("{}: missing column 'design_id'", path.display()))?
+        .cast(&DataType::Int64)?;
     let ca = c.i64()?;
     Ok((0..ca.len()).map(|i| ca.get(i).unwrap_or(-1)).collect())
 }
@@ -364,7 +449,10 @@ pub fn to_frame(ingested: &Ingested, design: Option<&DataFrame>) -> Result<DataF
             }
             let c = df.column(name.as_str())?.cast(&DataType::Float64)?;
             let vals = c.f64()?;
-            let joined: Vec<f64> = rows.iter().map(|r| ids.iter().position(|&d| d == r.design_id).and_then(|i| vals.get(i)).unwrap_or(f64::NAN)).collect();
+            let joined: Vec<f64> = rows
+                .iter()
+                .map(|r| ids.iter().position(|&d| d == r.design_id).and_then(|i| vals.get(i)).unwrap_or(f64::NAN))
+                .collect();
             columns.push(Column::new(name.clone(), joined));
         }
     }
@@ -385,7 +473,10 @@ pub fn write(ingested: &Ingested, design: Option<&DataFrame>, out: &Path) -> Res
     // Several points are training runs: their errors' correlation goes beside
     // them, for the emulator to tell run noise from what it does not know.
     if let Some(entries) = pooled_noise_correlation(ingested) {
-        staged.text(&crate::base::covariance::noise_correlation_path(out), &crate::base::covariance::noise_correlation_csv(&entries))?;
+        staged.text(
+            &crate::base::covariance::noise_correlation_path(out),
+            &crate::base::covariance::noise_correlation_csv(&entries),
+        )?;
     }
     staged.commit()?;
     Ok(report_path)
@@ -401,7 +492,15 @@ pub fn single_point_covariance(ingested: &Ingested) -> Option<Vec<crate::base::c
     let ids: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
     let id = (ids.len() == 1).then(|| *ids.iter().next().unwrap())?;
     let kept = |o: &str, x: f64| ingested.rows.iter().any(|r| r.observable == o && r.x == x);
-    Some(ingested.covariance.get(&id)?.iter().filter(|e| kept(&e.observable_a, e.x_a) && kept(&e.observable_b, e.x_b)).cloned().collect())
+    Some(
+        ingested
+            .covariance
+            .get(&id)?
+            .iter()
+            .filter(|e| kept(&e.observable_a, e.x_a) && kept(&e.observable_b, e.x_b))
+            .cloned()
+            .collect(),
+    )
 }
 
 /// The runs' error correlation between two outputs, pooled over the design
@@ -412,7 +511,8 @@ pub fn single_point_covariance(ingested: &Ingested) -> Option<Vec<crate::base::c
 /// for fewer than two points or without covariances (tables from files).
 pub fn pooled_noise_correlation(ingested: &Ingested) -> Option<Vec<crate::base::covariance::CovarianceEntry>> {
     type Pair = (String, u64, String, u64);
-    let error: std::collections::HashMap<(i64, &str, u64), f64> = ingested.rows.iter().map(|r| ((r.design_id, r.observable.as_str(), r.x.to_bits()), r.error)).collect();
+    let error: std::collections::HashMap<(i64, &str, u64), f64> =
+        ingested.rows.iter().map(|r| ((r.design_id, r.observable.as_str(), r.x.to_bits()), r.error)).collect();
     let points = ingested.rows.iter().map(|r| r.design_id).collect::<std::collections::BTreeSet<i64>>();
     if points.len() < 2 {
         return None;
@@ -425,7 +525,9 @@ pub fn pooled_noise_correlation(ingested: &Ingested) -> Option<Vec<crate::base::
             let (Some(&ea), Some(&eb)) = (ea, eb) else { continue };
             let r = e.covariance / (ea * eb);
             if r.is_finite() {
-                let s = sums.entry((e.observable_a.clone(), e.x_a.to_bits(), e.observable_b.clone(), e.x_b.to_bits())).or_insert((0.0, 0));
+                let s = sums
+                    .entry((e.observable_a.clone(), e.x_a.to_bits(), e.observable_b.clone(), e.x_b.to_bits()))
+                    .or_insert((0.0, 0));
                 s.0 += r;
                 s.1 += 1;
             }
@@ -459,7 +561,10 @@ pub fn print_report(report: &IngestReport) {
             eprintln!("    skipped event {}: {}", s.event, s.reason);
         }
         if !p.undefined_bins.is_empty() {
-            eprintln!("    left out (value or jackknife error undefined; more events or --oversample would measure them): {}", p.undefined_bins.join(", "));
+            eprintln!(
+                "    left out (value or jackknife error undefined; more events or --oversample would measure them): {}",
+                p.undefined_bins.join(", ")
+            );
         }
     }
     if !report.missing_points.is_empty() {

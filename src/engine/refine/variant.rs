@@ -100,7 +100,8 @@ pub fn refine_variant(
         let round_dir = out.join(format!("round_{r}"));
         let model = Arc::new(EmulatedModel::load(&dir).with_context(|| format!("refining {}", candidate.name))?);
         let variant = CandidateModel { simulator: model.clone(), ..candidate.clone() };
-        let problem = Problem::new(&analysis.with_candidate(&variant), &Overrides { kernel: Some(None), ..overrides.clone() })?;
+        let problem =
+            Problem::new(&analysis.with_candidate(&variant), &Overrides { kernel: Some(None), ..overrides.clone() })?;
         let round_seed = seed.wrapping_add(r as u64);
         let cal = calibrate::run(&problem, round_seed, observer)?;
         calibrate::write_outputs(&round_dir.join("pilot"), &problem, &cal)?;
@@ -118,7 +119,12 @@ pub fn refine_variant(
             new_runs: 0,
         };
         let worst = round.ratios.iter().map(|o| o.latent).fold(0.0, f64::max);
-        println!("  {} round {r} ({} runs): worst latent sd / data error {worst:.2}, emulator share {:.0}%", candidate.name, round.training_runs, 100.0 * round.emulator_share);
+        println!(
+            "  {} round {r} ({} runs): worst latent sd / data error {worst:.2}, emulator share {:.0}%",
+            candidate.name,
+            round.training_runs,
+            100.0 * round.emulator_share
+        );
         let k = settings.points_per_round.min(settings.budget.saturating_sub(spent));
         let done = worst < 1.0 && !cal.summary.fit.emulator_dominates();
         if done || k == 0 {
@@ -134,19 +140,37 @@ pub fn refine_variant(
         let first_id = emu.parts.design_ids.iter().max().map_or(0, |m| m + 1);
         let mut table = emu.training_table();
         table.append(&runner.run(&names, &chosen, first_id, &round_dir)?)?;
-        let (retrained, report) = train(&table, &train_settings, round_seed).with_context(|| format!("retraining the variant emulator of {}", candidate.name))?;
+        let (retrained, report) = train(&table, &train_settings, round_seed)
+            .with_context(|| format!("retraining the variant emulator of {}", candidate.name))?;
         dir = round_dir.join("emulator");
-        store::save(&dir, &retrained, &train_settings, &report, &problem.provenance(round_seed, &format!("refine variant {} (round {r})", candidate.name)))?;
+        store::save(
+            &dir,
+            &retrained,
+            &train_settings,
+            &report,
+            &problem.provenance(round_seed, &format!("refine variant {} (round {r})", candidate.name)),
+        )?;
         round.new_runs = chosen.len();
         spent += chosen.len();
         rounds.push(round);
     };
-    let refined = RefinedVariant { candidate: candidate.name.clone(), rounds, stopped, emulator: dir, provenance: provenance.expect("at least one round ran") };
+    let refined = RefinedVariant {
+        candidate: candidate.name.clone(),
+        rounds,
+        stopped,
+        emulator: dir,
+        provenance: provenance.expect("at least one round ran"),
+    };
     artifacts::write_json_atomic(&out.join("rounds.json"), &refined)?;
     Ok(refined)
 }
 
 /// The likelihood's data points as measurements (value unused by refinement).
 fn data_points(problem: &Problem) -> Vec<Measurement> {
-    problem.likelihood.blocks.iter().flat_map(|b| b.x.iter().zip(&b.error).map(|(&x, &e)| Measurement::new(&b.name, x, f64::NAN, e))).collect()
+    problem
+        .likelihood
+        .blocks
+        .iter()
+        .flat_map(|b| b.x.iter().zip(&b.error).map(|(&x, &e)| Measurement::new(&b.name, x, f64::NAN, e)))
+        .collect()
 }

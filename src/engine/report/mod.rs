@@ -38,13 +38,17 @@ pub struct RunArtifacts {
 
 impl RunArtifacts {
     pub fn load(dir: &Path) -> Result<Self> {
-        let summary: Summary = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).with_context(|| format!("reading {}/summary.json", dir.display()))?)
-            .with_context(|| format!("parsing {}/summary.json", dir.display()))?;
+        let summary: Summary = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("summary.json"))
+                .with_context(|| format!("reading {}/summary.json", dir.display()))?,
+        )
+        .with_context(|| format!("parsing {}/summary.json", dir.display()))?;
         let post = artifacts::read_parquet(&dir.join("posterior.parquet"))?;
         let names = summary.parameter_order.clone();
         let mut draws = Vec::new();
         for n in &names {
-            let c = post.column(n).with_context(|| format!("{}/posterior.parquet: missing column '{n}'", dir.display()))?;
+            let c =
+                post.column(n).with_context(|| format!("{}/posterior.parquet: missing column '{n}'", dir.display()))?;
             draws.push(c.f64()?.into_no_null_iter().collect());
         }
         let predictions = artifacts::read_parquet(&dir.join("predictions.parquet"))?;
@@ -59,7 +63,8 @@ impl RunArtifacts {
     pub fn pred_col(&self, observable: &str, kind: &str, col: &str) -> Vec<f64> {
         let obs = self.predictions.column("observable").unwrap().str().unwrap();
         let kinds = self.predictions.column("kind").unwrap().str().unwrap();
-        let rows = (0..self.predictions.height()).filter(|&i| obs.get(i) == Some(observable) && kinds.get(i) == Some(kind));
+        let rows =
+            (0..self.predictions.height()).filter(|&i| obs.get(i) == Some(observable) && kinds.get(i) == Some(kind));
         // Older runs have no `truth` column: treat a missing column as unknown.
         match self.predictions.column(col).ok().and_then(|c| c.f64().ok()) {
             Some(vals) => rows.map(|i| vals.get(i).unwrap_or(f64::NAN)).collect(),
@@ -68,7 +73,11 @@ impl RunArtifacts {
     }
 }
 
-pub fn svg(draw: impl FnOnce(&DrawingArea<SVGBackend, plotters::coord::Shift>) -> Result<()>, w: u32, h: u32) -> Result<String> {
+pub fn svg(
+    draw: impl FnOnce(&DrawingArea<SVGBackend, plotters::coord::Shift>) -> Result<()>,
+    w: u32,
+    h: u32,
+) -> Result<String> {
     let mut s = String::new();
     {
         let root = SVGBackend::with_string(&mut s, (w, h)).into_drawing_area();
@@ -100,7 +109,8 @@ pub fn axis(name: &str, units: &str) -> String {
 }
 
 pub fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (lo, hi) = values.filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |a, v| (a.0.min(v), a.1.max(v)));
+    let (lo, hi) =
+        values.filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |a, v| (a.0.min(v), a.1.max(v)));
     if !lo.is_finite() {
         return (0.0, 1.0);
     }
@@ -113,7 +123,12 @@ fn quantile(v: &[f64], q: f64) -> f64 {
 }
 
 /// Corner plot of the model parameters for several runs overlaid.
-pub fn corner_plot(runs: &[&RunArtifacts], params: &[String], truth: &std::collections::BTreeMap<String, f64>, units: &dyn Fn(&str) -> String) -> Result<String> {
+pub fn corner_plot(
+    runs: &[&RunArtifacts],
+    params: &[String],
+    truth: &std::collections::BTreeMap<String, f64>,
+    units: &dyn Fn(&str) -> String,
+) -> Result<String> {
     let d = params.len();
     let cell = 240u32;
     let ranges: Vec<(f64, f64)> = params
@@ -147,17 +162,41 @@ pub fn corner_plot(runs: &[&RunArtifacts], params: &[String], truth: &std::colle
                         corner_marginal(area, runs, &params[i], xr, truth, &xlabel, i == 0)?;
                     } else {
                         let ylabel = axis(&params[i], &units(&params[i]));
-                        let mut chart = p!(ChartBuilder::on(area).margin(6).x_label_area_size(34).y_label_area_size(40).build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
-                        p!(chart.configure_mesh().x_desc(xlabel.as_str()).y_desc(ylabel.as_str()).x_labels(5).y_labels(5).draw());
+                        let mut chart = p!(ChartBuilder::on(area)
+                            .margin(6)
+                            .x_label_area_size(34)
+                            .y_label_area_size(40)
+                            .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
+                        p!(chart
+                            .configure_mesh()
+                            .x_desc(xlabel.as_str())
+                            .y_desc(ylabel.as_str())
+                            .x_labels(5)
+                            .y_labels(5)
+                            .draw());
                         for r in runs {
                             let c = kernel_colour(&r.summary.kernel);
                             let (x, y) = (r.param(&params[j]).unwrap_or(&[]), r.param(&params[i]).unwrap_or(&[]));
                             let step = (x.len() / 1500).max(1);
-                            p!(chart.draw_series((0..x.len()).step_by(step).map(|k| Circle::new((x[k], y[k]), 1, c.mix(0.25).filled()))));
+                            p!(chart.draw_series((0..x.len()).step_by(step).map(|k| Circle::new(
+                                (x[k], y[k]),
+                                1,
+                                c.mix(0.25).filled()
+                            ))));
                         }
                         if let (Some(tx), Some(ty)) = (truth.get(&params[j]), truth.get(&params[i])) {
-                            p!(chart.draw_series(DashedLineSeries::new(vec![(*tx, yr.0), (*tx, yr.1)], 6, 4, TRUTH.stroke_width(2))));
-                            p!(chart.draw_series(DashedLineSeries::new(vec![(xr.0, *ty), (xr.1, *ty)], 6, 4, TRUTH.stroke_width(2))));
+                            p!(chart.draw_series(DashedLineSeries::new(
+                                vec![(*tx, yr.0), (*tx, yr.1)],
+                                6,
+                                4,
+                                TRUTH.stroke_width(2)
+                            )));
+                            p!(chart.draw_series(DashedLineSeries::new(
+                                vec![(xr.0, *ty), (xr.1, *ty)],
+                                6,
+                                4,
+                                TRUTH.stroke_width(2)
+                            )));
                         }
                     }
                 }
@@ -173,99 +212,165 @@ type Area<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
 
 /// A corner plot's diagonal panel: each run's normalized histogram of
 /// `param` with its median and 68% band, the prior's density and the truth.
-fn corner_marginal(area: &Area, runs: &[&RunArtifacts], param: &str, xr: (f64, f64), truth: &std::collections::BTreeMap<String, f64>, xlabel: &str, legend: bool) -> Result<()> {
+fn corner_marginal(
+    area: &Area,
+    runs: &[&RunArtifacts],
+    param: &str,
+    xr: (f64, f64),
+    truth: &std::collections::BTreeMap<String, f64>,
+    xlabel: &str,
+    legend: bool,
+) -> Result<()> {
     let i = param;
-        // Marginal: normalized histogram per run, median ± 68% band.
-        let bins = 40;
-        let width = (xr.1 - xr.0) / bins as f64;
-        let mut hists = Vec::new();
-        let mut ymax: f64 = 0.0;
-        for r in runs {
-            let x = r.param(i).unwrap_or(&[]);
-            let mut h = vec![0.0; bins];
-            for v in x {
-                let b = ((v - xr.0) / width).floor();
-                if b >= 0.0 && (b as usize) < bins {
-                    h[b as usize] += 1.0;
-                }
+    // Marginal: normalized histogram per run, median ± 68% band.
+    let bins = 40;
+    let width = (xr.1 - xr.0) / bins as f64;
+    let mut hists = Vec::new();
+    let mut ymax: f64 = 0.0;
+    for r in runs {
+        let x = r.param(i).unwrap_or(&[]);
+        let mut h = vec![0.0; bins];
+        for v in x {
+            let b = ((v - xr.0) / width).floor();
+            if b >= 0.0 && (b as usize) < bins {
+                h[b as usize] += 1.0;
             }
-            let norm = x.len().max(1) as f64 * width;
-            h.iter_mut().for_each(|c| *c /= norm);
-            ymax = ymax.max(h.iter().cloned().fold(0.0, f64::max));
-            hists.push(h);
         }
-        let mut chart = p!(ChartBuilder::on(area).margin(6).x_label_area_size(34).y_label_area_size(40).build_cartesian_2d(xr.0..xr.1, 0.0..ymax * 1.15));
-        p!(chart.configure_mesh().x_desc(xlabel).y_desc("density").x_labels(5).y_labels(4).draw());
-        // The uniform prior's density, shaded (flat and low when the prior is wide).
-        if let Some([lo, hi]) = runs.first().and_then(|r| r.summary.prior_bounds.get(i).copied()) {
-            let dens = 1.0 / (hi - lo);
-            let grey = RGBColor(160, 160, 160);
-            p!(chart
-                .draw_series(std::iter::once(Rectangle::new([(lo.max(xr.0), 0.0), (hi.min(xr.1), dens.min(ymax * 1.15))], grey.mix(0.35).filled())))
-                .map(|s| s.label("prior").legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], grey.mix(0.5).filled()))));
-        }
-        for (r, h) in runs.iter().zip(&hists) {
-            let c = kernel_colour(&r.summary.kernel);
-            let x = r.param(i).unwrap_or(&[]);
-            let (q16, q84) = (quantile(x, 0.16), quantile(x, 0.84));
-            p!(chart.draw_series(std::iter::once(Rectangle::new([(q16, 0.0), (q84, ymax * 1.15)], c.mix(0.12).filled()))));
-            let pts: Vec<(f64, f64)> = (0..bins).flat_map(|b| [(xr.0 + b as f64 * width, h[b]), (xr.0 + (b + 1) as f64 * width, h[b])]).collect();
-            p!(chart
-                .draw_series(LineSeries::new(pts, c.stroke_width(2)))
-                .map(|s| s.label(format!("kernel {}", r.summary.kernel)).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], c.stroke_width(2)))));
-            let med = quantile(x, 0.5);
-            p!(chart.draw_series(std::iter::once(PathElement::new(vec![(med, 0.0), (med, ymax * 1.15)], c.stroke_width(1)))));
-        }
-        if let Some(t) = truth.get(i) {
-            p!(chart
-                .draw_series(DashedLineSeries::new(vec![(*t, 0.0), (*t, ymax * 1.15)], 6, 4, TRUTH.stroke_width(2)))
-                .map(|s| s.label("truth").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH.stroke_width(2)))));
-        }
-        if legend {
-            p!(chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
-        }
+        let norm = x.len().max(1) as f64 * width;
+        h.iter_mut().for_each(|c| *c /= norm);
+        ymax = ymax.max(h.iter().cloned().fold(0.0, f64::max));
+        hists.push(h);
+    }
+    let mut chart = p!(ChartBuilder::on(area)
+        .margin(6)
+        .x_label_area_size(34)
+        .y_label_area_size(40)
+        .build_cartesian_2d(xr.0..xr.1, 0.0..ymax * 1.15));
+    p!(chart.configure_mesh().x_desc(xlabel).y_desc("density").x_labels(5).y_labels(4).draw());
+    // The uniform prior's density, shaded (flat and low when the prior is wide).
+    if let Some([lo, hi]) = runs.first().and_then(|r| r.summary.prior_bounds.get(i).copied()) {
+        let dens = 1.0 / (hi - lo);
+        let grey = RGBColor(160, 160, 160);
+        p!(chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(lo.max(xr.0), 0.0), (hi.min(xr.1), dens.min(ymax * 1.15))],
+                grey.mix(0.35).filled()
+            )))
+            .map(|s| s
+                .label("prior")
+                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], grey.mix(0.5).filled()))));
+    }
+    for (r, h) in runs.iter().zip(&hists) {
+        let c = kernel_colour(&r.summary.kernel);
+        let x = r.param(i).unwrap_or(&[]);
+        let (q16, q84) = (quantile(x, 0.16), quantile(x, 0.84));
+        p!(chart.draw_series(std::iter::once(Rectangle::new([(q16, 0.0), (q84, ymax * 1.15)], c.mix(0.12).filled()))));
+        let pts: Vec<(f64, f64)> =
+            (0..bins).flat_map(|b| [(xr.0 + b as f64 * width, h[b]), (xr.0 + (b + 1) as f64 * width, h[b])]).collect();
+        p!(chart.draw_series(LineSeries::new(pts, c.stroke_width(2))).map(|s| s
+            .label(format!("kernel {}", r.summary.kernel))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], c.stroke_width(2)))));
+        let med = quantile(x, 0.5);
+        p!(chart
+            .draw_series(std::iter::once(PathElement::new(vec![(med, 0.0), (med, ymax * 1.15)], c.stroke_width(1)))));
+    }
+    if let Some(t) = truth.get(i) {
+        p!(chart
+            .draw_series(DashedLineSeries::new(vec![(*t, 0.0), (*t, ymax * 1.15)], 6, 4, TRUTH.stroke_width(2)))
+            .map(|s| s
+                .label("truth")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH.stroke_width(2)))));
+    }
+    if legend {
+        p!(chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
+    }
     Ok(())
 }
 
 /// Data with error bars, model-alone and model+δ bands, for one observable.
-pub fn prediction_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: &str, title: &str) -> Result<String> {
+pub fn prediction_plot(
+    run: &RunArtifacts,
+    observable: &str,
+    x_units: &str,
+    y_units: &str,
+    title: &str,
+) -> Result<String> {
     let x = run.pred_col(observable, "grid", "x");
-    let cols = |p: &str| ["q025", "q16", "median", "q84", "q975"].map(|q| run.pred_col(observable, "grid", &format!("{p}_{q}")));
+    let cols = |p: &str| {
+        ["q025", "q16", "median", "q84", "q975"].map(|q| run.pred_col(observable, "grid", &format!("{p}_{q}")))
+    };
     let (model, md) = (cols("model"), cols("model_md"));
     let truth = run.pred_col(observable, "grid", "truth");
     let data: Vec<&Measurement> = run.data.iter().filter(|m| m.observable == observable).collect();
-    let yr = range_of(model[0].iter().chain(&model[4]).chain(&md[0]).chain(&md[4]).chain(&truth).cloned().chain(data.iter().flat_map(|m| [m.value - m.error, m.value + m.error])));
+    let yr = range_of(
+        model[0]
+            .iter()
+            .chain(&model[4])
+            .chain(&md[0])
+            .chain(&md[4])
+            .chain(&truth)
+            .cloned()
+            .chain(data.iter().flat_map(|m| [m.value - m.error, m.value + m.error])),
+    );
     let xr = range_of(x.iter().cloned());
     let colour = kernel_colour(&run.summary.kernel);
     svg(
         |root| {
-            let mut chart = p!(ChartBuilder::on(root).caption(title, ("sans-serif", 16)).margin(8).x_label_area_size(40).y_label_area_size(56).build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
+            let mut chart = p!(ChartBuilder::on(root)
+                .caption(title, ("sans-serif", 16))
+                .margin(8)
+                .x_label_area_size(40)
+                .y_label_area_size(56)
+                .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
             let (xd, yd) = (axis("x", x_units), axis(observable, y_units));
             p!(chart.configure_mesh().x_desc(xd.as_str()).y_desc(yd.as_str()).draw());
-            let band = |lo: &[f64], hi: &[f64]| -> Vec<(f64, f64)> { x.iter().zip(lo).map(|(a, b)| (*a, *b)).chain(x.iter().zip(hi).rev().map(|(a, b)| (*a, *b))).collect() };
+            let band = |lo: &[f64], hi: &[f64]| -> Vec<(f64, f64)> {
+                x.iter().zip(lo).map(|(a, b)| (*a, *b)).chain(x.iter().zip(hi).rev().map(|(a, b)| (*a, *b))).collect()
+            };
             let grey = RGBColor(150, 150, 150);
             p!(chart
                 .draw_series(std::iter::once(Polygon::new(band(&model[0], &model[4]), grey.mix(0.25).filled())))
-                .map(|s| s.label("model alone, 95%").legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], grey.mix(0.4).filled()))));
+                .map(|s| s
+                    .label("model alone, 95%")
+                    .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], grey.mix(0.4).filled()))));
             if run.summary.kernel != "none" {
                 p!(chart
                     .draw_series(std::iter::once(Polygon::new(band(&md[0], &md[4]), colour.mix(0.25).filled())))
-                    .map(|s| s.label("model + δ, 95%").legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], colour.mix(0.4).filled()))));
-                p!(chart.draw_series(LineSeries::new(x.iter().cloned().zip(md[2].iter().cloned()), colour.stroke_width(2))));
+                    .map(|s| s.label("model + δ, 95%").legend(move |(x, y)| Rectangle::new(
+                        [(x, y - 5), (x + 14, y + 5)],
+                        colour.mix(0.4).filled()
+                    ))));
+                p!(chart.draw_series(LineSeries::new(
+                    x.iter().cloned().zip(md[2].iter().cloned()),
+                    colour.stroke_width(2)
+                )));
             }
             p!(chart
                 .draw_series(LineSeries::new(x.iter().cloned().zip(model[2].iter().cloned()), BLACK.stroke_width(1)))
                 .map(|s| s.label("model median").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
-            let true_curve: Vec<(f64, f64)> = x.iter().cloned().zip(truth.iter().cloned()).filter(|p| p.1.is_finite()).collect();
+            let true_curve: Vec<(f64, f64)> =
+                x.iter().cloned().zip(truth.iter().cloned()).filter(|p| p.1.is_finite()).collect();
             if !true_curve.is_empty() {
-                p!(chart
-                    .draw_series(DashedLineSeries::new(true_curve, 6, 4, TRUTH.stroke_width(2)))
-                    .map(|s| s.label("truth").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH.stroke_width(2)))));
+                p!(chart.draw_series(DashedLineSeries::new(true_curve, 6, 4, TRUTH.stroke_width(2))).map(|s| s
+                    .label("truth")
+                    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH.stroke_width(2)))));
             }
             p!(chart
-                .draw_series(data.iter().map(|m| ErrorBar::new_vertical(m.x, m.value - m.error, m.value, m.value + m.error, BLACK.filled(), 6)))
+                .draw_series(data.iter().map(|m| ErrorBar::new_vertical(
+                    m.x,
+                    m.value - m.error,
+                    m.value,
+                    m.value + m.error,
+                    BLACK.filled(),
+                    6
+                )))
                 .map(|s| s.label("data ± 1σ").legend(|(x, y)| Circle::new((x + 7, y), 3, BLACK.filled()))));
-            p!(chart.configure_series_labels().position(SeriesLabelPosition::UpperRight).border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
+            p!(chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperRight)
+                .border_style(BLACK)
+                .background_style(WHITE.mix(0.8))
+                .draw());
             Ok(())
         },
         W,
@@ -283,19 +388,38 @@ pub fn delta_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: 
     svg(
         |root| {
             let title = format!("discrepancy δ(x): {observable}");
-            let mut chart = p!(ChartBuilder::on(root).caption(title.as_str(), ("sans-serif", 16)).margin(8).x_label_area_size(40).y_label_area_size(56).build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
+            let mut chart = p!(ChartBuilder::on(root)
+                .caption(title.as_str(), ("sans-serif", 16))
+                .margin(8)
+                .x_label_area_size(40)
+                .y_label_area_size(56)
+                .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
             let yd = axis("δ", y_units);
             let xd = axis("x", x_units);
             p!(chart.configure_mesh().x_desc(xd.as_str()).y_desc(yd.as_str()).draw());
-            let poly: Vec<(f64, f64)> = x.iter().cloned().zip(q[0].iter().cloned()).chain(x.iter().cloned().zip(q[2].iter().cloned()).rev()).collect();
-            p!(chart
-                .draw_series(std::iter::once(Polygon::new(poly, colour.mix(0.3).filled())))
-                .map(|s| s.label("δ 95% band").legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], colour.mix(0.4).filled()))));
+            let poly: Vec<(f64, f64)> = x
+                .iter()
+                .cloned()
+                .zip(q[0].iter().cloned())
+                .chain(x.iter().cloned().zip(q[2].iter().cloned()).rev())
+                .collect();
+            p!(chart.draw_series(std::iter::once(Polygon::new(poly, colour.mix(0.3).filled()))).map(|s| s
+                .label("δ 95% band")
+                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], colour.mix(0.4).filled()))));
             p!(chart
                 .draw_series(LineSeries::new(x.iter().cloned().zip(q[1].iter().cloned()), colour.stroke_width(2)))
-                .map(|s| s.label("δ median").legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], colour.stroke_width(2)))));
-            p!(chart.draw_series(DashedLineSeries::new(vec![(xr.0, 0.0), (xr.1, 0.0)], 6, 4, BLACK.stroke_width(1))).map(|s| s.label("δ = 0").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
-            p!(chart.configure_series_labels().position(SeriesLabelPosition::LowerLeft).border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
+                .map(|s| s
+                    .label("δ median")
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], colour.stroke_width(2)))));
+            p!(chart
+                .draw_series(DashedLineSeries::new(vec![(xr.0, 0.0), (xr.1, 0.0)], 6, 4, BLACK.stroke_width(1)))
+                .map(|s| s.label("δ = 0").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
+            p!(chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::LowerLeft)
+                .border_style(BLACK)
+                .background_style(WHITE.mix(0.8))
+                .draw());
             Ok(())
         },
         W,
@@ -331,13 +455,21 @@ pub fn mismatch_map(d: &Diagnosis, x_units: &str) -> Result<String> {
             for (k, m) in rows.iter().enumerate() {
                 let xs: Vec<f64> = m.map.iter().map(|p| p.0).collect();
                 for (i, &(x, z)) in m.map.iter().enumerate() {
-                    let left = if i == 0 { x - (xs.get(1).unwrap_or(&(x + 0.1)) - x) / 2.0 } else { (x + xs[i - 1]) / 2.0 };
+                    let left =
+                        if i == 0 { x - (xs.get(1).unwrap_or(&(x + 0.1)) - x) / 2.0 } else { (x + xs[i - 1]) / 2.0 };
                     let right = if i + 1 == xs.len() { x + (x - left) } else { (x + xs[i + 1]) / 2.0 };
-                    p!(chart.draw_series(std::iter::once(Rectangle::new([(left, k as f64 + 0.05), (right, k as f64 + 0.95)], diverging(z / max).filled()))));
+                    p!(chart.draw_series(std::iter::once(Rectangle::new(
+                        [(left, k as f64 + 0.05), (right, k as f64 + 0.95)],
+                        diverging(z / max).filled()
+                    ))));
                 }
             }
             // Colour bar.
-            let mut cb = p!(ChartBuilder::on(&bar).margin(8).margin_top(40).y_label_area_size(40).build_cartesian_2d(0.0..1.0, -max..max));
+            let mut cb = p!(ChartBuilder::on(&bar)
+                .margin(8)
+                .margin_top(40)
+                .y_label_area_size(40)
+                .build_cartesian_2d(0.0..1.0, -max..max));
             p!(cb.configure_mesh().disable_x_axis().disable_mesh().y_desc("δ/σ").draw());
             p!(cb.draw_series((0..100).map(|i| {
                 let v0 = -max + 2.0 * max * i as f64 / 100.0;
@@ -375,7 +507,8 @@ fn diverging(t: f64) -> RGBColor {
 /// one horizontal bar per candidate (pairs have long names), best on top.
 pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
     let c = &d.candidates;
-    let vals: Vec<f64> = c.iter().map(|c| c.log_bayes_factor).chain([d.md_log_evidence - d.base_log_evidence, 0.0]).collect();
+    let vals: Vec<f64> =
+        c.iter().map(|c| c.log_bayes_factor).chain([d.md_log_evidence - d.base_log_evidence, 0.0]).collect();
     let xr = range_of(vals.iter().cloned());
     let names: Vec<String> = c.iter().map(|c| c.name.clone()).chain(["MD (kernel)".to_string()]).collect();
     let n = names.len();
@@ -392,15 +525,33 @@ pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
                 .build_cartesian_2d(xr.0.min(0.0)..xr.1, 0.0..n as f64));
             // Row k from the top is category n - 1 - k on the axis.
             let row = |v: f64| category_label(&names, n as f64 - v);
-            p!(chart.configure_mesh().disable_y_mesh().x_desc("log BF").y_desc("candidate").y_labels(2 * n + 1).y_label_formatter(&|v| row(*v)).draw());
+            p!(chart
+                .configure_mesh()
+                .disable_y_mesh()
+                .x_desc("log BF")
+                .y_desc("candidate")
+                .y_labels(2 * n + 1)
+                .y_label_formatter(&|v| row(*v))
+                .draw());
             for (k, v) in vals.iter().take(n).enumerate() {
-                let colour = if k == n - 1 { RGBColor(30, 150, 60) } else if c[k].name == d.verdict.best || d.verdict.standing.contains(&c[k].name) { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
+                let colour = if k == n - 1 {
+                    RGBColor(30, 150, 60)
+                } else if c[k].name == d.verdict.best || d.verdict.standing.contains(&c[k].name) {
+                    RGBColor(205, 120, 20)
+                } else {
+                    RGBColor(110, 110, 160)
+                };
                 let top = (n - k) as f64;
-                p!(chart.draw_series(std::iter::once(Rectangle::new([(0.0, top - 0.15), (*v, top - 0.85)], colour.filled()))));
+                p!(chart.draw_series(std::iter::once(Rectangle::new(
+                    [(0.0, top - 0.15), (*v, top - 0.85)],
+                    colour.filled()
+                ))));
             }
             p!(chart
                 .draw_series(DashedLineSeries::new(vec![(3.0, 0.0), (3.0, n as f64)], 6, 4, BLACK.stroke_width(1)))
-                .map(|s| s.label("strong evidence (log BF = 3)").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
+                .map(|s| s
+                    .label("strong evidence (log BF = 3)")
+                    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
             p!(chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
             Ok(())
         },
@@ -421,7 +572,8 @@ fn find_runs(dirs: &[PathBuf]) -> Vec<PathBuf> {
             out.push(d.clone());
         }
         if let Ok(rd) = std::fs::read_dir(d) {
-            let mut subs: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.join("summary.json").exists()).collect();
+            let mut subs: Vec<PathBuf> =
+                rd.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.join("summary.json").exists()).collect();
             subs.sort();
             out.extend(subs);
         }
@@ -439,7 +591,11 @@ pub trait SystemFigures: Sync {
     /// Whether `run` is one of this system's calibrations.
     fn claims(&self, run: &RunArtifacts) -> bool;
     /// Figures (caption, SVG) after the corner plot of one observable set.
-    fn posterior_figures(&self, _group: &[&RunArtifacts], _truth: &BTreeMap<String, f64>) -> Result<Vec<(String, String)>> {
+    fn posterior_figures(
+        &self,
+        _group: &[&RunArtifacts],
+        _truth: &BTreeMap<String, f64>,
+    ) -> Result<Vec<(String, String)>> {
         Ok(Vec::new())
     }
     /// One observable's predictions, instead of the generic bands.
@@ -454,12 +610,16 @@ const HEAD: &str = "<style>body{font-family:sans-serif;max-width:1250px;margin:2
 /// their own figures to the runs they claim.
 pub fn build(dirs: &[PathBuf], title: &str, systems: &[&dyn SystemFigures]) -> Result<String> {
     let runs: Vec<RunArtifacts> = find_runs(dirs).iter().map(|d| RunArtifacts::load(d)).collect::<Result<_>>()?;
-    let mut html = format!("<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{0}</title>{HEAD}</head><body><h1>{0}</h1>\n", html_escape(title));
+    let mut html = format!(
+        "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{0}</title>{HEAD}</head><body><h1>{0}</h1>\n",
+        html_escape(title)
+    );
     // Diagnosis first: it is the story.
     for d in dirs {
         let p = d.join("diagnosis.json");
         if p.exists() {
-            let diag: Diagnosis = serde_json::from_str(&std::fs::read_to_string(&p)?).with_context(|| format!("parsing {}", p.display()))?;
+            let diag: Diagnosis = serde_json::from_str(&std::fs::read_to_string(&p)?)
+                .with_context(|| format!("parsing {}", p.display()))?;
             diagnosis_section(&mut html, &diag, &runs)?;
         }
     }
@@ -467,7 +627,12 @@ pub fn build(dirs: &[PathBuf], title: &str, systems: &[&dyn SystemFigures]) -> R
     emulator_section(&mut html, dirs)?;
     if let Some(r) = runs.first() {
         let p = &r.summary.provenance;
-        html.push_str(&format!("<p style=\"font-size:12px;color:#666\">mdpipe {} · config {} · seed {}</p>", p.mdpipe_version, &p.config_hash.get(..12).unwrap_or(""), p.seed));
+        html.push_str(&format!(
+            "<p style=\"font-size:12px;color:#666\">mdpipe {} · config {} · seed {}</p>",
+            p.mdpipe_version,
+            &p.config_hash.get(..12).unwrap_or(""),
+            p.seed
+        ));
     }
     // Records each figure's rendered size on the page, so a headless browser
     // can check that every figure actually laid out (tests/it/diagnose.rs).
@@ -480,23 +645,55 @@ pub fn build(dirs: &[PathBuf], title: &str, systems: &[&dyn SystemFigures]) -> R
 fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts]) -> Result<()> {
     let units = runs.first().map(|r| r.summary.units.clone()).unwrap_or_default();
     html.push_str("<h2>Diagnosis</h2>\n");
-    html.push_str(&format!("<p class=\"verdict\"><b>{}</b> (confidence {:.2}): {}</p>\n", html_escape(&diag.verdict.best), diag.verdict.confidence, html_escape(&diag.verdict.statement)));
-    figure(html, "Where the model misses: posterior-mean discrepancy of the MD fit at each measurement, in units of its error.", &mismatch_map(diag, &units.x)?);
-    figure(html, "Candidate corrections ranked by SMC evidence; the MD fit for comparison.", &bayes_factor_chart(diag)?);
+    html.push_str(&format!(
+        "<p class=\"verdict\"><b>{}</b> (confidence {:.2}): {}</p>\n",
+        html_escape(&diag.verdict.best),
+        diag.verdict.confidence,
+        html_escape(&diag.verdict.statement)
+    ));
+    figure(
+        html,
+        "Where the model misses: posterior-mean discrepancy of the MD fit at each measurement, in units of its error.",
+        &mismatch_map(diag, &units.x)?,
+    );
+    figure(
+        html,
+        "Candidate corrections ranked by SMC evidence; the MD fit for comparison.",
+        &bayes_factor_chart(diag)?,
+    );
     // For emulated models, how much of each fit's predictive variance is the emulator's own.
     let emulated = diag.candidates.iter().any(|c| c.emulator_share > 0.0);
     let share_head = if emulated { "<th>emulator share of variance (worst observable)</th>" } else { "" };
     html.push_str(&format!("<table><tr><th>candidate</th><th>log BF</th><th>χ²/dof</th>{share_head}<th>parameters (median [95%])</th></tr>\n"));
     for c in &diag.candidates {
-        let share = if emulated { format!("<td>{:.0}% {}</td>", 100.0 * c.emulator_share, c.emulator_share_observable) } else { String::new() };
-        html.push_str(&format!("<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td>{share}<td>{}</td></tr>\n", c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof, intervals(&c.parameters)));
+        let share = if emulated {
+            format!("<td>{:.0}% {}</td>", 100.0 * c.emulator_share, c.emulator_share_observable)
+        } else {
+            String::new()
+        };
+        html.push_str(&format!(
+            "<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td>{share}<td>{}</td></tr>\n",
+            c.name,
+            c.log_bayes_factor,
+            c.log_bayes_factor_err,
+            c.chi2_per_dof,
+            intervals(&c.parameters)
+        ));
     }
     html.push_str("</table>\n");
     if let Some(imp) = &diag.improvement {
         html.push_str("<h3>Before and after the repair</h3><table><tr><th>fit</th><th>χ²/dof</th><th>log Z</th><th>max |δ|/σ</th><th>parameters</th></tr>\n");
         for f in imp.before.iter().chain(&imp.after) {
             let dmax = f.delta_max_sigma.values().cloned().fold(0.0, f64::max);
-            html.push_str(&format!("<tr><td>{}</td><td>{:.2}</td><td>{:.2} ± {:.2}</td><td>{:.1}</td><td>{}</td></tr>\n", f.label, f.chi2_per_dof, f.log_evidence, f.log_evidence_err, dmax, intervals(&f.parameters)));
+            html.push_str(&format!(
+                "<tr><td>{}</td><td>{:.2}</td><td>{:.2} ± {:.2}</td><td>{:.1}</td><td>{}</td></tr>\n",
+                f.label,
+                f.chi2_per_dof,
+                f.log_evidence,
+                f.log_evidence_err,
+                dmax,
+                intervals(&f.parameters)
+            ));
         }
         html.push_str("</table>\n");
         let narrowing: Vec<String> = imp
@@ -513,10 +710,18 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
         let Some(run) = runs.iter().find(|r| r.dir.file_name().map(|f| f == name).unwrap_or(false)) else { continue };
         let u = &run.summary.units;
         for obs in &run.summary.observables {
-            figure(html, &format!("{label}: δ({obs}) with its 95% band; after the repair it should hug zero."), &delta_plot(run, obs, &u.x, u.observable(obs))?);
+            figure(
+                html,
+                &format!("{label}: δ({obs}) with its 95% band; after the repair it should hug zero."),
+                &delta_plot(run, obs, &u.x, u.observable(obs))?,
+            );
         }
         for obs in &run.summary.observables {
-            figure(html, &format!("{label}: {obs}, data and predictions (the grid extends beyond the data)."), &prediction_plot(run, obs, &u.x, u.observable(obs), &format!("{label}: {obs}"))?);
+            figure(
+                html,
+                &format!("{label}: {obs}, data and predictions (the grid extends beyond the data)."),
+                &prediction_plot(run, obs, &u.x, u.observable(obs), &format!("{label}: {obs}"))?,
+            );
         }
     }
     Ok(())
@@ -524,7 +729,11 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
 
 /// "name = median [q025, q975], …".
 fn intervals(parameters: &BTreeMap<String, ParamSummary>) -> String {
-    parameters.iter().map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975)).collect::<Vec<_>>().join(", ")
+    parameters
+        .iter()
+        .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Per observable set: the corner plot of every kernel's run, the system's
@@ -541,14 +750,18 @@ fn posterior_sections(html: &mut String, runs: &[RunArtifacts], systems: &[&dyn 
     }
     let largest = sets.iter().map(|s| s.len()).max().unwrap_or(0);
     // Candidate-augmented fits have extra parameters; diagnose shows them above.
-    let is_candidate = |r: &RunArtifacts| r.dir.file_name().and_then(|f| f.to_str()).is_some_and(|f| f.starts_with("candidate_") || f == "repaired_md");
+    let is_candidate = |r: &RunArtifacts| {
+        r.dir.file_name().and_then(|f| f.to_str()).is_some_and(|f| f.starts_with("candidate_") || f == "repaired_md")
+    };
     for set in &sets {
-        let group: Vec<&RunArtifacts> = runs.iter().filter(|r| &r.summary.observables == set && !is_candidate(r)).collect();
+        let group: Vec<&RunArtifacts> =
+            runs.iter().filter(|r| &r.summary.observables == set && !is_candidate(r)).collect();
         if group.is_empty() {
             continue;
         }
         let system = systems.iter().find(|s| s.claims(group[0]));
-        let theta: Vec<String> = group[0].summary.parameter_order.iter().filter(|n| !n.contains('.')).cloned().collect();
+        let theta: Vec<String> =
+            group[0].summary.parameter_order.iter().filter(|n| !n.contains('.')).cloned().collect();
         let truth = group[0].summary.truth.clone();
         let units = group[0].summary.units.clone();
         let kernels: Vec<&str> = group.iter().map(|r| r.summary.kernel.as_str()).collect();
@@ -568,8 +781,17 @@ fn posterior_sections(html: &mut String, runs: &[RunArtifacts], systems: &[&dyn 
                     let (caption, svg) = match own {
                         Some(f) => f,
                         None => (
-                            format!("Kernel {}: {obs}, data with 1σ errors and 95% posterior-predictive bands.", r.summary.kernel),
-                            prediction_plot(r, obs, &r.summary.units.x, r.summary.units.observable(obs), &format!("kernel {}: {obs}", r.summary.kernel))?,
+                            format!(
+                                "Kernel {}: {obs}, data with 1σ errors and 95% posterior-predictive bands.",
+                                r.summary.kernel
+                            ),
+                            prediction_plot(
+                                r,
+                                obs,
+                                &r.summary.units.x,
+                                r.summary.units.observable(obs),
+                                &format!("kernel {}: {obs}", r.summary.kernel),
+                            )?,
                         ),
                     };
                     figure(html, &caption, &svg);
@@ -592,8 +814,15 @@ fn posterior_table(html: &mut String, group: &[&RunArtifacts], theta: &[String])
             let p = &r.summary.parameters[t];
             html.push_str(&format!("<td>{:.3} [{:.3}, {:.3}]</td>", p.median, p.q025, p.q975));
         }
-        let z = r.summary.log_evidence.map(|z| format!("{z:.2} ± {:.2}", r.summary.log_evidence_err.unwrap_or(f64::NAN))).unwrap_or_else(|| "–".into());
-        html.push_str(&format!("<td>{z}</td><td>{}</td></tr>\n", if r.summary.diagnostics.converged { "yes" } else { "NO" }));
+        let z = r
+            .summary
+            .log_evidence
+            .map(|z| format!("{z:.2} ± {:.2}", r.summary.log_evidence_err.unwrap_or(f64::NAN)))
+            .unwrap_or_else(|| "–".into());
+        html.push_str(&format!(
+            "<td>{z}</td><td>{}</td></tr>\n",
+            if r.summary.diagnostics.converged { "yes" } else { "NO" }
+        ));
     }
     html.push_str("</table>\n");
 }
@@ -622,10 +851,18 @@ fn emulator_section(html: &mut String, dirs: &[PathBuf]) -> Result<()> {
         }
         for set in &sets {
             let subset: Vec<&emulator::ParityRow> = rows.iter().filter(|r| &r.set == set).collect();
-            figure(html, &format!("{set}: z-scores of every output; a calibrated emulator follows N(0, 1)."), &emulator::z_histogram(&subset, set)?);
+            figure(
+                html,
+                &format!("{set}: z-scores of every output; a calibrated emulator follows N(0, 1)."),
+                &emulator::z_histogram(&subset, set)?,
+            );
         }
         // Parity per observable, on the held-out design if there is one.
-        let set = if sets.iter().any(|s| s == "holdout") { "holdout".to_string() } else { sets.first().cloned().unwrap_or_default() };
+        let set = if sets.iter().any(|s| s == "holdout") {
+            "holdout".to_string()
+        } else {
+            sets.first().cloned().unwrap_or_default()
+        };
         let mut observables: Vec<String> = Vec::new();
         for r in rows.iter().filter(|r| r.set == set) {
             if !observables.contains(&r.observable) {
@@ -633,8 +870,13 @@ fn emulator_section(html: &mut String, dirs: &[PathBuf]) -> Result<()> {
             }
         }
         for obs in &observables {
-            let subset: Vec<&emulator::ParityRow> = rows.iter().filter(|r| r.set == set && &r.observable == obs).collect();
-            figure(html, &format!("{set}: emulated against simulated {obs}, every pT bin and design point."), &emulator::parity_plot(&subset, obs)?);
+            let subset: Vec<&emulator::ParityRow> =
+                rows.iter().filter(|r| r.set == set && &r.observable == obs).collect();
+            figure(
+                html,
+                &format!("{set}: emulated against simulated {obs}, every pT bin and design point."),
+                &emulator::parity_plot(&subset, obs)?,
+            );
         }
     }
     Ok(())

@@ -27,20 +27,27 @@ pub fn write_figures(html: &str, dir: &Path) -> Result<Vec<PathBuf>> {
     fonts.load_system_fonts();
     // fontdb maps "sans-serif" to Arial; use a sans face that is installed.
     let installed: Vec<String> = fonts.faces().flat_map(|f| f.families.iter().map(|(name, _)| name.clone())).collect();
-    match ["DejaVu Sans", "Liberation Sans", "Noto Sans", "Arial"].into_iter().find(|f| installed.iter().any(|i| i == f)).or_else(|| installed.first().map(String::as_str)) {
+    match ["DejaVu Sans", "Liberation Sans", "Noto Sans", "Arial"]
+        .into_iter()
+        .find(|f| installed.iter().any(|i| i == f))
+        .or_else(|| installed.first().map(String::as_str))
+    {
         Some(family) => {
             let family = family.to_string();
             fonts.set_sans_serif_family(family.clone());
             options.font_family = family;
         }
-        None => eprintln!("warning: no system fonts found, so the PNG figures have no text (install e.g. fonts-dejavu-core)"),
+        None => eprintln!(
+            "warning: no system fonts found, so the PNG figures have no text (install e.g. fonts-dejavu-core)"
+        ),
     }
     let scale = 2.0;
     let mut written = Vec::new();
     for (k, svg) in inline_svgs(html).into_iter().enumerate() {
         let tree = usvg::Tree::from_str(svg, &options).map_err(|e| anyhow!("figure {}: not valid SVG: {e}", k + 1))?;
         let size = tree.size().to_int_size().scale_by(scale).ok_or_else(|| anyhow!("figure {}: empty size", k + 1))?;
-        let mut pixmap = tiny_skia::Pixmap::new(size.width(), size.height()).ok_or_else(|| anyhow!("figure {}: cannot allocate {}x{}", k + 1, size.width(), size.height()))?;
+        let mut pixmap = tiny_skia::Pixmap::new(size.width(), size.height())
+            .ok_or_else(|| anyhow!("figure {}: cannot allocate {}x{}", k + 1, size.width(), size.height()))?;
         pixmap.fill(tiny_skia::Color::WHITE);
         resvg::render(&tree, tiny_skia::Transform::from_scale(scale, scale), &mut pixmap.as_mut());
         let bytes = pixmap.encode_png().map_err(|e| anyhow!("figure {}: PNG encoding: {e}", k + 1))?;

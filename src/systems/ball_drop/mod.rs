@@ -51,7 +51,10 @@ impl ExtraForces {
     /// Acceleration (downward positive) at speed v, depth `drop = h0 - h` and time t.
     #[inline]
     pub fn acceleration(&self, g: f64, v: f64, drop: f64, t: f64) -> f64 {
-        let mut a = g * (1.0 + self.height_gradient * drop) - self.quadratic_drag * v * v.abs() - self.linear_drag * v - self.constant_force;
+        let mut a = g * (1.0 + self.height_gradient * drop)
+            - self.quadratic_drag * v * v.abs()
+            - self.linear_drag * v
+            - self.constant_force;
         if self.oscillation_amplitude != 0.0 {
             a -= self.oscillation_amplitude * (2.0 * std::f64::consts::PI * t / self.oscillation_period).sin();
         }

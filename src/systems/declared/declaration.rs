@@ -166,7 +166,13 @@ impl Declared {
             bail!("{file}: [model.observables]: declare at least one observable as a formula");
         }
         let states = if ode { states(&file, table)? } else { Vec::new() };
-        let observables = table.observables.iter().map(|(name, text)| (name.clone(), Written { text: text.clone(), place: format!("{file}: [model.observables] {name}") })).collect();
+        let observables = table
+            .observables
+            .iter()
+            .map(|(name, text)| {
+                (name.clone(), Written { text: text.clone(), place: format!("{file}: [model.observables] {name}") })
+            })
+            .collect();
         let mut parameters = Vec::new();
         let mut bounds = Vec::new();
         for (name, spec) in &config.parameters {
@@ -209,11 +215,19 @@ impl Declared {
 
     /// This model with `candidate`'s terms added and its parameters joining θ.
     pub fn with_candidate(&self, file: &str, candidate: &CandidateTable) -> Result<Declared> {
-        let mut d = self.add_terms(file, &format!("[[candidates]] {}", candidate.name), &candidate.observables, &candidate.rates)?;
+        let mut d = self.add_terms(
+            file,
+            &format!("[[candidates]] {}", candidate.name),
+            &candidate.observables,
+            &candidate.rates,
+        )?;
         for (name, spec) in &candidate.parameters {
             spec.check(&format!("{file}: [[candidates]] {}: [candidates.parameters.{name}]", candidate.name))?;
             if d.parameters.contains(name) || d.constants.iter().any(|(c, _)| c == name) {
-                bail!("{file}: [[candidates]] {}: parameter '{name}' is already a parameter or constant of the model", candidate.name);
+                bail!(
+                    "{file}: [[candidates]] {}: parameter '{name}' is already a parameter or constant of the model",
+                    candidate.name
+                );
             }
             d.parameters.push(name.clone());
             d.declared_at.push(format!("[[candidates]] {}: [candidates.parameters.{name}]", candidate.name));
@@ -227,16 +241,23 @@ impl Declared {
     pub fn with_truth(&self, file: &str, truth: &TruthTable, library: &[CandidateTable]) -> Result<Declared> {
         let mut d = self.clone();
         for (name, values) in &truth.candidates {
-            let c = library.iter().find(|c| &c.name == name).ok_or_else(|| anyhow!("{file}: [truth.candidates] {name}: no candidate of that name in [[candidates]]"))?;
+            let c = library.iter().find(|c| &c.name == name).ok_or_else(|| {
+                anyhow!("{file}: [truth.candidates] {name}: no candidate of that name in [[candidates]]")
+            })?;
             d = d.add_terms(file, &format!("[truth.candidates] {name}"), &c.observables, &c.rates)?;
             for p in c.parameters.keys() {
-                let v = values.get(p).ok_or_else(|| anyhow!("{file}: [truth.candidates] {name}: give the true value of its parameter '{p}'"))?;
+                let v = values.get(p).ok_or_else(|| {
+                    anyhow!("{file}: [truth.candidates] {name}: give the true value of its parameter '{p}'")
+                })?;
                 d.constants.push((p.clone(), *v));
             }
         }
         for (name, value) in &truth.constants {
             // A name already in the scope would shadow this value silently.
-            if d.parameters.contains(name) || d.constants.iter().any(|(c, _)| c == name) || d.states.iter().any(|s| &s.name == name) {
+            if d.parameters.contains(name)
+                || d.constants.iter().any(|(c, _)| c == name)
+                || d.states.iter().any(|s| &s.name == name)
+            {
                 bail!("{file}: [truth.constants] {name}: the model already has a parameter, constant or state of that name");
             }
             d.constants.push((name.clone(), *value));
@@ -244,17 +265,30 @@ impl Declared {
         d.add_terms(file, "[truth]", &truth.observables, &truth.rates)
     }
 
-    fn add_terms(&self, file: &str, from: &str, observables: &BTreeMap<String, String>, rates: &BTreeMap<String, String>) -> Result<Declared> {
+    fn add_terms(
+        &self,
+        file: &str,
+        from: &str,
+        observables: &BTreeMap<String, String>,
+        rates: &BTreeMap<String, String>,
+    ) -> Result<Declared> {
         let mut d = self.clone();
         for (name, term) in observables {
-            let (_, w) = d.observables.iter_mut().find(|(o, _)| o == name).ok_or_else(|| anyhow!("{file}: {from}: observables.{name}: the model has no observable '{name}'"))?;
+            let (_, w) =
+                d.observables.iter_mut().find(|(o, _)| o == name).ok_or_else(|| {
+                    anyhow!("{file}: {from}: observables.{name}: the model has no observable '{name}'")
+                })?;
             *w = w.plus(term, &format!("{from}: observables.{name}"));
         }
         if !rates.is_empty() && d.states.is_empty() {
             bail!("{file}: {from}: `rates` add to equations of motion, which only a model of kind = \"ode\" has");
         }
         for (name, term) in rates {
-            let s = d.states.iter_mut().find(|s| &s.name == name).ok_or_else(|| anyhow!("{file}: {from}: rates.{name}: the model has no state variable '{name}'"))?;
+            let s = d
+                .states
+                .iter_mut()
+                .find(|s| &s.name == name)
+                .ok_or_else(|| anyhow!("{file}: {from}: rates.{name}: the model has no state variable '{name}'"))?;
             s.rate = s.rate.plus(term, &format!("{from}: rates.{name}"));
         }
         Ok(d)
@@ -272,7 +306,10 @@ fn states(file: &str, table: &ModelTable) -> Result<Vec<State>> {
         .initial
         .iter()
         .map(|(name, initial)| {
-            let rate = table.rates.get(name).ok_or_else(|| anyhow!("{file}: [model.initial] {name}: no rate for '{name}' in [model.rates]"))?;
+            let rate = table
+                .rates
+                .get(name)
+                .ok_or_else(|| anyhow!("{file}: [model.initial] {name}: no rate for '{name}' in [model.rates]"))?;
             Ok(State {
                 name: name.clone(),
                 initial: Written { text: initial.clone(), place: format!("{file}: [model.initial] {name}") },
@@ -284,7 +321,11 @@ fn states(file: &str, table: &ModelTable) -> Result<Vec<State>> {
 
 fn check_solver(file: &str, s: &SolverSettings) -> Result<()> {
     if !(s.rtol > 0.0 && s.rtol < 1.0) || !(s.atol > 0.0 && s.atol.is_finite()) {
-        bail!("{file}: [model.solver]: rtol must be in (0, 1) and atol positive (got rtol = {}, atol = {})", s.rtol, s.atol);
+        bail!(
+            "{file}: [model.solver]: rtol must be in (0, 1) and atol positive (got rtol = {}, atol = {})",
+            s.rtol,
+            s.atol
+        );
     }
     if s.max_steps == 0 {
         bail!("{file}: [model.solver] max_steps must be at least 1");

@@ -20,7 +20,8 @@ impl ExpressionModel {
     pub fn compile(file: &str, d: &Declared) -> Result<ExpressionModel> {
         let variables = Variables::of(file, d)?;
         let scope = variables.scope(variables.state_at);
-        let formulas = d.observables.iter().map(|(_, w)| Formula::parse(&w.text, &scope, &w.place)).collect::<Result<Vec<_>>>()?;
+        let formulas =
+            d.observables.iter().map(|(_, w)| Formula::parse(&w.text, &scope, &w.place)).collect::<Result<Vec<_>>>()?;
         check_parameters_used(file, d, &formulas.iter().collect::<Vec<_>>())?;
         Ok(ExpressionModel {
             parameters: d.parameters.clone(),

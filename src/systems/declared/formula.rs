@@ -108,13 +108,18 @@ mod tests {
         assert!(f.uses(0) && !Formula::parse("g", &scope(), "p").unwrap().uses(0));
         let f = Formula::parse("-g*abs(t)*sqrt(h0) + max(v0, 1)", &scope(), "p").unwrap();
         assert!((f.eval(&[-2.0, 9.8, 0.3, 4.0]) - (-9.8 * 2.0 * 2.0 + 1.0)).abs() < 1e-12);
-        assert!((Formula::parse(&plus("g", "-v0"), &scope(), "p").unwrap().eval(&[0.0, 9.8, 0.3, 0.0]) - 9.5).abs() < 1e-12);
+        assert!(
+            (Formula::parse(&plus("g", "-v0"), &scope(), "p").unwrap().eval(&[0.0, 9.8, 0.3, 0.0]) - 9.5).abs() < 1e-12
+        );
     }
 
     #[test]
     fn errors_name_the_place_and_the_formula() {
         let e = Formula::parse("g*t + k", &scope(), "m.toml: [model.observables] height").unwrap_err().to_string();
-        assert!(e.contains("m.toml: [model.observables] height") && e.contains("unknown name 'k'") && e.contains("g*t + k"), "{e}");
+        assert!(
+            e.contains("m.toml: [model.observables] height") && e.contains("unknown name 'k'") && e.contains("g*t + k"),
+            "{e}"
+        );
         let e = Formula::parse("g*(t", &scope(), "m.toml: [model.rates] v").unwrap_err().to_string();
         assert!(e.contains("[model.rates] v") && e.contains("not a formula"), "{e}");
         assert!(Formula::parse("  ", &scope(), "p").unwrap_err().to_string().contains("empty"));
@@ -165,7 +170,11 @@ mod tests {
         ] {
             let expr = notation::parse(text).unwrap();
             let flat = exmex::parse::<f64>(&expr.explicit()).unwrap();
-            let vals: Vec<f64> = flat.var_names().iter().map(|n| at[scope.index(n).unwrap_or_else(|| panic!("{text}: exmex sees a variable {n}"))]).collect();
+            let vals: Vec<f64> = flat
+                .var_names()
+                .iter()
+                .map(|n| at[scope.index(n).unwrap_or_else(|| panic!("{text}: exmex sees a variable {n}"))])
+                .collect();
             let want = flat.eval(&vals).unwrap();
             let got = Formula::parse(text, &scope, "p").unwrap().eval(&at);
             assert!((got - want).abs() <= 1e-13 * want.abs().max(1.0), "{text}: tape {got}, exmex {want}");

@@ -48,7 +48,11 @@ impl DeclaredFamily {
 
     fn compile(&self, config: &Config, declared: &Declared) -> Result<Arc<dyn Simulator>> {
         let file = config.path.display().to_string();
-        Ok(if self.ode { Arc::new(ode::OdeModel::compile(&file, declared)?) } else { Arc::new(expression::ExpressionModel::compile(&file, declared)?) })
+        Ok(if self.ode {
+            Arc::new(ode::OdeModel::compile(&file, declared)?)
+        } else {
+            Arc::new(expression::ExpressionModel::compile(&file, declared)?)
+        })
     }
 
     /// The `[[candidates]]` tables, decoded.
@@ -74,7 +78,8 @@ impl DeclaredFamily {
         for c in chosen {
             declared = declared.with_candidate(&file, c)?;
         }
-        let extra_parameters = chosen.iter().flat_map(|c| c.parameters.iter().map(|(n, s)| (n.clone(), s.clone()))).collect();
+        let extra_parameters =
+            chosen.iter().flat_map(|c| c.parameters.iter().map(|(n, s)| (n.clone(), s.clone()))).collect();
         Ok(CandidateModel {
             name: chosen.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join("+"),
             description: chosen.iter().map(|c| c.description.as_str()).collect::<Vec<_>>().join("; and "),
@@ -131,7 +136,8 @@ impl ModelFamily for DeclaredFamily {
 
     fn true_process(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
         let table: TruthTable = config.decode_family_table(truth, "truth")?;
-        let declared = self.base(config)?.with_truth(&config.path.display().to_string(), &table, &self.library(config)?)?;
+        let declared =
+            self.base(config)?.with_truth(&config.path.display().to_string(), &table, &self.library(config)?)?;
         self.compile(config, &declared)
     }
 }

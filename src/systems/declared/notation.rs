@@ -110,11 +110,7 @@ fn tokenize(text: &str) -> Result<Vec<Token>> {
             // A name before '(' is a function call: `sin(t)`.
             let call = matches!((prev, &token), (Token::Name(_), Token::Open));
             if ends_operand(prev) && !call {
-                bail!(
-                    "{} directly after {}: write the multiplication out, e.g. 2*a",
-                    describe(&token),
-                    describe(prev)
-                );
+                bail!("{} directly after {}: write the multiplication out, e.g. 2*a", describe(&token), describe(prev));
             }
         }
         tokens.push(token);

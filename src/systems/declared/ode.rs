@@ -98,9 +98,21 @@ impl OdeModel {
         let before_state = variables.scope(variables.state_at);
         let with_state = variables.scope(variables.rate_at);
         let everything = variables.scope(variables.len);
-        let initial = d.states.iter().map(|s| Formula::parse(&s.initial.text, &before_state, &s.initial.place)).collect::<Result<Vec<_>>>()?;
-        let rates = d.states.iter().map(|s| Formula::parse(&s.rate.text, &with_state, &s.rate.place)).collect::<Result<Vec<_>>>()?;
-        let formulas = d.observables.iter().map(|(_, w)| Formula::parse(&w.text, &everything, &w.place)).collect::<Result<Vec<_>>>()?;
+        let initial = d
+            .states
+            .iter()
+            .map(|s| Formula::parse(&s.initial.text, &before_state, &s.initial.place))
+            .collect::<Result<Vec<_>>>()?;
+        let rates = d
+            .states
+            .iter()
+            .map(|s| Formula::parse(&s.rate.text, &with_state, &s.rate.place))
+            .collect::<Result<Vec<_>>>()?;
+        let formulas = d
+            .observables
+            .iter()
+            .map(|(_, w)| Formula::parse(&w.text, &everything, &w.place))
+            .collect::<Result<Vec<_>>>()?;
         check_parameters_used(file, d, &initial.iter().chain(&rates).chain(&formulas).collect::<Vec<_>>())?;
         let uses_rates = formulas.iter().map(|f| (variables.rate_at..variables.len).any(|i| f.uses(i))).collect();
         Ok(OdeModel {
@@ -149,7 +161,12 @@ impl OdeModel {
 
     /// Dormand–Prince 5(4) from t0 to `t_end` with the state in vectors of
     /// dimension `D`; None when the integration fails.
-    fn integrate<D: Dim>(&self, values: [f64; MAX_NAMES], y0: &[f64], t_end: f64) -> Option<ContinuousOutputModel<f64, OVector<f64, D>>>
+    fn integrate<D: Dim>(
+        &self,
+        values: [f64; MAX_NAMES],
+        y0: &[f64],
+        t_end: f64,
+    ) -> Option<ContinuousOutputModel<f64, OVector<f64, D>>>
     where
         DefaultAllocator: Allocator<D>,
         OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
@@ -158,7 +175,24 @@ impl OdeModel {
         let s = &self.solver;
         let span = t_end - self.t0;
         let rhs = Rhs { model: self, values: RefCell::new(values) };
-        let mut stepper = Dopri5::from_param(rhs, self.t0, t_end, span, y, s.rtol, s.atol, 0.9, 0.04, 0.2, 10.0, span, 0.0, s.max_steps, 1000, OutputType::Dense);
+        let mut stepper = Dopri5::from_param(
+            rhs,
+            self.t0,
+            t_end,
+            span,
+            y,
+            s.rtol,
+            s.atol,
+            0.9,
+            0.04,
+            0.2,
+            10.0,
+            span,
+            0.0,
+            s.max_steps,
+            1000,
+            OutputType::Dense,
+        );
         let mut dense = ContinuousOutputModel::new();
         stepper.integrate_with_continuous_output_model(&mut dense).ok().map(|_| dense)
     }

@@ -42,7 +42,6 @@ pub struct Tape {
     code: Vec<Op>,
 }
 
-
 fn function1(name: &str) -> Option<fn(f64) -> f64> {
     Some(match name {
         "abs" => f64::abs,

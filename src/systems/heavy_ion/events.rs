@@ -131,7 +131,12 @@ struct Accumulator {
 impl Accumulator {
     fn new(order_max: usize) -> Accumulator {
         let orders = order_max - 1;
-        Accumulator { orders, count: vec![0.0; FINE_PT_BINS], sum_pt: vec![0.0; FINE_PT_BINS], q: vec![vec![(0.0, 0.0); orders]; FINE_PT_BINS] }
+        Accumulator {
+            orders,
+            count: vec![0.0; FINE_PT_BINS],
+            sum_pt: vec![0.0; FINE_PT_BINS],
+            q: vec![vec![(0.0, 0.0); orders]; FINE_PT_BINS],
+        }
     }
 
     fn add(&mut self, bin: usize, pt: f64, phi: f64) {
@@ -176,7 +181,8 @@ impl Accumulator {
         let sd_pt = if n > 1.0 { (sum_pt2 / n - mean_pt * mean_pt).max(0.0).sqrt() } else { 0.0 };
         let err_n = if n > 0.0 { (0.5 / n).sqrt() } else { 0.0 };
         let k_os = oversample as f64;
-        let mut values = vec![0.0, n / (k_os * dy), n.sqrt() / (k_os * dy), mean_pt, if n > 0.0 { sd_pt / n.sqrt() } else { 0.0 }];
+        let mut values =
+            vec![0.0, n / (k_os * dy), n.sqrt() / (k_os * dy), mean_pt, if n > 0.0 { sd_pt / n.sqrt() } else { 0.0 }];
         for k in 0..self.orders {
             let (c, s) = self.q.iter().fold((0.0, 0.0), |(a, b), q| (a + q[k].0, b + q[k].1));
             let (c, s) = if n > 0.0 { (c / n, s / n) } else { (0.0, 0.0) };
@@ -184,7 +190,13 @@ impl Accumulator {
         }
         values.extend([99.0, n, k_os, 0.0, 0.0]);
         let integrated = FileKind { differential: false, ..kind.clone() };
-        EventFile { name: integrated.file_name(), header: "# n  vn_real  vn_real_err  vn_imag  vn_imag_err".into(), columns: 5, values, origin: String::new() }
+        EventFile {
+            name: integrated.file_name(),
+            header: "# n  vn_real  vn_real_err  vn_imag  vn_imag_err".into(),
+            columns: 5,
+            values,
+            origin: String::new(),
+        }
     }
 }
 
@@ -202,7 +214,11 @@ fn sample_pt_in_bin(rng: &mut impl Rng, lo: f64, nodes: &[(f64, f64, f64, f64, f
     lo + (1.0 + u * ((slope * FINE_PT_WIDTH).exp() - 1.0)).ln() / slope
 }
 
-fn interpolate(nodes: &[(f64, f64, f64, f64, f64); 2], pt: f64, pick: impl Fn(&(f64, f64, f64, f64, f64)) -> f64) -> f64 {
+fn interpolate(
+    nodes: &[(f64, f64, f64, f64, f64); 2],
+    pt: f64,
+    pick: impl Fn(&(f64, f64, f64, f64, f64)) -> f64,
+) -> f64 {
     let t = (pt - nodes[0].0) / (nodes[1].0 - nodes[0].0);
     pick(&nodes[0]) * (1.0 - t) + pick(&nodes[1]) * t
 }
@@ -248,7 +264,8 @@ pub fn sample_event(tables: &SmoothTables, seed: u64, index: usize, oversample: 
                         let bound = 1.0 + 2.0 * (v2.abs() + v3.abs());
                         let phi = loop {
                             let phi = rng.random::<f64>() * std::f64::consts::TAU;
-                            let density = 1.0 + 2.0 * v2 * (2.0 * (phi - psi[0])).cos() + 2.0 * v3 * (3.0 * (phi - psi[1])).cos();
+                            let density =
+                                1.0 + 2.0 * v2 * (2.0 * (phi - psi[0])).cos() + 2.0 * v3 * (3.0 * (phi - psi[1])).cos();
                             if rng.random::<f64>() * bound < density {
                                 break phi;
                             }
@@ -310,7 +327,10 @@ pub fn write_point(dir: &std::path::Path, events: &[Event], layout: Layout) -> a
     use anyhow::Context;
     // An empty folder is the one `mdpipe run` made for this attempt; rename replaces it.
     if dir.exists() && std::fs::read_dir(dir).map_or(true, |mut d| d.next().is_some()) {
-        anyhow::bail!("{} already exists: remove it to rerun this point (its old events would mix with the new ones)", dir.display());
+        anyhow::bail!(
+            "{} already exists: remove it to rerun this point (its old events would mix with the new ones)",
+            dir.display()
+        );
     }
     let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let staging = dir.with_file_name(format!(".{name}.partial-{}", std::process::id()));

@@ -54,7 +54,11 @@ impl ModelFamily for HeavyIonFamily {
 
     fn units(&self, _config: &Config) -> Units {
         let pairs = |v: &[(&str, &str)]| v.iter().map(|(k, u)| (k.to_string(), u.to_string())).collect();
-        Units { x: "GeV".into(), observables: Default::default(), parameters: pairs(&[("e_sw", "GeV/fm³"), ("T_kink", "GeV"), ("a_low", "1/GeV"), ("a_high", "1/GeV")]) }
+        Units {
+            x: "GeV".into(),
+            observables: Default::default(),
+            parameters: pairs(&[("e_sw", "GeV/fm³"), ("T_kink", "GeV"), ("a_low", "1/GeV"), ("a_high", "1/GeV")]),
+        }
     }
 
     fn true_process(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
@@ -88,7 +92,9 @@ impl Simulator for StandIn {
         // likelihood asks for them one by one at the same θ: keep the last.
         LAST.with(|cell| {
             let mut last = cell.borrow_mut();
-            let hit = last.as_ref().is_some_and(|((d, n, t, xs), _)| *d == self.delta_f && *n == self.names && t == theta && xs == x);
+            let hit = last
+                .as_ref()
+                .is_some_and(|((d, n, t, xs), _)| *d == self.delta_f && *n == self.names && t == theta && xs == x);
             if !hit {
                 let key = (self.delta_f, self.names.clone(), theta.to_vec(), x.to_vec());
                 let named: Vec<(String, f64)> = self.names.iter().cloned().zip(theta.iter().copied()).collect();

@@ -20,7 +20,10 @@ pub fn design_points(design: &Path, only: Option<i64>, out: &Path) -> Result<Vec
     })?;
     let all: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).collect();
     match only {
-        Some(id) => Ok(vec![*all.iter().find(|(i, _)| *i == id).ok_or_else(|| anyhow!("--only {id}: no design point {id} in {}", design.display()))?]),
+        Some(id) => Ok(vec![*all
+            .iter()
+            .find(|(i, _)| *i == id)
+            .ok_or_else(|| anyhow!("--only {id}: no design point {id} in {}", design.display()))?]),
         None => Ok(all),
     }
 }
@@ -29,11 +32,16 @@ pub fn design_points(design: &Path, only: Option<i64>, out: &Path) -> Result<Vec
 /// one-row `design.parquet` written into `out`.
 pub fn named_point(point: &str, seed: u64, out: &Path) -> Result<Vec<(i64, HeavyIonParams)>> {
     let params = HeavyIonParams::parse(point)?;
-    let named: Vec<(String, f64)> = point.split(',').filter_map(|kv| kv.split_once('=')).map(|(k, v)| (k.trim().to_string(), v.trim().parse().unwrap_or(f64::NAN))).collect();
+    let named: Vec<(String, f64)> = point
+        .split(',')
+        .filter_map(|kv| kv.split_once('='))
+        .map(|(k, v)| (k.trim().to_string(), v.trim().parse().unwrap_or(f64::NAN)))
+        .collect();
     let mut cols = vec![("design_id".to_string(), vec![0.0])];
     cols.extend(named.into_iter().map(|(k, v)| (k, vec![v])));
     let mut frame = artifacts::f64_frame(cols)?;
-    let prov = artifacts::Provenance::new(String::new(), String::new(), seed, &format!("simulate heavy-ion --point {point}"));
+    let prov =
+        artifacts::Provenance::new(String::new(), String::new(), seed, &format!("simulate heavy-ion --point {point}"));
     std::fs::create_dir_all(out)?;
     artifacts::write_parquet_atomic(&out.join("design.parquet"), &mut frame, Some(&prov))?;
     Ok(vec![(0, params)])
@@ -47,10 +55,19 @@ pub fn take_errors_from(data: &mut [Measurement], source: &Path) -> Result<()> {
     for m in data.iter_mut() {
         let same = |e: &&Measurement| e.observable == m.observable && (e.x - m.x).abs() <= 1e-9 * m.x.abs().max(1.0);
         let mut found = errors.iter().filter(same);
-        let first = found.next().ok_or_else(|| anyhow!("{}: no measurement of {} at x = {:.4} to take its error from", source.display(), m.observable, m.x))?;
+        let first = found.next().ok_or_else(|| {
+            anyhow!("{}: no measurement of {} at x = {:.4} to take its error from", source.display(), m.observable, m.x)
+        })?;
         // Two rows for one point leave its error ambiguous.
         if let Some(second) = found.next() {
-            bail!("{}: lines {} and {} both measure {} at x = {:.4}; which error to take is ambiguous", source.display(), first.line, second.line, m.observable, m.x);
+            bail!(
+                "{}: lines {} and {} both measure {} at x = {:.4}; which error to take is ambiguous",
+                source.display(),
+                first.line,
+                second.line,
+                m.observable,
+                m.x
+            );
         }
         m.error = first.error;
     }
@@ -68,7 +85,11 @@ pub fn smooth_measurements(params: &HeavyIonParams, delta_f: DeltaF, relative_er
     let mut data = Vec::new();
     for (name, values) in SmoothTables::new(params, delta_f).expected(&edges) {
         for (w, &v) in edges.windows(2).zip(&values) {
-            let err = if name.ends_with("spectrum") { relative_error * v.abs() } else { (relative_error * v.abs()).max(1e-4) };
+            let err = if name.ends_with("spectrum") {
+                relative_error * v.abs()
+            } else {
+                (relative_error * v.abs()).max(1e-4)
+            };
             data.push(Measurement::new(&name, 0.5 * (w[0] + w[1]), v, err));
         }
     }
@@ -84,7 +105,11 @@ mod tests {
         let params = HeavyIonParams::parse("eta_s=0.1,e_sw=0.2").unwrap();
         let smooth = smooth_measurements(&params, DeltaF::Grad, 0.01);
         // A source with every point's error set to a known function of its place.
-        let source: Vec<Measurement> = smooth.iter().enumerate().map(|(i, m)| Measurement::new(&m.observable, m.x, -1.0, 0.5 + i as f64)).collect();
+        let source: Vec<Measurement> = smooth
+            .iter()
+            .enumerate()
+            .map(|(i, m)| Measurement::new(&m.observable, m.x, -1.0, 0.5 + i as f64))
+            .collect();
         let dir = std::env::temp_dir().join(format!("mdpipe_errors_from_{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("source.csv");

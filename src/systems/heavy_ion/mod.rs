@@ -82,7 +82,12 @@ pub enum EtaOverS {
     Constant(f64),
     /// `(η/s)_kink + a_low (T − T_kink)` below the kink, `… + a_high (T − T_kink)`
     /// above, floored at 0 (T in GeV, slopes in GeV⁻¹).
-    Kink { t_kink: f64, a_low: f64, a_high: f64, eta_s_kink: f64 },
+    Kink {
+        t_kink: f64,
+        a_low: f64,
+        a_high: f64,
+        eta_s_kink: f64,
+    },
 }
 
 impl EtaOverS {
@@ -231,7 +236,18 @@ impl FreezeOut {
         };
         let rho_n = [0, 1].map(|k| damped(k, &FLOW_RESPONSE));
         let shape_n = [0, 1].map(|k| damped(k, &SHAPE_RESPONSE));
-        FreezeOut { t_sw, tau, radius, rho_max, rho_n, shape_n, eta_s_eff, eta_s_sw: p.eta_s.at(t_sw), zeta_s: p.zeta_s, p_survival: p.p_survival }
+        FreezeOut {
+            t_sw,
+            tau,
+            radius,
+            rho_max,
+            rho_n,
+            shape_n,
+            eta_s_eff,
+            eta_s_sw: p.eta_s.at(t_sw),
+            zeta_s: p.zeta_s,
+            p_survival: p.p_survival,
+        }
     }
 }
 
@@ -271,10 +287,14 @@ fn boltzmann_density(m: f64, t: f64) -> f64 {
     static NODES: std::sync::OnceLock<Vec<(f64, f64)>> = std::sync::OnceLock::new();
     // e^{−p/T} is below 1e-17 beyond 40 T.
     let p_max = 40.0 * t;
-    NODES.get_or_init(|| gauss_legendre_unit(64)).iter().map(|&(x, w)| {
-        let p = p_max * x;
-        p_max * w * p * p * (-(p * p + m * m).sqrt() / t).exp()
-    }).sum()
+    NODES
+        .get_or_init(|| gauss_legendre_unit(64))
+        .iter()
+        .map(|&(x, w)| {
+            let p = p_max * x;
+            p_max * w * p * p * (-(p * p + m * m).sqrt() / t).exp()
+        })
+        .sum()
 }
 
 /// Gauss–Legendre nodes and weights on [0, 1].
@@ -315,7 +335,12 @@ pub struct Quadrature {
 impl Default for Quadrature {
     fn default() -> Self {
         // η_s ∈ [0, 3.5] covers the thermal smearing of every species at y = 0.
-        Quadrature { radial: gauss_legendre_unit(12), rapidity: gauss_legendre_unit(16).into_iter().map(|(x, w)| (3.5 * x, 3.5 * w)).collect(), azimuth: 24, momentum_azimuth: 24 }
+        Quadrature {
+            radial: gauss_legendre_unit(12),
+            rapidity: gauss_legendre_unit(16).into_iter().map(|(x, w)| (3.5 * x, 3.5 * w)).collect(),
+            azimuth: 24,
+            momentum_azimuth: 24,
+        }
     }
 }
 
@@ -360,7 +385,9 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
             let shape = fo.boundary(phi);
             // The flow points along the boundary's outward normal, φ_b.
             let (sin_phi, cos_phi) = shape.flow_azimuth.sin_cos();
-            let anisotropy = 1.0 + 2.0 * fo.rho_n[0] * (2.0 * shape.flow_azimuth).cos() + 2.0 * fo.rho_n[1] * (3.0 * shape.flow_azimuth).cos();
+            let anisotropy = 1.0
+                + 2.0 * fo.rho_n[0] * (2.0 * shape.flow_azimuth).cos()
+                + 2.0 * fo.rho_n[1] * (3.0 * shape.flow_azimuth).cos();
             let rho = fo.rho_max * u.powf(PROFILE_EXPONENT) * anisotropy;
             let (ch, sh) = (rho.cosh(), rho.sinh());
             // Expansion rates of u = (cosh ρ cosh η_s, sinh ρ n̂, cosh ρ sinh η_s) along
@@ -368,7 +395,8 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
             // treating the boundary locally as a circle of radius R(φ).
             let (theta_z, theta_r, theta_phi) = if delta_f == DeltaF::GradTransverse {
                 let local_radius = shape.radius * radius_gev;
-                let drho_dr = fo.rho_max * PROFILE_EXPONENT * u.powf(PROFILE_EXPONENT - 1.0) * anisotropy / local_radius;
+                let drho_dr =
+                    fo.rho_max * PROFILE_EXPONENT * u.powf(PROFILE_EXPONENT - 1.0) * anisotropy / local_radius;
                 (ch / tau_gev, ch * drho_dr, sh / (u * local_radius))
             } else {
                 (1.0 / tau_gev, 0.0, 0.0)
@@ -387,11 +415,13 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
                         let p_r = pt * (cp * cos_phi + sp * sin_phi);
                         let p_phi = pt * (sp * cos_phi - cp * sin_phi);
                         let p_r_star = ch * p_r - sh * mt * che;
-                        f *= 1.0 + df_coeff * (sig_r * p_r_star * p_r_star + sig_phi * p_phi * p_phi + sig_z * pz_star2);
+                        f *=
+                            1.0 + df_coeff * (sig_r * p_r_star * p_r_star + sig_phi * p_phi * p_phi + sig_z * pz_star2);
                     }
                     if bulk_coeff != 0.0 {
                         // Floored at 0 like every regulated δf (only reached where f0 is negligible).
-                        f *= (1.0 + bulk_coeff * ((e_star * e_star - m * m) / (3.0 * e_star) - SOUND_SPEED2 * e_star)).max(0.0);
+                        f *= (1.0 + bulk_coeff * ((e_star * e_star - m * m) / (3.0 * e_star) - SOUND_SPEED2 * e_star))
+                            .max(0.0);
                     }
                     let w = w0 * f;
                     n0 += w;
@@ -405,7 +435,9 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
     let jac = fo.radius * 2.0 * std::f64::consts::PI / na as f64 * 2.0 / np as f64;
     let survival = if species.pid == PROTON.pid { fo.p_survival } else { 1.0 };
     let chemical = boltzmann_density(m, t) / boltzmann_density(m, t_kin);
-    let norm = chemical * survival * species.feed_down * species.degeneracy / (2.0 * std::f64::consts::PI).powi(3) * tau_gev / (HBARC * HBARC);
+    let norm = chemical * survival * species.feed_down * species.degeneracy / (2.0 * std::f64::consts::PI).powi(3)
+        * tau_gev
+        / (HBARC * HBARC);
     YieldAndFlow { yield_: norm * jac * n0, v2: c2 / n0, v3: c3 / n0 }
 }
 
@@ -440,7 +472,15 @@ pub fn observables(p: &HeavyIonParams, delta_f: DeltaF, pts: &[f64]) -> Vec<(&'s
         ch.1[k] = v2 / n;
         ch.2[k] = v3 / n;
     }
-    vec![("ch_spectrum", ch.0), ("ch_v2", ch.1), ("ch_v3", ch.2), ("pi_spectrum", pi.0), ("pi_v2", pi.1), ("p_spectrum", pr.0), ("p_v2", pr.1)]
+    vec![
+        ("ch_spectrum", ch.0),
+        ("ch_v2", ch.1),
+        ("ch_v3", ch.2),
+        ("pi_spectrum", pi.0),
+        ("pi_v2", pi.1),
+        ("p_spectrum", pr.0),
+        ("p_v2", pr.1),
+    ]
 }
 
 /// A parameter a candidate correction adds, with its uniform prior.
@@ -490,7 +530,14 @@ pub const CANDIDATES: [StandInCandidate; 3] = [
 impl StandInCandidate {
     /// The candidate's own parameter as a design dimension.
     pub fn design_parameter(&self) -> Option<crate::engine::design::DesignParameter> {
-        self.parameter.map(|p| crate::engine::design::DesignParameter { name: p.name.into(), min: p.min, max: p.max, log: false, key: p.key.into(), units: p.units.into() })
+        self.parameter.map(|p| crate::engine::design::DesignParameter {
+            name: p.name.into(),
+            min: p.min,
+            max: p.max,
+            log: false,
+            key: p.key.into(),
+            units: p.units.into(),
+        })
     }
 
     /// The particlization of the variant's runs, given the model's.
@@ -508,7 +555,16 @@ impl StandInCandidate {
             name: self.name.into(),
             description: self.description.into(),
             emulator,
-            parameters: self.parameter.iter().map(|p| (p.name.to_string(), crate::base::config::ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() })).collect(),
+            parameters: self
+                .parameter
+                .iter()
+                .map(|p| {
+                    (
+                        p.name.to_string(),
+                        crate::base::config::ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() },
+                    )
+                })
+                .collect(),
         }
     }
 }
@@ -541,7 +597,9 @@ impl HeavyIonParams {
         }
         let eta_s = match (get("eta_s"), get("T_kink"), get("a_low"), get("a_high"), get("eta_s_kink")) {
             (Some(v), None, None, None, None) => EtaOverS::Constant(v),
-            (None, Some(t_kink), Some(a_low), Some(a_high), Some(eta_s_kink)) => EtaOverS::Kink { t_kink, a_low, a_high, eta_s_kink },
+            (None, Some(t_kink), Some(a_low), Some(a_high), Some(eta_s_kink)) => {
+                EtaOverS::Kink { t_kink, a_low, a_high, eta_s_kink }
+            }
             _ => anyhow::bail!("give either eta_s, or all four of T_kink, a_low, a_high, eta_s_kink"),
         };
         let zeta_s = get("zeta_s").unwrap_or(0.0);
@@ -556,7 +614,8 @@ impl HeavyIonParams {
     pub fn parse(point: &str) -> anyhow::Result<HeavyIonParams> {
         let mut values = Vec::new();
         for part in point.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-            let (k, v) = part.split_once('=').ok_or_else(|| anyhow::anyhow!("--point: expected name=value, got {part:?}"))?;
+            let (k, v) =
+                part.split_once('=').ok_or_else(|| anyhow::anyhow!("--point: expected name=value, got {part:?}"))?;
             let v: f64 = v.trim().parse().map_err(|_| anyhow::anyhow!("--point: {k} = {v:?} is not a number"))?;
             values.push((k.trim().to_string(), v));
         }
@@ -594,14 +653,26 @@ pub fn read_design_points(design: &std::path::Path) -> anyhow::Result<DesignPoin
     let df = crate::base::artifacts::read_parquet(design)?;
     let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).filter(|n| n != "design_id").collect();
     let numbers = |name: &str| -> anyhow::Result<Vec<f64>> {
-        let c = df.column(name).map_err(|_| anyhow::anyhow!("{}: missing column '{name}'", design.display()))?.cast(&DataType::Float64)?;
+        let c = df
+            .column(name)
+            .map_err(|_| anyhow::anyhow!("{}: missing column '{name}'", design.display()))?
+            .cast(&DataType::Float64)?;
         let ca = c.f64()?;
-        (0..df.height()).map(|i| ca.get(i).ok_or_else(|| anyhow::anyhow!("{}: row {}, field '{name}': missing value", design.display(), i + 1))).collect()
+        (0..df.height())
+            .map(|i| {
+                ca.get(i).ok_or_else(|| {
+                    anyhow::anyhow!("{}: row {}, field '{name}': missing value", design.display(), i + 1)
+                })
+            })
+            .collect()
     };
     let ids: Vec<i64> = numbers("design_id")?.into_iter().map(|v| v as i64).collect();
     let columns: Vec<Vec<f64>> = names.iter().map(|n| numbers(n)).collect::<anyhow::Result<_>>()?;
     let points: Vec<HeavyIonParams> = (0..ids.len())
-        .map(|i| HeavyIonParams::from_named(&names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect::<Vec<_>>()).with_context(|| format!("{}: row {}", design.display(), i + 1)))
+        .map(|i| {
+            HeavyIonParams::from_named(&names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect::<Vec<_>>())
+                .with_context(|| format!("{}: row {}", design.display(), i + 1))
+        })
         .collect::<anyhow::Result<_>>()?;
     if points.is_empty() {
         anyhow::bail!("{}: the design has no points", design.display());
@@ -612,7 +683,15 @@ pub fn read_design_points(design: &std::path::Path) -> anyhow::Result<DesignPoin
 /// Runs the stand-in event by event at each point, writing iEBE-MUSIC-layout
 /// runs to `out/<design id as %04d>/` (points in parallel). Returns the
 /// number of events written.
-pub fn simulate_runs(points: &[(i64, HeavyIonParams)], delta_f: DeltaF, n_events: usize, oversample: usize, seed: u64, layout: events::Layout, out: &std::path::Path) -> anyhow::Result<usize> {
+pub fn simulate_runs(
+    points: &[(i64, HeavyIonParams)],
+    delta_f: DeltaF,
+    n_events: usize,
+    oversample: usize,
+    seed: u64,
+    layout: events::Layout,
+    out: &std::path::Path,
+) -> anyhow::Result<usize> {
     use rayon::prelude::*;
     if n_events == 0 {
         anyhow::bail!("--events must be at least 1");
@@ -631,19 +710,37 @@ pub fn simulate_runs(points: &[(i64, HeavyIonParams)], delta_f: DeltaF, n_events
 /// the point's id only, so a point run alone (one array task, one attempt of
 /// `mdpipe run`) equals the same point run with the whole design.
 #[allow(clippy::too_many_arguments)]
-pub fn simulate_point(id: i64, p: &HeavyIonParams, delta_f: DeltaF, n_events: usize, oversample: usize, seed: u64, layout: events::Layout, dir: &std::path::Path) -> anyhow::Result<()> {
+pub fn simulate_point(
+    id: i64,
+    p: &HeavyIonParams,
+    delta_f: DeltaF,
+    n_events: usize,
+    oversample: usize,
+    seed: u64,
+    layout: events::Layout,
+    dir: &std::path::Path,
+) -> anyhow::Result<()> {
     if n_events == 0 {
         anyhow::bail!("--events must be at least 1");
     }
     let tables = events::SmoothTables::new(p, delta_f);
-    let evs = events::sample_events(&tables, n_events, oversample.max(1), seed.wrapping_add((id as u64).wrapping_mul(1_000_003)));
+    let evs = events::sample_events(
+        &tables,
+        n_events,
+        oversample.max(1),
+        seed.wrapping_add((id as u64).wrapping_mul(1_000_003)),
+    );
     events::write_point(dir, &evs, layout)
 }
 
 /// The parameters of design point `id` of a design.parquet.
 pub fn design_point(design: &std::path::Path, id: i64) -> anyhow::Result<HeavyIonParams> {
     let d = read_design_points(design)?;
-    d.ids.iter().position(|&i| i == id).map(|k| d.points[k]).ok_or_else(|| anyhow::anyhow!("--only {id}: no design point {id} in {}", design.display()))
+    d.ids
+        .iter()
+        .position(|&i| i == id)
+        .map(|k| d.points[k])
+        .ok_or_else(|| anyhow::anyhow!("--only {id}: no design point {id} in {}", design.display()))
 }
 
 /// Runs the smooth (infinite-statistics) stand-in at every point of a design,
@@ -651,7 +748,10 @@ pub fn design_point(design: &std::path::Path, id: i64) -> anyhow::Result<HeavyIo
 /// definitions in the analysis bins (bin-averaged spectra, count-weighted
 /// v_n), i.e. the limit of `simulate` + `ingest` for infinitely many events,
 /// so that an emulator trained on them compares with ingested data.
-pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Result<crate::engine::emulator::TrainingTable> {
+pub fn simulate_design(
+    design: &std::path::Path,
+    delta_f: DeltaF,
+) -> anyhow::Result<crate::engine::emulator::TrainingTable> {
     let DesignPoints { ids, names, columns, points } = read_design_points(design)?;
     let inputs = (0..points.len()).flat_map(|i| columns.iter().map(move |c| c[i])).collect();
     Ok(smooth_table(design, ids, names, inputs, &points, delta_f))
@@ -659,7 +759,14 @@ pub fn simulate_design(design: &std::path::Path, delta_f: DeltaF) -> anyhow::Res
 
 /// The smooth stand-in's outputs at `points` as a training table (inputs
 /// row-major in the order of `names`).
-fn smooth_table(path: &std::path::Path, ids: Vec<i64>, names: Vec<String>, inputs: Vec<f64>, points: &[HeavyIonParams], delta_f: DeltaF) -> crate::engine::emulator::TrainingTable {
+fn smooth_table(
+    path: &std::path::Path,
+    ids: Vec<i64>,
+    names: Vec<String>,
+    inputs: Vec<f64>,
+    points: &[HeavyIonParams],
+    delta_f: DeltaF,
+) -> crate::engine::emulator::TrainingTable {
     use rayon::prelude::*;
     let pts = analysis_pt();
     let edges = crate::engine::ingest::IngestSettings::default().pt_edges;
@@ -673,11 +780,23 @@ fn smooth_table(path: &std::path::Path, ids: Vec<i64>, names: Vec<String>, input
         })
         .collect();
     bar.finish_and_clear();
-    let outputs: Vec<crate::engine::emulator::OutputKey> = results[0].iter().flat_map(|(n, _)| pts.iter().map(move |&x| crate::engine::emulator::OutputKey { observable: n.clone(), x })).collect();
+    let outputs: Vec<crate::engine::emulator::OutputKey> = results[0]
+        .iter()
+        .flat_map(|(n, _)| pts.iter().map(move |&x| crate::engine::emulator::OutputKey { observable: n.clone(), x }))
+        .collect();
     let values: Vec<f64> = results.iter().flat_map(|r| r.iter().flat_map(|(_, v)| v.iter().copied())).collect();
     // Expected values: no run noise.
     let errors = vec![0.0; values.len()];
-    crate::engine::emulator::TrainingTable { path: path.to_path_buf(), parameter_names: names, design_ids: ids, inputs, outputs, values, errors, noise_correlation: None }
+    crate::engine::emulator::TrainingTable {
+        path: path.to_path_buf(),
+        parameter_names: names,
+        design_ids: ids,
+        inputs,
+        outputs,
+        values,
+        errors,
+        noise_correlation: None,
+    }
 }
 
 /// New runs for refinement from the smooth stand-in with a fixed
@@ -687,11 +806,20 @@ pub struct SmoothStandIn {
 }
 
 impl crate::engine::refine::variant::PointRunner for SmoothStandIn {
-    fn run(&self, names: &[String], points: &[Vec<f64>], first_id: i64, dir: &std::path::Path) -> anyhow::Result<crate::engine::emulator::TrainingTable> {
+    fn run(
+        &self,
+        names: &[String],
+        points: &[Vec<f64>],
+        first_id: i64,
+        dir: &std::path::Path,
+    ) -> anyhow::Result<crate::engine::emulator::TrainingTable> {
         if points.is_empty() {
             anyhow::bail!("no points to run");
         }
-        let params: Vec<HeavyIonParams> = points.iter().map(|p| HeavyIonParams::from_named(&names.iter().cloned().zip(p.iter().copied()).collect::<Vec<_>>())).collect::<anyhow::Result<_>>()?;
+        let params: Vec<HeavyIonParams> = points
+            .iter()
+            .map(|p| HeavyIonParams::from_named(&names.iter().cloned().zip(p.iter().copied()).collect::<Vec<_>>()))
+            .collect::<anyhow::Result<_>>()?;
         let ids = (first_id..first_id + points.len() as i64).collect();
         Ok(smooth_table(&dir.join("smooth stand-in runs"), ids, names.to_vec(), points.concat(), &params, self.delta_f))
     }
@@ -728,7 +856,10 @@ mod tests {
         assert!(b.flow_azimuth < phi && b.flow_azimuth > 0.0);
         // Numerical normal of the curve (R(φ) cos φ, R(φ) sin φ).
         let h = 1e-6;
-        let point = |p: f64| { let r = fo.boundary(p).radius; (r * p.cos(), r * p.sin()) };
+        let point = |p: f64| {
+            let r = fo.boundary(p).radius;
+            (r * p.cos(), r * p.sin())
+        };
         let (a, c) = (point(phi - h), point(phi + h));
         let (tx, ty) = (c.0 - a.0, c.1 - a.1);
         let normal = (-tx).atan2(ty);

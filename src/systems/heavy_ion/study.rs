@@ -2,10 +2,10 @@
 //! posterior width, the paper's consistency checks, η/s(T) coverage of the
 //! truth, and whether the emulator is more precise than the data.
 
-use crate::base::artifacts::Measurement;
-use crate::engine::calibrate::summary::Summary;
-use crate::base::config::Config;
 use super::figures as heavy_ion;
+use crate::base::artifacts::Measurement;
+use crate::base::config::Config;
+use crate::engine::calibrate::summary::Summary;
 use crate::engine::report::RunArtifacts;
 use anyhow::Result;
 use std::collections::BTreeMap;
@@ -108,8 +108,16 @@ fn z_between(a: &ParamResult, b: &ParamResult) -> f64 {
 /// `truth_point` names the stand-in parameters the mock data were made at.
 /// `validation_runs` is the ingested validation table (its `error` column is
 /// each run's statistical error).
-pub fn assess(config: &Config, case_dirs: &[std::path::PathBuf], truth_point: &BTreeMap<String, f64>, emulator_dir: &Path, validation_runs: &Path, measurements: &Path) -> Result<Study> {
-    let truth: BTreeMap<String, f64> = config.parameters.iter().filter_map(|(k, p)| p.truth.map(|t| (k.clone(), t))).collect();
+pub fn assess(
+    config: &Config,
+    case_dirs: &[std::path::PathBuf],
+    truth_point: &BTreeMap<String, f64>,
+    emulator_dir: &Path,
+    validation_runs: &Path,
+    measurements: &Path,
+) -> Result<Study> {
+    let truth: BTreeMap<String, f64> =
+        config.parameters.iter().filter_map(|(k, p)| p.truth.map(|t| (k.clone(), t))).collect();
     let theta: Vec<String> = config.parameters.keys().cloned().collect();
     let runs: Vec<RunArtifacts> = case_dirs.iter().map(|d| RunArtifacts::load(d)).collect::<Result<_>>()?;
     let cases: Vec<CaseResult> = runs.iter().map(|r| case_result(&r.summary, &r.dir, &theta, &truth)).collect();
@@ -168,9 +176,14 @@ pub fn assess(config: &Config, case_dirs: &[std::path::PathBuf], truth_point: &B
     if let Some(true_curve) = heavy_ion::eta_s_from(&get) {
         for (run, case) in runs.iter().zip(&cases) {
             let Some(band) = heavy_ion::eta_s_band(run) else { continue };
-            let covered: Vec<(f64, bool)> = band.iter().map(|&(t, lo, _, hi)| (t, (lo..=hi).contains(&true_curve.at(t)))).collect();
+            let covered: Vec<(f64, bool)> =
+                band.iter().map(|&(t, lo, _, hi)| (t, (lo..=hi).contains(&true_curve.at(t)))).collect();
             let fraction = covered.iter().filter(|c| c.1).count() as f64 / covered.len().max(1) as f64;
-            eta_s_coverage.push(EtaSCoverage { case: case.case.clone(), fraction_covered: fraction, missed: missed_ranges(&covered) });
+            eta_s_coverage.push(EtaSCoverage {
+                case: case.case.clone(),
+                fraction_covered: fraction,
+                missed: missed_ranges(&covered),
+            });
         }
     }
     Ok(Study { name: config.name.clone(), truth, cases, consistency, emulator_vs_data, eta_s_coverage })
@@ -181,7 +194,10 @@ fn case_result(s: &Summary, dir: &Path, theta: &[String], truth: &BTreeMap<Strin
         case: dir.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
         observables: s.observables.clone(),
         kernel: s.kernel.clone(),
-        parameters: theta.iter().filter_map(|p| s.parameters.get(p).map(|ps| (p.clone(), param_result(ps, truth.get(p).copied())))).collect(),
+        parameters: theta
+            .iter()
+            .filter_map(|p| s.parameters.get(p).map(|ps| (p.clone(), param_result(ps, truth.get(p).copied()))))
+            .collect(),
         log_evidence: s.log_evidence,
         converged: s.diagnostics.converged,
         seconds: s.diagnostics.wall_seconds,
@@ -209,7 +225,11 @@ fn missed_ranges(covered: &[(f64, bool)]) -> Vec<[f64; 2]> {
 }
 
 /// Held-out emulator error per bin against the data's error in that bin.
-fn emulator_against_data(emulator_dir: &Path, validation_runs: &Path, measurements: &Path) -> Result<Vec<EmulatorVsData>> {
+fn emulator_against_data(
+    emulator_dir: &Path,
+    validation_runs: &Path,
+    measurements: &Path,
+) -> Result<Vec<EmulatorVsData>> {
     let parity_path = emulator_dir.join("validation_parity.parquet");
     if !parity_path.exists() {
         return Ok(Vec::new());
@@ -269,7 +289,10 @@ impl Study {
         let mut md = format!("# {}: the study\n\n", self.name);
         md.push_str("Posterior medians with 95% intervals; bias = (median − truth) / posterior sd; ✓ = the 95% interval covers the truth.\n\n| case | kernel |");
         for p in &theta {
-            md.push_str(&format!(" {p} (truth {}) | bias/sd |", self.truth.get(p).map(|t| t.to_string()).unwrap_or("?".into())));
+            md.push_str(&format!(
+                " {p} (truth {}) | bias/sd |",
+                self.truth.get(p).map(|t| t.to_string()).unwrap_or("?".into())
+            ));
         }
         md.push_str(" log Z | converged | s |\n|---|---|");
         md.push_str(&"---|---|".repeat(theta.len()));
@@ -283,9 +306,20 @@ impl Study {
                     Some(false) => " ✗",
                     None => "",
                 };
-                md.push_str(&format!(" {:.4} [{:.4}, {:.4}]{mark} | {} |", r.median, r.q025, r.q975, r.bias_in_sd.map(|b| format!("{b:+.2}")).unwrap_or_default()));
+                md.push_str(&format!(
+                    " {:.4} [{:.4}, {:.4}]{mark} | {} |",
+                    r.median,
+                    r.q025,
+                    r.q975,
+                    r.bias_in_sd.map(|b| format!("{b:+.2}")).unwrap_or_default()
+                ));
             }
-            md.push_str(&format!(" {} | {} | {:.1} |\n", c.log_evidence.map(|z| format!("{z:.2}")).unwrap_or_default(), if c.converged { "yes" } else { "NO" }, c.seconds));
+            md.push_str(&format!(
+                " {} | {} | {:.1} |\n",
+                c.log_evidence.map(|z| format!("{z:.2}")).unwrap_or_default(),
+                if c.converged { "yes" } else { "NO" },
+                c.seconds
+            ));
         }
         md.push_str(&format!("\n## Consistency checks (consistent: means within {CONSISTENT_Z} combined sd)\n\n| check | parameter | from | to | z | width ratio | consistent | tighter |\n|---|---|---|---|---|---|---|---|\n"));
         for c in &self.consistency {
@@ -306,7 +340,14 @@ impl Study {
             for e in &self.emulator_vs_data {
                 md.push_str(&format!(
                     "| {} | {:.2} | {:.2} | {} of {} | {:.2} | {} of {} |\n",
-                    e.observable, e.median_ratio, e.max_ratio, e.bins_above_error, e.bins, e.median_ratio_noise_removed, e.bins_above_error_noise_removed, e.bins
+                    e.observable,
+                    e.median_ratio,
+                    e.max_ratio,
+                    e.bins_above_error,
+                    e.bins,
+                    e.median_ratio_noise_removed,
+                    e.bins_above_error_noise_removed,
+                    e.bins
                 ));
             }
         }
@@ -314,7 +355,12 @@ impl Study {
             md.push_str("\n## η/s(T): where the 95% band covers the true curve (T grid 0.10–0.35 GeV)\n\n| case | fraction covered | missed at T (GeV) |\n|---|---|---|\n");
             for e in &self.eta_s_coverage {
                 let missed: Vec<String> = e.missed.iter().map(|r| format!("{:.3}–{:.3}", r[0], r[1])).collect();
-                md.push_str(&format!("| {} | {:.2} | {} |\n", e.case, e.fraction_covered, if missed.is_empty() { "nowhere".to_string() } else { missed.join(", ") }));
+                md.push_str(&format!(
+                    "| {} | {:.2} | {} |\n",
+                    e.case,
+                    e.fraction_covered,
+                    if missed.is_empty() { "nowhere".to_string() } else { missed.join(", ") }
+                ));
             }
         }
         md
@@ -334,7 +380,11 @@ impl Study {
                     html.push_str("<table>\n");
                     in_table = true;
                 }
-                let tds: Vec<String> = cells.trim_end_matches('|').split('|').map(|c| format!("<td>{}</td>", crate::engine::report::html_escape(c.trim()))).collect();
+                let tds: Vec<String> = cells
+                    .trim_end_matches('|')
+                    .split('|')
+                    .map(|c| format!("<td>{}</td>", crate::engine::report::html_escape(c.trim())))
+                    .collect();
                 html.push_str(&format!("<tr>{}</tr>\n", tds.join("")));
                 continue;
             }

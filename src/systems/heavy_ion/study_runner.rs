@@ -43,10 +43,10 @@ use crate::engine::execute::{self, Executor, OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::{ModelFamily, Registry};
 use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
-use std::sync::Arc;
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 mod refine_rounds;
 mod variant_runs;
@@ -119,15 +119,25 @@ fn default_kernels() -> Vec<String> {
 impl RunConfig {
     /// Checks everything a later stage would trip on, before any stage runs.
     fn validate(&self, design_parameters: &[String]) -> Result<()> {
-        for (field, n) in [("points", Some(self.points)), ("validation_points", Some(self.validation_points)), ("events", self.events), ("mock_events", self.mock_events), ("oversample", Some(self.oversample))] {
+        for (field, n) in [
+            ("points", Some(self.points)),
+            ("validation_points", Some(self.validation_points)),
+            ("events", self.events),
+            ("mock_events", self.mock_events),
+            ("oversample", Some(self.oversample)),
+        ] {
             if n == Some(0) {
                 bail!("{field} must be at least 1");
             }
         }
         match &self.simulator {
-            Some(spec) if spec.output == OutputKind::Exit => bail!("[run.simulator] output: the simulate stage reads what points leave: use \"iebe-music\" or \"table\""),
+            Some(spec) if spec.output == OutputKind::Exit => bail!(
+                "[run.simulator] output: the simulate stage reads what points leave: use \"iebe-music\" or \"table\""
+            ),
             Some(spec) => spec.validate(design_parameters).context("[run.simulator]")?,
-            None if self.events.is_none() => bail!("give `events` (the stand-in's events per point) or a [run.simulator] table"),
+            None if self.events.is_none() => {
+                bail!("give `events` (the stand-in's events per point) or a [run.simulator] table")
+            }
             None => {}
         }
         self.model_delta_f.parse::<DeltaF>().context("model_delta_f")?;
@@ -176,7 +186,8 @@ impl RunConfig {
     }
 }
 
-pub const STAGES: [&str; 10] = ["design", "simulate", "ingest", "emulator", "mock", "refine", "calibrate", "report", "candidates", "diagnose"];
+pub const STAGES: [&str; 10] =
+    ["design", "simulate", "ingest", "emulator", "mock", "refine", "calibrate", "report", "candidates", "diagnose"];
 
 /// Where and how to run.
 pub struct RunOptions {
@@ -266,7 +277,11 @@ struct Stamp {
 
 impl Stamp {
     fn downstream_key(&self) -> String {
-        if self.output_key.is_empty() { self.key.clone() } else { self.output_key.clone() }
+        if self.output_key.is_empty() {
+            self.key.clone()
+        } else {
+            self.output_key.clone()
+        }
     }
 }
 
@@ -293,7 +308,12 @@ struct Runner<'a> {
 
 /// Runs the study (or one stage of it). Returns what ran and what was skipped.
 pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
-    let table = config.run.as_ref().ok_or_else(|| anyhow!("{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)", config.path.display()))?;
+    let table = config.run.as_ref().ok_or_else(|| {
+        anyhow!(
+            "{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)",
+            config.path.display()
+        )
+    })?;
     let run: &RunConfig = &config.decode(table, "run")?;
     if let Some(s) = &opts.stage {
         if !STAGES.contains(&s.as_str()) {
@@ -310,11 +330,35 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
-    let mut r = Runner { config, run, emulator, paths: RunPaths { out: opts.out.clone() }, opts, keys: BTreeMap::new(), running_key: String::new(), outcomes: Vec::new() };
-    r.stage("design", &[], &[r.paths.design().join("design.parquet"), r.paths.validation_design().join("design.parquet")], |r| r.design())?;
-    r.stage("simulate", &["design"], &[r.paths.design().join("runs"), r.paths.validation_design().join("runs")], |r| r.simulate())?;
+    let mut r = Runner {
+        config,
+        run,
+        emulator,
+        paths: RunPaths { out: opts.out.clone() },
+        opts,
+        keys: BTreeMap::new(),
+        running_key: String::new(),
+        outcomes: Vec::new(),
+    };
+    r.stage(
+        "design",
+        &[],
+        &[r.paths.design().join("design.parquet"), r.paths.validation_design().join("design.parquet")],
+        |r| r.design(),
+    )?;
+    r.stage(
+        "simulate",
+        &["design"],
+        &[r.paths.design().join("runs"), r.paths.validation_design().join("runs")],
+        |r| r.simulate(),
+    )?;
     r.stage("ingest", &["simulate"], &[r.paths.training(), r.paths.validation()], |r| r.ingest())?;
-    r.stage("emulator", &["ingest"], &[r.paths.emulator().join("emulator.json"), r.paths.emulator().join("validation.json")], |r| r.emulator())?;
+    r.stage(
+        "emulator",
+        &["ingest"],
+        &[r.paths.emulator().join("emulator.json"), r.paths.emulator().join("validation.json")],
+        |r| r.emulator(),
+    )?;
     let data_stage: &[&str] = if run.stand_in_study() { &["emulator", "mock"] } else { &["emulator"] };
     if run.stand_in_study() {
         r.stage("mock", &[], &[r.paths.measurements()], |r| r.mock())?;
@@ -326,16 +370,31 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     } else if opts.stage.as_deref() == Some("refine") {
         bail!("--stage refine: {} has no [run.refine] table", config.path.display());
     }
-    let outputs = if run.stand_in_study() { r.paths.out.join("study.json") } else { r.paths.calibrate().join("cases.json") };
+    let outputs =
+        if run.stand_in_study() { r.paths.out.join("study.json") } else { r.paths.calibrate().join("cases.json") };
     r.stage("calibrate", &calibrate_upstream, &[outputs], |r| r.calibrate())?;
     r.stage("report", &["calibrate"], &[r.paths.out.join("report.html")], |r| r.report())?;
     if !run.candidates.is_empty() {
-        let variants: Vec<PathBuf> = run.candidates.iter().map(|c| r.paths.candidate(c).join("emulator").join("emulator.json")).collect();
+        let variants: Vec<PathBuf> =
+            run.candidates.iter().map(|c| r.paths.candidate(c).join("emulator").join("emulator.json")).collect();
         r.stage("candidates", &["design"], &variants, |r| r.candidates())?;
-        let diagnose_upstream: &[&str] = if run.refine.is_some() { &["emulator", "mock", "refine", "candidates"] } else { &["emulator", "mock", "candidates"] };
-        r.stage("diagnose", diagnose_upstream, &[r.paths.diagnose().join("diagnosis.json"), r.paths.diagnose().join("report.html")], |r| r.diagnose())?;
+        let diagnose_upstream: &[&str] = if run.refine.is_some() {
+            &["emulator", "mock", "refine", "candidates"]
+        } else {
+            &["emulator", "mock", "candidates"]
+        };
+        r.stage(
+            "diagnose",
+            diagnose_upstream,
+            &[r.paths.diagnose().join("diagnosis.json"), r.paths.diagnose().join("report.html")],
+            |r| r.diagnose(),
+        )?;
     } else if opts.stage.as_deref().is_some_and(|s| s == "candidates" || s == "diagnose") {
-        bail!("--stage {}: {} names no `candidates` in [run]", opts.stage.as_deref().unwrap_or_default(), config.path.display());
+        bail!(
+            "--stage {}: {} names no `candidates` in [run]",
+            opts.stage.as_deref().unwrap_or_default(),
+            config.path.display()
+        );
     }
     Ok(r.outcomes)
 }
@@ -344,26 +403,51 @@ impl Runner<'_> {
     /// The settings that define a stage's output, beyond its upstream keys.
     fn settings_of(&self, stage: &str) -> Result<serde_json::Value> {
         let run = self.run;
-        let spec_bytes = std::fs::read(self.config.resolve(&run.design)).with_context(|| format!("reading design spec {}", self.config.resolve(&run.design).display()))?;
+        let spec_bytes = std::fs::read(self.config.resolve(&run.design))
+            .with_context(|| format!("reading design spec {}", self.config.resolve(&run.design).display()))?;
         Ok(match stage {
             // The design stage also writes the array script, which carries the simulate settings.
-            "design" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed,
-                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f}),
-            "simulate" => serde_json::json!({"simulator": serde_json::to_value(&run.simulator)?, "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed}),
-            "ingest" => serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()}),
-            "emulator" => serde_json::json!({"emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed}),
-            "mock" => serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()}),
-            "calibrate" => serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed}),
-            "refine" => serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "refine": serde_json::to_value(&run.refine)?, "simulator": serde_json::to_value(&run.simulator)?,
-                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "set": self.diagnose_observables(), "kernels": run.kernels, "seed": self.opts.seed}),
-            "candidates" => serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "candidates": run.candidates, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
-                "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed}),
-            "diagnose" => serde_json::json!({"config": self.config.hash, "observables": self.diagnose_observables(), "seed": self.opts.seed}),
+            "design" => {
+                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed,
+                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f})
+            }
+            "simulate" => {
+                serde_json::json!({"simulator": serde_json::to_value(&run.simulator)?, "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed})
+            }
+            "ingest" => {
+                serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()})
+            }
+            "emulator" => {
+                serde_json::json!({"emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed})
+            }
+            "mock" => {
+                serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()})
+            }
+            "calibrate" => {
+                serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed})
+            }
+            "refine" => {
+                serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "refine": serde_json::to_value(&run.refine)?, "simulator": serde_json::to_value(&run.simulator)?,
+                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "set": self.diagnose_observables(), "kernels": run.kernels, "seed": self.opts.seed})
+            }
+            "candidates" => {
+                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "candidates": run.candidates, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
+                "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed})
+            }
+            "diagnose" => {
+                serde_json::json!({"config": self.config.hash, "observables": self.diagnose_observables(), "seed": self.opts.seed})
+            }
             _ => serde_json::json!({"config": self.analysis_hash()?}),
         })
     }
 
-    fn stage(&mut self, name: &str, upstream: &[&str], outputs: &[PathBuf], body: impl FnOnce(&mut Self) -> Result<()>) -> Result<()> {
+    fn stage(
+        &mut self,
+        name: &str,
+        upstream: &[&str],
+        outputs: &[PathBuf],
+        body: impl FnOnce(&mut Self) -> Result<()>,
+    ) -> Result<()> {
         if self.opts.stage.as_deref().is_some_and(|s| s != name) {
             // Not this stage: later stages key on what it left on disk.
             if let Some(s) = read_stamp(&self.paths.stamp(name)) {
@@ -392,8 +476,21 @@ impl Runner<'_> {
             return Ok(());
         }
         let seconds = start.elapsed().as_secs_f64();
-        let output_key = artifacts::sha256_hex(format!("{key} ran at {:?} in process {}", std::time::SystemTime::now(), std::process::id()).as_bytes());
-        let stamp = Stamp { stage: name.into(), key, output_key: output_key.clone(), seconds, provenance: Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage {name}", self.config.path.display())) };
+        let output_key = artifacts::sha256_hex(
+            format!("{key} ran at {:?} in process {}", std::time::SystemTime::now(), std::process::id()).as_bytes(),
+        );
+        let stamp = Stamp {
+            stage: name.into(),
+            key,
+            output_key: output_key.clone(),
+            seconds,
+            provenance: Provenance::new(
+                self.config.hash.clone(),
+                String::new(),
+                self.opts.seed,
+                &format!("run {} --stage {name}", self.config.path.display()),
+            ),
+        };
         artifacts::write_json_atomic(&self.paths.stamp(name), &stamp)?;
         println!("[{name}] done in {seconds:.1} s");
         self.keys.insert(name.into(), output_key);
@@ -405,8 +502,10 @@ impl Runner<'_> {
     /// depend on beyond their stage settings and upstream keys (so declaring a
     /// diagnose candidate does not redo them).
     fn analysis_hash(&self) -> Result<String> {
-        let text = std::fs::read_to_string(&self.config.path).with_context(|| format!("reading {}", self.config.path.display()))?;
-        let mut table: toml::Table = toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", self.config.path.display()))?;
+        let text = std::fs::read_to_string(&self.config.path)
+            .with_context(|| format!("reading {}", self.config.path.display()))?;
+        let mut table: toml::Table =
+            toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", self.config.path.display()))?;
         table.remove("run");
         Ok(artifacts::sha256_hex(serde_json::to_string(&table)?.as_bytes()))
     }
@@ -436,7 +535,14 @@ impl Runner<'_> {
         self.config
             .parameters
             .iter()
-            .map(|(name, p)| p.truth.map(|t| (name.clone(), t)).ok_or_else(|| anyhow!("{}: [parameters.{name}] needs a `truth` value: the mock data are made there", self.config.path.display())))
+            .map(|(name, p)| {
+                p.truth.map(|t| (name.clone(), t)).ok_or_else(|| {
+                    anyhow!(
+                        "{}: [parameters.{name}] needs a `truth` value: the mock data are made there",
+                        self.config.path.display()
+                    )
+                })
+            })
             .collect()
     }
 
@@ -445,7 +551,10 @@ impl Runner<'_> {
         let bytes = std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?;
         let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
         let hash = artifacts::sha256_hex(&bytes);
-        for (dir, n, seed) in [(self.paths.design(), self.run.points, self.opts.seed), (self.paths.validation_design(), self.run.validation_points, self.opts.seed.wrapping_add(7919))] {
+        for (dir, n, seed) in [
+            (self.paths.design(), self.run.points, self.opts.seed),
+            (self.paths.validation_design(), self.run.validation_points, self.opts.seed.wrapping_add(7919)),
+        ] {
             if let Some(command) = self.array_command(dir == self.paths.validation_design()) {
                 spec.slurm.command = command;
             }
@@ -453,7 +562,8 @@ impl Runner<'_> {
             // keeps unstamped point folders (SLURM's), so they must not survive here.
             let runs = dir.join("runs");
             if runs.exists() {
-                std::fs::remove_dir_all(&runs).with_context(|| format!("removing runs of the previous design {}", runs.display()))?;
+                std::fs::remove_dir_all(&runs)
+                    .with_context(|| format!("removing runs of the previous design {}", runs.display()))?;
                 println!("  removed {} (runs of the previous design)", runs.display());
             }
             let q = crate::engine::design::write_design(&spec, &hash, n, seed, &dir)?;
@@ -488,7 +598,8 @@ impl Runner<'_> {
             }
             let attempts = runs.join(".attempts");
             if forced && attempts.exists() {
-                std::fs::remove_dir_all(&attempts).with_context(|| format!("removing the previous attempts {}", attempts.display()))?;
+                std::fs::remove_dir_all(&attempts)
+                    .with_context(|| format!("removing the previous attempts {}", attempts.display()))?;
             }
             std::fs::create_dir_all(&runs)?;
             std::fs::copy(dir.join("design.parquet"), runs.join("design.parquet"))?;
@@ -498,11 +609,35 @@ impl Runner<'_> {
             let rows = crate::engine::design::read_points(&design)?;
             let n = rows.len();
             // Points already run (by an earlier attempt or the design's SLURM array) are kept.
-            let points = rows.into_iter().map(|(id, values)| execute::Point { id, param_file: crate::engine::design::parameter_file(&dir, id, n), values }).collect();
+            let points = rows
+                .into_iter()
+                .map(|(id, values)| execute::Point {
+                    id,
+                    param_file: crate::engine::design::parameter_file(&dir, id, n),
+                    values,
+                })
+                .collect();
             let label = if validation { "validation design" } else { "design" };
-            let job = execute::Job { spec: &spec, workdir: dir.clone(), design, runs: runs.clone(), points, label: label.into(), mdpipe: self.opts.mdpipe.clone() };
+            let job = execute::Job {
+                spec: &spec,
+                workdir: dir.clone(),
+                design,
+                runs: runs.clone(),
+                points,
+                label: label.into(),
+                mdpipe: self.opts.mdpipe.clone(),
+            };
             let report = execute::run(&job, self.opts.executor, self.opts.show_progress)?;
-            println!("  {}: {} points ({} had their run, {} ran, {} after a retry, {} failed) in {:.1} s", runs.display(), report.points, report.already_done, report.succeeded - report.already_done, report.retried.len(), report.failed.len(), report.seconds);
+            println!(
+                "  {}: {} points ({} had their run, {} ran, {} after a retry, {} failed) in {:.1} s",
+                runs.display(),
+                report.points,
+                report.already_done,
+                report.succeeded - report.already_done,
+                report.retried.len(),
+                report.failed.len(),
+                report.seconds
+            );
             if !report.failed.is_empty() {
                 report.print_failures();
                 let ids: Vec<i64> = report.failed.iter().map(|f| f.id).collect();
@@ -525,11 +660,20 @@ impl Runner<'_> {
             self.run.oversample,
             self.runs_seed(validation)
         );
-        Ok(SimulatorSpec { command, output: OutputKind::IebeMusic, time_limit: "1h".into(), retries: 1, parallel: None, slurm: Default::default() })
+        Ok(SimulatorSpec {
+            command,
+            output: OutputKind::IebeMusic,
+            time_limit: "1h".into(),
+            retries: 1,
+            parallel: None,
+            slurm: Default::default(),
+        })
     }
 
     fn ingest(&mut self) -> Result<()> {
-        for (dir, out) in [(self.paths.design(), self.paths.training()), (self.paths.validation_design(), self.paths.validation())] {
+        for (dir, out) in
+            [(self.paths.design(), self.paths.training()), (self.paths.validation_design(), self.paths.validation())]
+        {
             self.ingest_design(&dir, &out)?;
         }
         Ok(())
@@ -539,24 +683,41 @@ impl Runner<'_> {
     fn ingest_design(&self, dir: &Path, out: &Path) -> Result<()> {
         let keep = self.all_observables();
         let (mut ingested, design_df) = match self.run.output() {
-            OutputKind::IebeMusic => crate::engine::ingest::ingest_runs(&dir.join("runs"), Some(&dir.join("design.parquet")), &crate::engine::ingest::IngestSettings::default())?,
-            OutputKind::Table | OutputKind::Exit => crate::engine::ingest::tables::ingest_tables(&dir.join("runs"), Some(&dir.join("design.parquet")))?,
+            OutputKind::IebeMusic => crate::engine::ingest::ingest_runs(
+                &dir.join("runs"),
+                Some(&dir.join("design.parquet")),
+                &crate::engine::ingest::IngestSettings::default(),
+            )?,
+            OutputKind::Table | OutputKind::Exit => {
+                crate::engine::ingest::tables::ingest_tables(&dir.join("runs"), Some(&dir.join("design.parquet")))?
+            }
         };
         ingested.rows.retain(|r| keep.contains(&r.observable));
         let dropped = drop_incomplete_points(&mut ingested.rows);
         for (id, what) in &dropped {
             println!("  design point {id} left out: {what} undefined (a failed v_n{{2}} measurement, listed in the ingest report)");
         }
-        let flagged: Vec<i64> = ingested.report.points.iter().filter(|p| p.flagged.is_some()).map(|p| p.design_id).collect();
+        let flagged: Vec<i64> =
+            ingested.report.points.iter().filter(|p| p.flagged.is_some()).map(|p| p.design_id).collect();
         if !flagged.is_empty() {
             println!("  design points flagged by ingest and left out: {flagged:?}");
         }
         if !ingested.report.missing_points.is_empty() {
-            println!("  warning: design points without a run (failed, see runs/execution.json) left out of {}: {:?}", out.display(), ingested.report.missing_points);
+            println!(
+                "  warning: design points without a run (failed, see runs/execution.json) left out of {}: {:?}",
+                out.display(),
+                ingested.report.missing_points
+            );
         }
         let report = crate::engine::ingest::write(&ingested, design_df.as_ref(), out)?;
         let points: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
-        println!("  {}: {} points ({} left out); report {}", out.display(), points.len(), dropped.len() + flagged.len(), report.display());
+        println!(
+            "  {}: {} points ({} left out); report {}",
+            out.display(),
+            points.len(),
+            dropped.len() + flagged.len(),
+            report.display()
+        );
         Ok(())
     }
 
@@ -564,9 +725,23 @@ impl Runner<'_> {
         if self.config.emulator.is_none() {
             bail!("{}: the emulator stage needs an [emulator] table", self.config.path.display());
         }
-        let (_, r) = crate::engine::emulator::train_and_save(&self.config.path, &self.paths.training(), None, &self.paths.emulator(), self.opts.seed)?;
-        println!("  {} points x {} outputs -> {} components in {:.1} s", r.n_points, r.n_outputs, r.n_components, r.training_seconds);
-        let v = crate::engine::emulator::validate::run(&self.paths.emulator(), Some(&self.paths.validation()), 5, self.opts.seed)?;
+        let (_, r) = crate::engine::emulator::train_and_save(
+            &self.config.path,
+            &self.paths.training(),
+            None,
+            &self.paths.emulator(),
+            self.opts.seed,
+        )?;
+        println!(
+            "  {} points x {} outputs -> {} components in {:.1} s",
+            r.n_points, r.n_outputs, r.n_components, r.training_seconds
+        );
+        let v = crate::engine::emulator::validate::run(
+            &self.paths.emulator(),
+            Some(&self.paths.validation()),
+            5,
+            self.opts.seed,
+        )?;
         if let Some(h) = &v.holdout {
             crate::engine::emulator::validate::print("held-out design", h);
         }
@@ -583,15 +758,34 @@ impl Runner<'_> {
             std::fs::remove_dir_all(&runs)?;
         }
         std::fs::create_dir_all(&runs)?;
-        heavy_ion::simulate_runs(&[(0, params)], delta_f, mock_events, self.run.oversample, mock_seed(self.opts.seed), Layout::Hdf5, &runs)?;
-        let (ingested, _) = crate::engine::ingest::ingest_runs(&runs, None, &crate::engine::ingest::IngestSettings::default())?;
+        heavy_ion::simulate_runs(
+            &[(0, params)],
+            delta_f,
+            mock_events,
+            self.run.oversample,
+            mock_seed(self.opts.seed),
+            Layout::Hdf5,
+            &runs,
+        )?;
+        let (ingested, _) =
+            crate::engine::ingest::ingest_runs(&runs, None, &crate::engine::ingest::IngestSettings::default())?;
         let undefined: Vec<String> = ingested.report.points.iter().flat_map(|p| p.undefined_bins.clone()).collect();
         if !undefined.is_empty() {
             println!("  mock bins left out (undefined): {}", undefined.join(", "));
         }
         let keep = self.all_observables();
-        let data: Vec<Measurement> = ingested.rows.iter().filter(|r| keep.contains(&r.observable)).map(|r| Measurement::new(&r.observable, r.x, r.value, r.error)).collect();
-        let prov = Provenance::new(self.config.hash.clone(), artifacts::measurements_hash(&data), self.opts.seed, &format!("run --stage mock: {mock_events} events, delta-f {mock_delta_f}"));
+        let data: Vec<Measurement> = ingested
+            .rows
+            .iter()
+            .filter(|r| keep.contains(&r.observable))
+            .map(|r| Measurement::new(&r.observable, r.x, r.value, r.error))
+            .collect();
+        let prov = Provenance::new(
+            self.config.hash.clone(),
+            artifacts::measurements_hash(&data),
+            self.opts.seed,
+            &format!("run --stage mock: {mock_events} events, delta-f {mock_delta_f}"),
+        );
         artifacts::write_measurements(&self.paths.measurements(), &data, Some(&prov))?;
         // The bins' jackknife covariance over the same events, for `[data] covariance`.
         let mut kept = ingested;
@@ -599,7 +793,11 @@ impl Runner<'_> {
         if let Some(entries) = crate::engine::ingest::single_point_covariance(&kept) {
             crate::base::covariance::write_covariance_csv(&self.paths.mock().join("covariance.csv"), &entries)?;
         }
-        println!("  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}", data.len(), self.paths.measurements().display());
+        println!(
+            "  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}",
+            data.len(),
+            self.paths.measurements().display()
+        );
         Ok(())
     }
 
@@ -642,12 +840,22 @@ impl Runner<'_> {
         let mut cases = Vec::new();
         for (i, set) in self.run.observable_sets.iter().enumerate() {
             for (j, k) in self.run.kernels.iter().enumerate() {
-                let kernel = DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
+                let kernel = DiscrepancyKernel::parse(k)
+                    .ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
                 let name = compare::case_dir_name(set, kernel);
                 let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
                 let material = serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock"), "refine": self.keys.get("refine")});
                 let key = artifacts::sha256_hex(material.to_string().as_bytes());
-                cases.push(Case { index: cases.len(), dir: self.paths.calibrate().join(&name), stamp: self.paths.stamp(&format!("calibrate/{name}")), name, set: set.clone(), kernel, seed, key });
+                cases.push(Case {
+                    index: cases.len(),
+                    dir: self.paths.calibrate().join(&name),
+                    stamp: self.paths.stamp(&format!("calibrate/{name}")),
+                    name,
+                    set: set.clone(),
+                    kernel,
+                    seed,
+                    key,
+                });
             }
         }
         Ok(cases)
@@ -662,11 +870,29 @@ impl Runner<'_> {
         let ov = Overrides { kernel: Some(c.kernel), observables: Some(c.set.clone()), ..Default::default() };
         let problem = Problem::new(analysis, &ov)?;
         // Killed mid-case, the case resumes from its last saved tempering step.
-        let checkpoint = calibrate::checkpoint::Checkpointing::new(&c.dir.join(".checkpoint"), calibrate::checkpoint_key(&problem, c.seed), None);
+        let checkpoint = calibrate::checkpoint::Checkpointing::new(
+            &c.dir.join(".checkpoint"),
+            calibrate::checkpoint_key(&problem, c.seed),
+            None,
+        );
         let cal = calibrate::run_and_write(&problem, c.seed, observer(self.opts.show_progress), &checkpoint, &c.dir)?;
         let seconds = cal.summary.diagnostics.wall_seconds;
-        let prov = Provenance::new(self.config.hash.clone(), String::new(), c.seed, &format!("run {} --stage calibrate ({})", self.config.path.display(), c.name));
-        artifacts::write_json_atomic(&c.stamp, &Stamp { stage: format!("calibrate/{}", c.name), key: c.key.clone(), output_key: String::new(), seconds, provenance: prov })?;
+        let prov = Provenance::new(
+            self.config.hash.clone(),
+            String::new(),
+            c.seed,
+            &format!("run {} --stage calibrate ({})", self.config.path.display(), c.name),
+        );
+        artifacts::write_json_atomic(
+            &c.stamp,
+            &Stamp {
+                stage: format!("calibrate/{}", c.name),
+                key: c.key.clone(),
+                output_key: String::new(),
+                seconds,
+                provenance: prov,
+            },
+        )?;
         println!("  {:<60} {seconds:>6.1} s", c.name);
         Ok(())
     }
@@ -680,7 +906,12 @@ impl Runner<'_> {
             return Ok(());
         }
         let out = absolute(&self.paths.out);
-        let command = format!("{{mdpipe}} run {} --out {} --seed {} --stage calibrate --case {{id}}", execute::spec::shell_quote(&absolute(&self.config.path).display().to_string()), execute::spec::shell_quote(&out.display().to_string()), self.opts.seed);
+        let command = format!(
+            "{{mdpipe}} run {} --out {} --seed {} --stage calibrate --case {{id}}",
+            execute::spec::shell_quote(&absolute(&self.config.path).display().to_string()),
+            execute::spec::shell_quote(&out.display().to_string()),
+            self.opts.seed
+        );
         let template = self.run.simulator.clone();
         let spec = SimulatorSpec {
             command,
@@ -691,14 +922,28 @@ impl Runner<'_> {
             slurm: template.map(|t| t.slurm).unwrap_or_default(),
         };
         let runs = self.paths.calibrate().join(".array");
-        let points = todo.iter().map(|c| execute::Point { id: c.index as i64, values: BTreeMap::new(), param_file: runs.join("none") }).collect();
-        let job = execute::Job { spec: &spec, workdir: out.clone(), design: runs.join("none"), runs: runs.clone(), points, label: "calibrations".into(), mdpipe: self.opts.mdpipe.clone() };
+        let points = todo
+            .iter()
+            .map(|c| execute::Point { id: c.index as i64, values: BTreeMap::new(), param_file: runs.join("none") })
+            .collect();
+        let job = execute::Job {
+            spec: &spec,
+            workdir: out.clone(),
+            design: runs.join("none"),
+            runs: runs.clone(),
+            points,
+            label: "calibrations".into(),
+            mdpipe: self.opts.mdpipe.clone(),
+        };
         std::fs::create_dir_all(&runs)?;
         match execute::run(&job, Executor::Slurm, self.opts.show_progress) {
             Ok(report) if report.failed.is_empty() => {}
             Ok(report) => {
                 report.print_failures();
-                println!("  warning: {} calibration task(s) failed under Slurm; those cases run here", report.failed.len());
+                println!(
+                    "  warning: {} calibration task(s) failed under Slurm; those cases run here",
+                    report.failed.len()
+                );
             }
             Err(e) => println!("  warning: {e:#}; the cases run here"),
         }
@@ -711,7 +956,9 @@ impl Runner<'_> {
         let cases = self.cases()?;
         if let Some(index) = self.opts.case {
             // One array task: this case only; the stage is assessed and stamped by the mdpipe that submitted it.
-            let c = cases.get(index).ok_or_else(|| anyhow!("--case {index}: the study has {} calibration cases", cases.len()))?;
+            let c = cases
+                .get(index)
+                .ok_or_else(|| anyhow!("--case {index}: the study has {} calibration cases", cases.len()))?;
             return if self.case_done(c) { Ok(()) } else { self.calibrate_case(&analysis, c) };
         }
         if self.opts.executor == Executor::Slurm {
@@ -730,7 +977,14 @@ impl Runner<'_> {
             return self.write_cases(&dirs);
         }
         let truth_curve: BTreeMap<String, f64> = self.truth_named()?.into_iter().collect();
-        let study = crate::systems::heavy_ion::study::assess(&config, &dirs, &truth_curve, &self.study_emulator()?, &self.paths.validation(), &self.paths.measurements())?;
+        let study = crate::systems::heavy_ion::study::assess(
+            &config,
+            &dirs,
+            &truth_curve,
+            &self.study_emulator()?,
+            &self.paths.validation(),
+            &self.paths.measurements(),
+        )?;
         artifacts::write_json_atomic(&self.paths.out.join("study.json"), &study)?;
         let mut md = study.markdown();
         if let Some(rounds) = self.rounds()? {
@@ -745,19 +999,36 @@ impl Runner<'_> {
     /// and evidence, as `calibrate/cases.json` and `cases.md`.
     fn write_cases(&self, dirs: &[PathBuf]) -> Result<()> {
         let mut cases = Vec::new();
-        let mut md = String::from("| case | parameter | median | 95% interval | log evidence | converged |\n|---|---|---|---|---|---|\n");
+        let mut md = String::from(
+            "| case | parameter | median | 95% interval | log evidence | converged |\n|---|---|---|---|---|---|\n",
+        );
         for dir in dirs {
             let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json"))?)?;
             let case = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             for name in self.config.parameters.keys() {
                 let p = &summary["parameters"][name];
-                md.push_str(&format!("| {case} | {name} | {:.4} | [{:.4}, {:.4}] | {:.2} | {} |\n", p["median"].as_f64().unwrap_or(f64::NAN), p["q025"].as_f64().unwrap_or(f64::NAN), p["q975"].as_f64().unwrap_or(f64::NAN), summary["log_evidence"].as_f64().unwrap_or(f64::NAN), summary["diagnostics"]["converged"]));
+                md.push_str(&format!(
+                    "| {case} | {name} | {:.4} | [{:.4}, {:.4}] | {:.2} | {} |\n",
+                    p["median"].as_f64().unwrap_or(f64::NAN),
+                    p["q025"].as_f64().unwrap_or(f64::NAN),
+                    p["q975"].as_f64().unwrap_or(f64::NAN),
+                    summary["log_evidence"].as_f64().unwrap_or(f64::NAN),
+                    summary["diagnostics"]["converged"]
+                ));
             }
             cases.push(serde_json::json!({"case": case, "parameters": summary["parameters"], "log_evidence": summary["log_evidence"], "converged": summary["diagnostics"]["converged"]}));
         }
-        let prov = Provenance::new(self.config.hash.clone(), self.data_hash()?, self.opts.seed, &format!("run {} --stage calibrate", self.config.path.display()));
+        let prov = Provenance::new(
+            self.config.hash.clone(),
+            self.data_hash()?,
+            self.opts.seed,
+            &format!("run {} --stage calibrate", self.config.path.display()),
+        );
         let mut staged = artifacts::StagedWrites::new();
-        staged.json(&self.paths.calibrate().join("cases.json"), &serde_json::json!({"cases": cases, "provenance": prov}))?;
+        staged.json(
+            &self.paths.calibrate().join("cases.json"),
+            &serde_json::json!({"cases": cases, "provenance": prov}),
+        )?;
         staged.text(&self.paths.calibrate().join("cases.md"), &md)?;
         staged.commit()?;
         println!("{md}");
@@ -770,20 +1041,28 @@ impl Runner<'_> {
             return Ok(String::new());
         }
         let path = self.config.resolve(&self.config.data.measurements);
-        Ok(artifacts::sha256_hex(&std::fs::read(&path).with_context(|| format!("reading the measurements {}", path.display()))?))
+        Ok(artifacts::sha256_hex(
+            &std::fs::read(&path).with_context(|| format!("reading the measurements {}", path.display()))?,
+        ))
     }
 
     fn report(&mut self) -> Result<()> {
         if !self.run.stand_in_study() {
-            let html = crate::engine::report::build(&[self.paths.calibrate(), self.study_emulator()?], &format!("mdpipe run: {}", self.config.name), &[])?;
+            let html = crate::engine::report::build(
+                &[self.paths.calibrate(), self.study_emulator()?],
+                &format!("mdpipe run: {}", self.config.name),
+                &[],
+            )?;
             artifacts::write_text_atomic(&self.paths.out.join("report.html"), &html)?;
             println!("  {}", self.paths.out.join("report.html").display());
             return Ok(());
         }
-        let study: crate::systems::heavy_ion::study::Study = serde_json::from_str(&std::fs::read_to_string(self.paths.out.join("study.json"))?)?;
+        let study: crate::systems::heavy_ion::study::Study =
+            serde_json::from_str(&std::fs::read_to_string(self.paths.out.join("study.json"))?)?;
         let mut dirs = vec![self.paths.calibrate(), self.study_emulator()?];
         dirs.dedup();
-        let html = crate::engine::report::build(&dirs, &format!("mdpipe run: {}", self.config.name), &[&HeavyIonFigures])?;
+        let html =
+            crate::engine::report::build(&dirs, &format!("mdpipe run: {}", self.config.name), &[&HeavyIonFigures])?;
         let html = html.replacen("</h1>\n", &format!("</h1>\n{}", study.html()), 1);
         artifacts::write_text_atomic(&self.paths.out.join("report.html"), &html)?;
         println!("  {}", self.paths.out.join("report.html").display());
@@ -803,14 +1082,20 @@ impl Runner<'_> {
     fn candidates(&mut self) -> Result<()> {
         let run = self.run;
         let spec_path = self.config.resolve(&run.design);
-        let spec_hash = artifacts::sha256_hex(&std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?);
-        let base_settings = self.emulator.clone().ok_or_else(|| anyhow!("{}: the candidates stage needs an [emulator] table", self.config.path.display()))?;
+        let spec_hash = artifacts::sha256_hex(
+            &std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?,
+        );
+        let base_settings = self
+            .emulator
+            .clone()
+            .ok_or_else(|| anyhow!("{}: the candidates stage needs an [emulator] table", self.config.path.display()))?;
         let model_delta_f: DeltaF = run.model_delta_f.parse()?;
         for (k, name) in run.candidates.iter().enumerate() {
             let cand = heavy_ion::candidate(name)?;
             let dir = self.paths.candidate(name);
             if dir.exists() {
-                std::fs::remove_dir_all(&dir).with_context(|| format!("removing the previous variant {}", dir.display()))?;
+                std::fs::remove_dir_all(&dir)
+                    .with_context(|| format!("removing the previous variant {}", dir.display()))?;
             }
             let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
             let mut settings = base_settings.clone();
@@ -827,18 +1112,46 @@ impl Runner<'_> {
                 run.events.unwrap_or_default(),
                 run.oversample
             );
-            crate::engine::design::write_design(&spec, &spec_hash, run.candidate_points.unwrap_or(run.points), seed, &design_dir)?;
+            crate::engine::design::write_design(
+                &spec,
+                &spec_hash,
+                run.candidate_points.unwrap_or(run.points),
+                seed,
+                &design_dir,
+            )?;
             let d = heavy_ion::read_design_points(&design_dir.join("design.parquet"))?;
             let runs = design_dir.join("runs");
             std::fs::create_dir_all(&runs)?;
             std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;
             let points: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).collect();
-            heavy_ion::simulate_runs(&points, delta_f, run.events.unwrap_or_default(), run.oversample, seed, Layout::Hdf5, &runs)?;
+            heavy_ion::simulate_runs(
+                &points,
+                delta_f,
+                run.events.unwrap_or_default(),
+                run.oversample,
+                seed,
+                Layout::Hdf5,
+                &runs,
+            )?;
             let training = dir.join("training.parquet");
             self.ingest_design(&design_dir, &training)?;
             let command = format!("run {} --stage candidates ({name})", self.config.path.display());
-            let (_, r) = crate::engine::emulator::train_with_settings(&settings, &self.config.hash, &command, &training, None, &dir.join("emulator"), seed)?;
-            println!("  {name}: {} points x {} outputs -> {} components ({})", r.n_points, r.n_outputs, r.n_components, settings.parameters.join(", "));
+            let (_, r) = crate::engine::emulator::train_with_settings(
+                &settings,
+                &self.config.hash,
+                &command,
+                &training,
+                None,
+                &dir.join("emulator"),
+                seed,
+            )?;
+            println!(
+                "  {name}: {} points x {} outputs -> {} components ({})",
+                r.n_points,
+                r.n_outputs,
+                r.n_components,
+                settings.parameters.join(", ")
+            );
             // A variant decides verdicts as much as the base emulator does: validate it too
             // (5-fold cross-validation, as no held-out design is run for it).
             let v = crate::engine::emulator::validate::run(&dir.join("emulator"), None, 5, seed)?;
@@ -858,26 +1171,51 @@ impl Runner<'_> {
             .run
             .candidates
             .iter()
-            .map(|name| heavy_ion::candidate(name)?.declaration(absolute(&self.paths.candidate(name).join("emulator"))).to_table())
+            .map(|name| {
+                heavy_ion::candidate(name)?
+                    .declaration(absolute(&self.paths.candidate(name).join("emulator")))
+                    .to_table()
+            })
             .collect::<Result<_>>()?;
         let out = self.paths.diagnose();
         // A previous run's refined variants are of other settings (its runs would mix with new ones).
         if out.join("refine").exists() {
-            std::fs::remove_dir_all(out.join("refine")).with_context(|| format!("removing the previous variant refinement {}", out.join("refine").display()))?;
+            std::fs::remove_dir_all(out.join("refine")).with_context(|| {
+                format!("removing the previous variant refinement {}", out.join("refine").display())
+            })?;
         }
         let overrides = Overrides { observables: Some(self.diagnose_observables()), ..Default::default() };
         let settings = crate::engine::diagnose::DiagnoseSettings::default();
         let seed = self.opts.seed.wrapping_add(77);
         let analysis = self.analysis(&config)?;
-        let mut d = crate::engine::diagnose::run(&analysis, &overrides, seed, &settings, Some(&out), observer(self.opts.show_progress))?;
+        let mut d = crate::engine::diagnose::run(
+            &analysis,
+            &overrides,
+            seed,
+            &settings,
+            Some(&out),
+            observer(self.opts.show_progress),
+        )?;
         if self.refine_variants(&mut config, &analysis, &overrides, &d.diagnosis)? {
             crate::engine::diagnose::print(&d.diagnosis);
             artifacts::write_json_atomic(&out.join("refine").join("diagnosis_before.json"), &d.diagnosis)?;
             println!("  refined the variant emulators the verdict listed; diagnosing again");
-            d = crate::engine::diagnose::run(&self.analysis(&config)?, &overrides, seed, &settings, Some(&out), observer(self.opts.show_progress))?;
+            d = crate::engine::diagnose::run(
+                &self.analysis(&config)?,
+                &overrides,
+                seed,
+                &settings,
+                Some(&out),
+                observer(self.opts.show_progress),
+            )?;
         }
         crate::engine::diagnose::print(&d.diagnosis);
-        crate::engine::report::write(std::slice::from_ref(&out), &out.join("report.html"), &format!("mdpipe run: {} (diagnose)", self.config.name), &[&HeavyIonFigures])?;
+        crate::engine::report::write(
+            std::slice::from_ref(&out),
+            &out.join("report.html"),
+            &format!("mdpipe run: {} (diagnose)", self.config.name),
+            &[&HeavyIonFigures],
+        )?;
         println!("  {}", out.join("report.html").display());
         Ok(())
     }
@@ -908,8 +1246,18 @@ fn runs_fingerprint(dir: &Path) -> Result<String> {
                 if meta.is_dir() {
                     stack.push(path);
                 } else {
-                    let modified = meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_nanos()).unwrap_or(0);
-                    entries.push(format!("{}:{}:{}", path.strip_prefix(dir).unwrap_or(&path).display(), meta.len(), modified));
+                    let modified = meta
+                        .modified()
+                        .ok()
+                        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                        .map(|d| d.as_nanos())
+                        .unwrap_or(0);
+                    entries.push(format!(
+                        "{}:{}:{}",
+                        path.strip_prefix(dir).unwrap_or(&path).display(),
+                        meta.len(),
+                        modified
+                    ));
                 }
             }
         }

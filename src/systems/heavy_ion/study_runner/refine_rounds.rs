@@ -87,12 +87,18 @@ const SD_PARTS: &str = "Latent: the emulator's uncertainty about the simulator's
 
 impl Rounds {
     pub fn markdown(&self) -> String {
-        let mut md = format!("# Adaptive design\n\nStopped: {}. The calibrations use `refine/{}`.\n\n", self.stopped, self.emulator);
+        let mut md = format!(
+            "# Adaptive design\n\nStopped: {}. The calibrations use `refine/{}`.\n\n",
+            self.stopped, self.emulator
+        );
         md.push_str(&format!("Emulator sd over data error where the pilot posteriors live (root mean square over draws and bins). {SD_PARTS} Refinement stops when the predictive ratio is below 1 in every observable.\n\n"));
         md.push_str("| round | training runs | observable | latent | latent, worst bin | floor | predictive |\n|---|---|---|---|---|---|---|\n");
         for r in &self.rounds {
             for o in &r.ratios {
-                md.push_str(&format!("| {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |\n", r.round, r.training_runs, o.observable, o.latent, o.latent_max_bin, o.floor, o.predictive));
+                md.push_str(&format!(
+                    "| {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} |\n",
+                    r.round, r.training_runs, o.observable, o.latent, o.latent_max_bin, o.floor, o.predictive
+                ));
             }
         }
         md.push_str("\n| round | pilot | parameter | median | 95% interval |\n|---|---|---|---|---|\n");
@@ -119,7 +125,10 @@ impl Rounds {
             self.stopped
         );
         for (a, b) in first.ratios.iter().zip(&last.ratios) {
-            md.push_str(&format!("| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |\n", a.observable, a.latent, b.latent, b.latent_max_bin, b.floor, a.predictive, b.predictive));
+            md.push_str(&format!(
+                "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |\n",
+                a.observable, a.latent, b.latent, b.latent_max_bin, b.floor, a.predictive, b.predictive
+            ));
         }
         md
     }
@@ -132,7 +141,10 @@ impl Runner<'_> {
             return Ok(None);
         }
         let path = self.refine_dir().join("rounds.json");
-        Ok(Some(serde_json::from_str(&std::fs::read_to_string(&path).with_context(|| format!("reading {} (run the refine stage first)", path.display()))?)?))
+        Ok(Some(serde_json::from_str(
+            &std::fs::read_to_string(&path)
+                .with_context(|| format!("reading {} (run the refine stage first)", path.display()))?,
+        )?))
     }
 
     pub(super) fn refine_dir(&self) -> PathBuf {
@@ -148,30 +160,46 @@ impl Runner<'_> {
     }
 
     pub(super) fn refine(&mut self) -> Result<()> {
-        let settings = self.run.refine.clone().ok_or_else(|| anyhow!("{}: the refine stage needs a [run.refine] table", self.config.path.display()))?;
+        let settings =
+            self.run.refine.clone().ok_or_else(|| {
+                anyhow!("{}: the refine stage needs a [run.refine] table", self.config.path.display())
+            })?;
         let dir = self.refine_dir();
         if dir.exists() {
-            std::fs::remove_dir_all(&dir).with_context(|| format!("removing the previous refinement {}", dir.display()))?;
+            std::fs::remove_dir_all(&dir)
+                .with_context(|| format!("removing the previous refinement {}", dir.display()))?;
         }
         let mut emulator_dir = self.paths.emulator();
         let mut tables = vec![self.paths.training()];
         let mut rounds: Vec<Round> = Vec::new();
         let mut spent = 0;
         // New ids follow the training design's (whose failed points keep theirs).
-        let base_ids: Vec<i64> = crate::engine::design::read_points(&self.paths.design().join("design.parquet"))?.into_iter().map(|(id, _)| id).collect();
+        let base_ids: Vec<i64> = crate::engine::design::read_points(&self.paths.design().join("design.parquet"))?
+            .into_iter()
+            .map(|(id, _)| id)
+            .collect();
         let mut next_id = crate::engine::design::span_of(&base_ids) as i64;
         let stopped = loop {
             let r = rounds.len();
             let round_dir = dir.join(format!("round_{r}"));
             let emu = crate::engine::emulator::store::load(&emulator_dir)?;
-            let (draws, pilots) = self.pilot_draws(&emulator_dir, &round_dir, &emu.parts.parameter_names, settings.draws, r)?;
+            let (draws, pilots) =
+                self.pilot_draws(&emulator_dir, &round_dir, &emu.parts.parameter_names, settings.draws, r)?;
             let targets = refine::targets(&emu, &self.pilot_data()?)?;
             let ratios = refine::ratios(&emu, &draws, &targets);
             let training_runs = emu.parts.design_ids.len();
             print_round(r, training_runs, &ratios);
             let verdict = stop_reason(&ratios);
             let worst = ratios.iter().map(|o| o.predictive).fold(0.0, f64::max);
-            let mut round = Round { round: r, training_runs, emulator: relative(&emulator_dir, &dir), ratios, pilots, new_runs: 0, forecast_worst_latent: None };
+            let mut round = Round {
+                round: r,
+                training_runs,
+                emulator: relative(&emulator_dir, &dir),
+                ratios,
+                pilots,
+                new_runs: 0,
+                forecast_worst_latent: None,
+            };
             if let Some(reason) = verdict {
                 rounds.push(round);
                 break reason;
@@ -179,7 +207,10 @@ impl Runner<'_> {
             let k = settings.points_per_round.min(settings.budget.saturating_sub(spent));
             if k == 0 {
                 rounds.push(round);
-                break format!("budget spent ({} new runs), predictive ratio still {worst:.2} in the worst observable", settings.budget);
+                break format!(
+                    "budget spent ({} new runs), predictive ratio still {worst:.2} in the worst observable",
+                    settings.budget
+                );
             }
             let sel = refine::select(&emu, &draws, &targets, k);
             round.new_runs = sel.points.len();
@@ -192,7 +223,12 @@ impl Runner<'_> {
             rounds.push(round);
             emulator_dir = self.retrain(&round_dir, &tables, r)?;
         };
-        let prov = Provenance::new(self.config.hash.clone(), String::new(), self.opts.seed, &format!("run {} --stage refine", self.config.path.display()));
+        let prov = Provenance::new(
+            self.config.hash.clone(),
+            String::new(),
+            self.opts.seed,
+            &format!("run {} --stage refine", self.config.path.display()),
+        );
         let result = Rounds { rounds, stopped, emulator: relative(&emulator_dir, &dir), provenance: prov };
         let mut staged = artifacts::StagedWrites::new();
         staged.json(&dir.join("rounds.json"), &result)?;
@@ -212,7 +248,14 @@ impl Runner<'_> {
 
     /// Calibrates the pilots with this round's emulator; their pooled draws
     /// (half from each) and their parameter summaries.
-    fn pilot_draws(&self, emulator: &Path, round_dir: &Path, parameters: &[String], max: usize, round: usize) -> Result<(Vec<f64>, std::collections::BTreeMap<String, std::collections::BTreeMap<String, [f64; 3]>>)> {
+    fn pilot_draws(
+        &self,
+        emulator: &Path,
+        round_dir: &Path,
+        parameters: &[String],
+        max: usize,
+        round: usize,
+    ) -> Result<(Vec<f64>, std::collections::BTreeMap<String, std::collections::BTreeMap<String, [f64; 3]>>)> {
         let config = self.study_config_with(emulator);
         let analysis = self.analysis(&config)?;
         let md_kernel = self.run.kernels.iter().rev().find_map(|k| DiscrepancyKernel::parse(k).flatten());
@@ -223,12 +266,29 @@ impl Runner<'_> {
         for (i, kernel) in kernels.iter().enumerate() {
             let name = crate::engine::compare::case_dir_name(&self.diagnose_observables(), *kernel);
             let out = round_dir.join("pilots").join(&name);
-            let problem = Problem::new(&analysis, &Overrides { kernel: Some(*kernel), observables: Some(self.diagnose_observables()), ..Default::default() })?;
+            let problem = Problem::new(
+                &analysis,
+                &Overrides {
+                    kernel: Some(*kernel),
+                    observables: Some(self.diagnose_observables()),
+                    ..Default::default()
+                },
+            )?;
             let seed = self.opts.seed.wrapping_add(5_000 + 10 * round as u64 + i as u64);
-            let checkpoint = calibrate::checkpoint::Checkpointing::new(&out.join(".checkpoint"), calibrate::checkpoint_key(&problem, seed), None);
+            let checkpoint = calibrate::checkpoint::Checkpointing::new(
+                &out.join(".checkpoint"),
+                calibrate::checkpoint_key(&problem, seed),
+                None,
+            );
             let cal = calibrate::run_and_write(&problem, seed, observer(self.opts.show_progress), &checkpoint, &out)?;
             let summary = &cal.summary.parameters;
-            pilots.insert(name.clone(), parameters.iter().filter_map(|p| summary.get(p).map(|s| (p.clone(), [s.median, s.q025, s.q975]))).collect());
+            pilots.insert(
+                name.clone(),
+                parameters
+                    .iter()
+                    .filter_map(|p| summary.get(p).map(|s| (p.clone(), [s.median, s.q025, s.q975])))
+                    .collect(),
+            );
             draws.extend(refine::read_draws(&out, parameters, max / kernels.len(), seed)?);
         }
         Ok((draws, pilots))
@@ -243,20 +303,56 @@ impl Runner<'_> {
         if let Some(command) = self.array_command(false) {
             spec.slurm.command = command;
         }
-        let prov = Provenance::new(artifacts::sha256_hex(&std::fs::read(&spec_path)?), String::new(), self.opts.seed, &format!("run {} --stage refine", self.config.path.display()));
-        let runs = write_new_points(&spec, ids, points, names, &prov, &format!("mdpipe refine ({} points)", ids.len()), &design_dir)?;
+        let prov = Provenance::new(
+            artifacts::sha256_hex(&std::fs::read(&spec_path)?),
+            String::new(),
+            self.opts.seed,
+            &format!("run {} --stage refine", self.config.path.display()),
+        );
+        let runs = write_new_points(
+            &spec,
+            ids,
+            points,
+            names,
+            &prov,
+            &format!("mdpipe refine ({} points)", ids.len()),
+            &design_dir,
+        )?;
         let span = crate::engine::design::span_of(ids);
         let design = design_dir.join("design.parquet");
-        let exec_points = crate::engine::design::read_points(&design)?.into_iter().map(|(id, values)| execute::Point { id, param_file: crate::engine::design::parameter_file(&design_dir, id, span), values }).collect();
+        let exec_points = crate::engine::design::read_points(&design)?
+            .into_iter()
+            .map(|(id, values)| execute::Point {
+                id,
+                param_file: crate::engine::design::parameter_file(&design_dir, id, span),
+                values,
+            })
+            .collect();
         let spec_run = self.simulator(false)?;
-        let job = execute::Job { spec: &spec_run, workdir: design_dir.clone(), design, runs: runs.clone(), points: exec_points, label: "refinement design".into(), mdpipe: self.opts.mdpipe.clone() };
+        let job = execute::Job {
+            spec: &spec_run,
+            workdir: design_dir.clone(),
+            design,
+            runs: runs.clone(),
+            points: exec_points,
+            label: "refinement design".into(),
+            mdpipe: self.opts.mdpipe.clone(),
+        };
         let report = execute::run(&job, self.opts.executor, self.opts.show_progress)?;
         if !report.failed.is_empty() {
             report.print_failures();
             if report.failed.len() == ids.len() {
-                bail!("every one of the {} refinement runs failed; see {}", ids.len(), execute::ExecutionReport::path(&runs).display());
+                bail!(
+                    "every one of the {} refinement runs failed; see {}",
+                    ids.len(),
+                    execute::ExecutionReport::path(&runs).display()
+                );
             }
-            println!("  warning: {} of {} refinement points failed and are left out (never averaged in)", report.failed.len(), ids.len());
+            println!(
+                "  warning: {} of {} refinement points failed and are left out (never averaged in)",
+                report.failed.len(),
+                ids.len()
+            );
         }
         let table = round_dir.join("training.parquet");
         self.ingest_design(&design_dir, &table)?;
@@ -267,11 +363,22 @@ impl Runner<'_> {
     fn retrain(&self, round_dir: &Path, tables: &[PathBuf], round: usize) -> Result<PathBuf> {
         let all = round_dir.join("training_all.parquet");
         concat_tables(tables, &all)?;
-        let settings = self.emulator.clone().ok_or_else(|| anyhow!("{}: refinement needs an [emulator] table", self.config.path.display()))?;
+        let settings = self
+            .emulator
+            .clone()
+            .ok_or_else(|| anyhow!("{}: refinement needs an [emulator] table", self.config.path.display()))?;
         let out = round_dir.join("emulator");
         let seed = self.opts.seed.wrapping_add(round as u64 + 1);
         let command = format!("run {} --stage refine (round {round})", self.config.path.display());
-        let (_, r) = crate::engine::emulator::train_with_settings(&settings, &self.config.hash, &command, &all, None, &out, seed)?;
+        let (_, r) = crate::engine::emulator::train_with_settings(
+            &settings,
+            &self.config.hash,
+            &command,
+            &all,
+            None,
+            &out,
+            seed,
+        )?;
         println!("  retrained: {} points x {} outputs -> {} components", r.n_points, r.n_outputs, r.n_components);
         let v = crate::engine::emulator::validate::run(&out, Some(&self.paths.validation()), 5, seed)?;
         if let Some(h) = &v.holdout {
@@ -282,7 +389,10 @@ impl Runner<'_> {
 }
 
 fn print_round(r: usize, runs: usize, ratios: &[ObservableRatio]) {
-    let parts: Vec<String> = ratios.iter().map(|o| format!("{} {:.2} (latent {:.2}, floor {:.2})", o.observable, o.predictive, o.latent, o.floor)).collect();
+    let parts: Vec<String> = ratios
+        .iter()
+        .map(|o| format!("{} {:.2} (latent {:.2}, floor {:.2})", o.observable, o.predictive, o.latent, o.floor))
+        .collect();
     println!("  round {r} ({runs} training runs): emulator predictive sd / data error: {}", parts.join(", "));
 }
 
@@ -309,11 +419,14 @@ fn concat_tables(tables: &[PathBuf], out: &Path) -> Result<()> {
     let mut points = Vec::new();
     for t in tables {
         let df = artifacts::read_parquet(t)?;
-        points.push(df.column("design_id").map_err(|_| anyhow!("{}: missing column 'design_id'", t.display()))?.n_unique()?);
+        points.push(
+            df.column("design_id").map_err(|_| anyhow!("{}: missing column 'design_id'", t.display()))?.n_unique()?,
+        );
         all = Some(match all {
             None => df,
             Some(mut a) => {
-                a.vstack_mut(&df).map_err(|e| anyhow!("{}: its columns differ from the other training tables': {e}", t.display()))?;
+                a.vstack_mut(&df)
+                    .map_err(|e| anyhow!("{}: its columns differ from the other training tables': {e}", t.display()))?;
                 a
             }
         });
@@ -327,15 +440,19 @@ fn concat_tables(tables: &[PathBuf], out: &Path) -> Result<()> {
 /// averaged pair by pair with each table's number of design points as its
 /// weight, beside `out`; nothing when no table has one.
 fn pool_noise_correlations(tables: &[PathBuf], points: &[usize], out: &Path) -> Result<()> {
-    use crate::base::covariance::{noise_correlation_csv, noise_correlation_path, read_noise_correlation, CovarianceEntry};
-    let mut sums: std::collections::BTreeMap<(String, u64, String, u64), (f64, f64)> = std::collections::BTreeMap::new();
+    use crate::base::covariance::{
+        noise_correlation_csv, noise_correlation_path, read_noise_correlation, CovarianceEntry,
+    };
+    let mut sums: std::collections::BTreeMap<(String, u64, String, u64), (f64, f64)> =
+        std::collections::BTreeMap::new();
     for (t, &n) in tables.iter().zip(points) {
         let side = noise_correlation_path(t);
         if !side.exists() {
             continue;
         }
         for e in read_noise_correlation(&side)? {
-            let s = sums.entry((e.observable_a, e.x_a.to_bits(), e.observable_b, e.x_b.to_bits())).or_insert((0.0, 0.0));
+            let s =
+                sums.entry((e.observable_a, e.x_a.to_bits(), e.observable_b, e.x_b.to_bits())).or_insert((0.0, 0.0));
             s.0 += n as f64 * e.covariance;
             s.1 += n as f64;
         }
@@ -345,7 +462,14 @@ fn pool_noise_correlations(tables: &[PathBuf], points: &[usize], out: &Path) -> 
     }
     let entries: Vec<CovarianceEntry> = sums
         .into_iter()
-        .map(|((oa, xa, ob, xb), (sum, weight))| CovarianceEntry { observable_a: oa, x_a: f64::from_bits(xa), observable_b: ob, x_b: f64::from_bits(xb), covariance: sum / weight, line: 0 })
+        .map(|((oa, xa, ob, xb), (sum, weight))| CovarianceEntry {
+            observable_a: oa,
+            x_a: f64::from_bits(xa),
+            observable_b: ob,
+            x_b: f64::from_bits(xb),
+            covariance: sum / weight,
+            line: 0,
+        })
         .collect();
     artifacts::write_text_atomic(&noise_correlation_path(out), &noise_correlation_csv(&entries))
 }
@@ -353,11 +477,30 @@ fn pool_noise_correlations(tables: &[PathBuf], points: &[usize], out: &Path) -> 
 /// Writes new points (emulator parameter order, `names`) as a design in
 /// `design_dir` (parameter files and a Slurm array over `ids`), and returns
 /// its `runs/` folder, made ready for the simulate stage's runners.
-pub(super) fn write_new_points(spec: &crate::engine::design::DesignSpec, ids: &[i64], points: &[Vec<f64>], names: &[String], prov: &Provenance, label: &str, design_dir: &Path) -> Result<PathBuf> {
+pub(super) fn write_new_points(
+    spec: &crate::engine::design::DesignSpec,
+    ids: &[i64],
+    points: &[Vec<f64>],
+    names: &[String],
+    prov: &Provenance,
+    label: &str,
+    design_dir: &Path,
+) -> Result<PathBuf> {
     // The design's parameter order may differ from the emulator's.
     let rows: Vec<Vec<f64>> = points
         .iter()
-        .map(|p| spec.parameters.iter().map(|sp| names.iter().position(|n| *n == sp.name).map(|k| p[k]).ok_or_else(|| anyhow!("design parameter {} is not an emulator parameter", sp.name))).collect::<Result<Vec<f64>>>())
+        .map(|p| {
+            spec.parameters
+                .iter()
+                .map(|sp| {
+                    names
+                        .iter()
+                        .position(|n| *n == sp.name)
+                        .map(|k| p[k])
+                        .ok_or_else(|| anyhow!("design parameter {} is not an emulator parameter", sp.name))
+                })
+                .collect::<Result<Vec<f64>>>()
+        })
         .collect::<Result<_>>()?;
     crate::engine::design::write_points(spec, ids, &rows, prov, label, design_dir)?;
     let runs = design_dir.join("runs");
@@ -408,7 +551,10 @@ mod tests {
     /// on a high floor (the budget ends it).
     #[test]
     fn refinement_stops_on_the_predictive_sd() {
-        assert_eq!(stop_reason(&[ratio("a", 0.5, 0.3, 0.9), ratio("b", 0.2, 0.1, 0.4)]).as_deref(), Some("below the data error"));
+        assert_eq!(
+            stop_reason(&[ratio("a", 0.5, 0.3, 0.9), ratio("b", 0.2, 0.1, 0.4)]).as_deref(),
+            Some("below the data error")
+        );
         // Latent below 1 but predictive above, with a floor below 1: go on.
         assert_eq!(stop_reason(&[ratio("a", 0.8, 0.5, 1.6), ratio("b", 0.2, 0.1, 0.4)]), None);
         assert_eq!(stop_reason(&[ratio("a", 0.8, 1.2, 1.6), ratio("b", 0.2, 1.05, 1.4)]), None);
