@@ -94,7 +94,12 @@ pub fn diagnose(args: CalibrationArgs) -> Result<()> {
         &Bars::default(),
     )?;
     diagnose::print(&run.diagnosis);
-    report::write(&[args.out.clone()], &args.out.join("report.html"), "mdpipe diagnose", &systems::figures())?;
+    report::write(
+        std::slice::from_ref(&args.out),
+        &args.out.join("report.html"),
+        "mdpipe diagnose",
+        &systems::figures(),
+    )?;
     println!("wrote {0}/diagnosis.json and {0}/report.html", args.out.display());
     Ok(())
 }

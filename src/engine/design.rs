@@ -39,10 +39,24 @@ pub struct DesignParameter {
     /// Sample uniformly in log(value) (needs min > 0).
     #[serde(default)]
     pub log: bool,
-    /// The simulator's key for this parameter in the `key value` files.
+    /// The simulator's key for this parameter in the `key value` files; the
+    /// parameter's name when not given (a simulator that reads its
+    /// parameters from the command line needs none).
+    #[serde(default)]
     pub key: String,
     #[serde(default)]
     pub units: String,
+}
+
+impl DesignParameter {
+    /// The key written into the point's parameter file.
+    pub fn file_key(&self) -> &str {
+        if self.key.is_empty() {
+            &self.name
+        } else {
+            &self.key
+        }
+    }
 }
 
 #[derive(Clone, Debug, serde::Deserialize)]
@@ -314,7 +328,7 @@ pub fn write_points(
             text.push_str(&format!("{key} {}\n", toml_scalar(value)));
         }
         for (p, v) in spec.parameters.iter().zip(r) {
-            text.push_str(&format!("{} {v}\n", p.key));
+            text.push_str(&format!("{} {v}\n", p.file_key()));
         }
         artifacts::write_text_atomic(&parameter_file(out, id, span), &text)?;
     }
@@ -428,6 +442,22 @@ mod tests {
         assert!(
             slurm.contains("#SBATCH --array=0-19") && slurm.contains("parameter_$(printf '%03d' $SLURM_ARRAY_TASK_ID)")
         );
+    }
+
+    /// A simulator that reads its parameters from the command line needs no
+    /// parameter-file keys: the files then name each parameter by its name.
+    #[test]
+    fn a_spec_without_keys_names_parameters_by_their_names() {
+        let dir = std::env::temp_dir().join(format!("mdpipe-design-nokey-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let spec_path = dir.join("spec.toml");
+        std::fs::write(&spec_path, "[[parameter]]\nname = \"k\"\nmin = 0.1\nmax = 2.0\n").unwrap();
+        let spec = DesignSpec::load(&spec_path).unwrap();
+        write_design(&spec, "hash", 4, 1, &dir.join("out")).unwrap();
+        let text = std::fs::read_to_string(dir.join("out/parameters/parameter_2")).unwrap();
+        let (key, value) = text.trim().split_once(' ').unwrap();
+        assert_eq!(key, "k");
+        assert!((0.1..2.0).contains(&value.parse::<f64>().unwrap()), "{text}");
     }
 
     #[test]

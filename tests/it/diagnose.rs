@@ -52,7 +52,7 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
         assert!(!json[key].is_null(), "diagnosis.json lacks {key}");
     }
     // The report is self-contained: every figure inline, nothing fetched from the network.
-    let html = mdpipe::report::build(&[out.clone()], "test", &mdpipe::systems::figures()).unwrap();
+    let html = mdpipe::report::build(std::slice::from_ref(&out), "test", &mdpipe::systems::figures()).unwrap();
     let figures = html.matches("<svg").count();
     // Mismatch map, BF chart, 2 × (3 δ bands + 3 predictions), a corner plot per observable set.
     assert!(figures >= 15, "{figures} figures");
@@ -398,7 +398,7 @@ fn data_error(obs: &str, x: f64, value: f64) -> f64 {
 /// and records that error in the table (as ingest does for real runs).
 fn add_run_noise(table: &mut mdpipe::emulator::TrainingTable, factor: f64, seed: u64) {
     use rand_distr::{Distribution, StandardNormal};
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0x5eed_0f_2025);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0x5e_ed0f_2025);
     let n_out = table.outputs.len();
     for (k, v) in table.values.iter_mut().enumerate() {
         let o = &table.outputs[k % n_out];

@@ -301,8 +301,8 @@ fn constant_outputs_are_emulated_exactly() {
         .iter()
         .enumerate()
         .filter_map(|(j, o)| match (o.observable.as_str(), o.x) {
-            ("flow0", x) if x == 0.0 => Some((j, 0.0)),
-            ("spectrum0", x) if x == 5.0 => Some((j, 0.1)),
+            ("flow0", 0.0) => Some((j, 0.0)),
+            ("spectrum0", 5.0) => Some((j, 0.1)),
             _ => None,
         })
         .collect();

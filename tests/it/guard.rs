@@ -111,8 +111,7 @@ fn smc_on_a_likelihood_that_is_nowhere_finite_stops_with_an_error() {
     let start = Instant::now();
     let err = Smc::new(SmcSettings { particles: 200, replicates: 2, ..Default::default() })
         .run(&prior, &Nowhere, 1, &Silent)
-        .err()
-        .expect("a run on an impossible likelihood succeeded");
+        .expect_err("a run on an impossible likelihood succeeded");
     assert!(start.elapsed() < Duration::from_secs(30));
     assert!(err.to_string().contains("no particle has a finite likelihood"), "{err}");
 }

@@ -202,15 +202,13 @@ fn stand_in_runs_round_trip_through_ingest() {
     let dir = std::env::temp_dir().join(format!("mdpipe-standin-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let p = HeavyIonParams::parse("eta_s=0.1,e_sw=0.2").unwrap();
-    let n =
-        simulate_runs(&[(3, p.clone())], DeltaF::Grad, 100, events::DEFAULT_OVERSAMPLE, 11, events::Layout::Both, &dir)
-            .unwrap();
+    let n = simulate_runs(&[(3, p)], DeltaF::Grad, 100, events::DEFAULT_OVERSAMPLE, 11, events::Layout::Both, &dir)
+        .unwrap();
     assert_eq!(n, 100);
     // A rerun into the same folder is refused rather than mixing its events with these.
-    let again =
-        simulate_runs(&[(3, p.clone())], DeltaF::Grad, 10, events::DEFAULT_OVERSAMPLE, 12, events::Layout::Both, &dir)
-            .unwrap_err()
-            .to_string();
+    let again = simulate_runs(&[(3, p)], DeltaF::Grad, 10, events::DEFAULT_OVERSAMPLE, 12, events::Layout::Both, &dir)
+        .unwrap_err()
+        .to_string();
     assert!(again.contains("already exists"), "{again}");
     let settings = IngestSettings::default();
     let (h5, _) =
@@ -265,7 +263,7 @@ fn stand_in_events_fit_their_smooth_limit_under_the_jackknife_covariance() {
     for seed in seeds {
         let dir = std::env::temp_dir().join(format!("mdpipe-gof-{}-{seed}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        simulate_runs(&[(0, p.clone())], DeltaF::Grad, n_events, 50, seed, events::Layout::Hdf5, &dir).unwrap();
+        simulate_runs(&[(0, p)], DeltaF::Grad, n_events, 50, seed, events::Layout::Hdf5, &dir).unwrap();
         let (ingested, _) = ingest::ingest_runs(&dir, None, &settings).unwrap();
         let rows = by_point(&ingested.rows, 0);
         let keys: Vec<_> = rows.keys().cloned().collect();

@@ -127,7 +127,7 @@ impl Ensemble {
                     })
                     .sum::<u64>();
             }
-            if step >= self.settings.burn && (step - self.settings.burn) % self.settings.thin.max(1) == 0 {
+            if step >= self.settings.burn && (step - self.settings.burn).is_multiple_of(self.settings.thin.max(1)) {
                 for w in walkers.iter_mut() {
                     w.trace.extend_from_slice(&w.x);
                 }

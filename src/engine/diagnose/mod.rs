@@ -148,9 +148,28 @@ pub struct Verdict {
     #[serde(default)]
     pub refine: Vec<String>,
     pub statement: String,
-    /// Posterior probability of the verdict's model among the base, MD and
-    /// candidate models, with equal prior odds.
+    /// Posterior probability, with equal prior odds among the base, MD and
+    /// candidate models: for a named candidate, of every model that contains
+    /// it (the probability that the data need it); for `none`, of the base
+    /// model; for `unexplained`, of the MD model; otherwise of the models
+    /// still standing.
     pub confidence: f64,
+}
+
+impl Verdict {
+    /// The verdict's probability in words: what it is the probability of.
+    pub fn confidence_phrase(&self) -> String {
+        let v = self;
+        let p = v.confidence;
+        let what = match v.best.as_str() {
+            "none" => "that nothing is missing".to_string(),
+            "unexplained" => "of the model-discrepancy fit".to_string(),
+            "ambiguous" | "emulator_limited" => "of the models still standing".to_string(),
+            name => format!("that the data need {name}, over every model that contains it"),
+        };
+        let shown = if p > 0.999 { "> 0.999".to_string() } else { format!("{p:.3}") };
+        format!("posterior probability {shown} {what}")
+    }
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -519,7 +538,13 @@ fn decide(
                 refine: Vec::new(),
             }
         }
-        Some(c) => verdict(&c.name, named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), prob(c.log_evidence)),
+        Some(c) => {
+            // What a reader means by confidence in "the data need c": the
+            // probability of every model that contains c, pairs included.
+            let mine = members(&c.name);
+            let needed = candidates.iter().filter(|k| mine.is_subset(&members(&k.name))).map(|k| prob(k.log_evidence)).sum();
+            verdict(&c.name, named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), needed)
+        }
         None if significant => {
             let w = worst.map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max)).unwrap_or_default();
             let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
@@ -737,7 +762,7 @@ pub fn print(d: &Diagnosis) {
             c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof
         );
     }
-    println!("Verdict: {} (confidence {:.2})", d.verdict.best, d.verdict.confidence);
+    println!("Verdict: {} ({})", d.verdict.best, d.verdict.confidence_phrase());
     println!("  {}", d.verdict.statement);
     if let Some(imp) = &d.improvement {
         println!("Repair (before → after):");

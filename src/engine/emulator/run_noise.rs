@@ -31,6 +31,7 @@
 //!   the data error of pure noise in the bundled study's truncation
 //!   covariance. The trace over the dropped subspace has no such selection,
 //!   so the signal left there is estimated from it.
+//!
 //! The PCA itself is estimated from the noisy runs: the training mean it is
 //! centred on, and the kept directions, whose tilt leaks the mean's signal
 //! into the dropped subspace. Both are added to every prediction of the
@@ -116,6 +117,7 @@ fn projected(v: &[f64], noise: &[f64]) -> f64 {
 ///   that the dropped components, and no GP, carry. A kept component of
 ///   pure noise (ν_k ≥ 1) has no mean to leak; counting every kept one as
 ///   signal overstated this by K/w (8 against about 2 in the bundled study).
+///
 /// With many outputs each output's share of the kept GPs' uncertainty is
 /// smaller than these, and leaving them out made the mean prediction
 /// overconfident (z² 3.8 with 40 outputs; see the tests).

@@ -39,7 +39,7 @@ pub fn binned_from_file(f: &EventFile) -> Result<BinnedEvent> {
     let origin = &f.origin;
     let c = f.columns;
     // pT, yield, at least (Re, Im) for n = 1..3, count.
-    if c < 2 + 2 * 3 + 1 || (c - 3) % 2 != 0 {
+    if c < 2 + 2 * 3 + 1 || !(c - 3).is_multiple_of(2) {
         bail!("{origin}: {c} columns; a differential file has pT, dN/(2pi pT dpT dy), (Re, Im) pairs for n = 1..order_max-1 (at least 3), and the count");
     }
     let rows = f.rows();
@@ -80,7 +80,7 @@ fn column_name(k: usize, columns: usize) -> String {
         0 => "pT".into(),
         1 => "dN/(2pi pT dpT dy)".into(),
         _ if k == columns - 1 => "count".into(),
-        _ => format!("{} v{}", if k % 2 == 0 { "Re" } else { "Im" }, (k - 2) / 2 + 1),
+        _ => format!("{} v{}", if k.is_multiple_of(2) { "Re" } else { "Im" }, (k - 2) / 2 + 1),
     }
 }
 

@@ -255,7 +255,7 @@ pub fn analyse_events_with_covariance(
     for (k, (tag, s)) in species.iter().enumerate() {
         let evs: Vec<BinnedEvent> = binned.iter().map(|b| b[k].clone()).collect();
         let r = cumulants::analyse(s, &species[0].1.kind, &evs, &reference, &settings.pt_edges, settings.reference_pt)
-            .with_context(|| format!("{tag}"))?;
+            .with_context(|| tag.to_string())?;
         let kinds: &[(&str, usize)] =
             if *tag == "ch" { &[("spectrum", 0), ("v2", 1), ("v3", 2)] } else { &[("spectrum", 0), ("v2", 1)] };
         for &(kind, slot) in kinds {

@@ -646,9 +646,9 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
     let units = runs.first().map(|r| r.summary.units.clone()).unwrap_or_default();
     html.push_str("<h2>Diagnosis</h2>\n");
     html.push_str(&format!(
-        "<p class=\"verdict\"><b>{}</b> (confidence {:.2}): {}</p>\n",
+        "<p class=\"verdict\"><b>{}</b> ({}): {}</p>\n",
         html_escape(&diag.verdict.best),
-        diag.verdict.confidence,
+        html_escape(&diag.verdict.confidence_phrase()),
         html_escape(&diag.verdict.statement)
     ));
     figure(

@@ -320,7 +320,7 @@ fn states(file: &str, table: &ModelTable) -> Result<Vec<State>> {
 }
 
 fn check_solver(file: &str, s: &SolverSettings) -> Result<()> {
-    if !(s.rtol > 0.0 && s.rtol < 1.0) || !(s.atol > 0.0 && s.atol.is_finite()) {
+    if !(s.rtol > 0.0 && s.rtol < 1.0 && s.atol > 0.0 && s.atol.is_finite()) {
         bail!(
             "{file}: [model.solver]: rtol must be in (0, 1) and atol positive (got rtol = {}, atol = {})",
             s.rtol,

@@ -187,8 +187,8 @@ fn emit(expr: &Expr, slot: &dyn Fn(&str) -> Option<usize>, code: &mut Vec<Op>) -
         Expr::Binary('^', a, b) => {
             emit(a, slot, code)?;
             match **b {
-                Expr::Number(n) if n == 2.0 => code.push(Op::Square),
-                Expr::Number(n) if n == 3.0 => code.push(Op::Cube),
+                Expr::Number(2.0) => code.push(Op::Square),
+                Expr::Number(3.0) => code.push(Op::Cube),
                 Expr::Number(n) if n.fract() == 0.0 && n.abs() <= 16.0 => code.push(Op::PowI(n as i32)),
                 _ => {
                     emit(b, slot, code)?;
