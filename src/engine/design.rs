@@ -451,10 +451,10 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("mdpipe-design-nokey-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let spec_path = dir.join("spec.toml");
-        std::fs::write(&spec_path, "[[parameter]]\nname = \"k\"\nmin = 0.1\nmax = 2.0\n").unwrap();
+        std::fs::write(&spec_path, "name = \"cooling\"\n[[parameter]]\nname = \"k\"\nmin = 0.1\nmax = 2.0\n").unwrap();
         let spec = DesignSpec::load(&spec_path).unwrap();
         write_design(&spec, "hash", 4, 1, &dir.join("out")).unwrap();
-        let text = std::fs::read_to_string(dir.join("out/parameters/parameter_2")).unwrap();
+        let text = std::fs::read_to_string(dir.join("out/parameters/parameter_002")).unwrap();
         let (key, value) = text.trim().split_once(' ').unwrap();
         assert_eq!(key, "k");
         assert!((0.1..2.0).contains(&value.parse::<f64>().unwrap()), "{text}");

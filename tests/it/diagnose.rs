@@ -16,7 +16,12 @@ fn config() -> mdpipe::calibrate::Analysis {
 
 #[test]
 fn names_quadratic_drag_and_recovers_k_and_g() {
-    let cfg = config();
+    // The demo's sampling, a quarter of the config's particles: its intervals
+    // agree with the full settings' within Monte Carlo error
+    // (bench/demo_vs_full.py; docs/performance.md).
+    let mut cfg = config();
+    cfg.sampler.smc.particles = 1000;
+    cfg.sampler.smc.replicates = 2;
     let out = std::env::temp_dir().join(format!("mdpipe-diagnose-{}", std::process::id()));
     let run = diagnose::run(&cfg, &Overrides::default(), 1, &DiagnoseSettings::default(), Some(&out), &Silent).unwrap();
     let d = &run.diagnosis;
