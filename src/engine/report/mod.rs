@@ -503,14 +503,30 @@ fn diverging(t: f64) -> RGBColor {
     }
 }
 
-/// Bar chart of log Bayes factors of the candidates against the base model,
-/// one horizontal bar per candidate (pairs have long names), best on top.
+/// Bar chart of each model's log evidence relative to the leader's (the
+/// best candidate or the MD fit), one horizontal bar per model, best on top.
+/// The differences that decide a verdict are a few units while models that
+/// miss sit hundreds below, so the axis stops at [`BF_AXIS_FLOOR`] and a
+/// longer bar is cut there with its value written on it. The dashed line is
+/// the decisive margin: a model to its right is not excluded by the leader.
 pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
-    let c = &d.candidates;
-    let vals: Vec<f64> =
-        c.iter().map(|c| c.log_bayes_factor).chain([d.md_log_evidence - d.base_log_evidence, 0.0]).collect();
-    let xr = range_of(vals.iter().cloned());
-    let names: Vec<String> = c.iter().map(|c| c.name.clone()).chain(["MD (kernel)".to_string()]).collect();
+    let mut rows: Vec<(String, f64, RGBColor)> = d
+        .candidates
+        .iter()
+        .map(|c| {
+            let chosen = c.name == d.verdict.best || d.verdict.standing.contains(&c.name);
+            let colour = if chosen { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
+            (c.name.clone(), c.log_bayes_factor, colour)
+        })
+        .collect();
+    rows.push(("model + MD".into(), d.md_log_evidence - d.base_log_evidence, RGBColor(30, 150, 60)));
+    rows.push(("model, no MD".into(), 0.0, RGBColor(200, 60, 50)));
+    rows.retain(|r| r.1.is_finite());
+    rows.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let leader = rows.first().map(|r| r.1).unwrap_or(0.0);
+    let margin = crate::engine::diagnose::DiagnoseSettings::default().strong_log_bf;
+    let floor = rows.iter().map(|r| r.1 - leader).fold(0.0f64, f64::min).max(BF_AXIS_FLOOR).min(-3.0 * margin);
+    let names: Vec<String> = rows.iter().map(|r| r.0.clone()).collect();
     let n = names.len();
     // Room for the longest name at about 7 px a character, and 26 px a bar.
     let label_width = 7 * names.iter().map(|s| s.chars().count()).max().unwrap_or(8) as u32 + 16;
@@ -518,47 +534,67 @@ pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
     svg(
         |root| {
             let mut chart = p!(ChartBuilder::on(root)
-                .caption("log Bayes factor against the model without MD", ("sans-serif", 16))
+                .caption(
+                    format!("log Bayes factor against the leader (dashed: the decisive margin, {margin})"),
+                    ("sans-serif", 15)
+                )
                 .margin(8)
                 .x_label_area_size(40)
                 .y_label_area_size(label_width)
-                .build_cartesian_2d(xr.0.min(0.0)..xr.1, 0.0..n as f64));
+                .build_cartesian_2d(floor * 1.02..0.5, 0.0..n as f64));
             // Row k from the top is category n - 1 - k on the axis.
             let row = |v: f64| category_label(&names, n as f64 - v);
             p!(chart
                 .configure_mesh()
                 .disable_y_mesh()
-                .x_desc("log BF")
-                .y_desc("candidate")
+                .x_desc("log Z − log Z(leader)")
+                .y_desc("model")
                 .y_labels(2 * n + 1)
                 .y_label_formatter(&|v| row(*v))
                 .draw());
-            for (k, v) in vals.iter().take(n).enumerate() {
-                let colour = if k == n - 1 {
-                    RGBColor(30, 150, 60)
-                } else if c[k].name == d.verdict.best || d.verdict.standing.contains(&c[k].name) {
-                    RGBColor(205, 120, 20)
-                } else {
-                    RGBColor(110, 110, 160)
-                };
+            for (k, (_, value, colour)) in rows.iter().enumerate() {
                 let top = (n - k) as f64;
+                let relative = value - leader;
+                let end = relative.max(floor);
                 p!(chart.draw_series(std::iter::once(Rectangle::new(
-                    [(0.0, top - 0.15), (*v, top - 0.85)],
+                    [(end, top - 0.15), (0.0, top - 0.85)],
                     colour.filled()
                 ))));
+                if k == 0 {
+                    // The leader's bar has no length: name it and its own Bayes factor.
+                    p!(chart.draw_series(std::iter::once(Rectangle::new(
+                        [(floor * 0.004, top - 0.15), (0.0, top - 0.85)],
+                        colour.filled()
+                    ))));
+                    p!(chart.draw_series(std::iter::once(Text::new(
+                        format!("the leader: log BF {value:.1} against the model without MD"),
+                        (floor * 0.99, top - 0.38),
+                        ("sans-serif", 12).into_font()
+                    ))));
+                }
+                if relative < floor {
+                    p!(chart.draw_series(std::iter::once(Text::new(
+                        format!("{relative:.1}"),
+                        (floor * 0.99, top - 0.38),
+                        ("sans-serif", 12).into_font().color(&WHITE)
+                    ))));
+                }
             }
-            p!(chart
-                .draw_series(DashedLineSeries::new(vec![(3.0, 0.0), (3.0, n as f64)], 6, 4, BLACK.stroke_width(1)))
-                .map(|s| s
-                    .label("strong evidence (log BF = 3)")
-                    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
-            p!(chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
+            p!(chart.draw_series(DashedLineSeries::new(
+                vec![(-margin, 0.0), (-margin, n as f64)],
+                6,
+                4,
+                BLACK.stroke_width(1)
+            )));
             Ok(())
         },
         W + 100 + label_width,
         height,
     )
 }
+
+/// How far below the leader the Bayes-factor chart's axis reaches.
+const BF_AXIS_FLOOR: f64 = -40.0;
 
 pub fn html_escape(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
@@ -658,7 +694,7 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
     );
     figure(
         html,
-        "Candidate corrections ranked by SMC evidence; the MD fit for comparison.",
+        "Every model's SMC evidence against the leader's: candidates (the verdict's in orange), the MD fit (green) and the model without MD (red). Bars beyond the axis are cut and carry their value.",
         &bayes_factor_chart(diag)?,
     );
     // For emulated models, how much of each fit's predictive variance is the emulator's own.
