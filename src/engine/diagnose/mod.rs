@@ -751,6 +751,7 @@ pub fn print(d: &Diagnosis) {
         "Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):",
         d.md_log_evidence - d.base_log_evidence
     );
+    let width = d.candidates.iter().map(|c| c.name.chars().count()).max().unwrap_or(0).max(16);
     for c in &d.candidates {
         let share = if c.emulator_share > 0.0 {
             format!("   emulator share {:.0}% ({})", 100.0 * c.emulator_share, c.emulator_share_observable)
@@ -758,14 +759,15 @@ pub fn print(d: &Diagnosis) {
             String::new()
         };
         println!(
-            "  {:<16} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}",
+            "  {:<width$} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}",
             c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof
         );
     }
     println!("Verdict: {} ({})", d.verdict.best, d.verdict.confidence_phrase());
     println!("  {}", d.verdict.statement);
     if let Some(imp) = &d.improvement {
-        println!("Repair (before → after):");
+        // With MD the χ² is of η alone: what δ had to absorb, not the MD fit's misfit.
+        println!("Repair (before → after; χ²/dof of the model part η alone, δ left out):");
         for f in imp.before.iter().chain(&imp.after) {
             let g: Vec<String> = f
                 .parameters
@@ -788,7 +790,8 @@ pub fn print(d: &Diagnosis) {
                 .get(n)
                 .map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)"))
                 .unwrap_or_default();
-            println!("  95% interval of {n}: {r:.1}x narrower than with MD alone{limit}");
+            let change = if *r >= 1.0 { format!("{r:.1}x narrower") } else { format!("{:.1}x wider", 1.0 / r) };
+            println!("  95% interval of {n}: {change} than with MD alone{limit}");
         }
     }
 }

@@ -718,7 +718,7 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
     }
     html.push_str("</table>\n");
     if let Some(imp) = &diag.improvement {
-        html.push_str("<h3>Before and after the repair</h3><table><tr><th>fit</th><th>χ²/dof</th><th>log Z</th><th>max |δ|/σ</th><th>parameters</th></tr>\n");
+        html.push_str("<h3>Before and after the repair</h3><p>χ²/dof is of the model part η alone: for a fit with δ it is what δ had to absorb, not that fit's misfit.</p><table><tr><th>fit</th><th>χ²/dof of η</th><th>log Z</th><th>max |δ|/σ</th><th>parameters</th></tr>\n");
         for f in imp.before.iter().chain(&imp.after) {
             let dmax = f.delta_max_sigma.values().cloned().fold(0.0, f64::max);
             html.push_str(&format!(
@@ -735,12 +735,18 @@ fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[RunArtifacts])
         let narrowing: Vec<String> = imp
             .interval_narrowing
             .iter()
-            .map(|(n, r)| match imp.information_limit.get(n) {
-                Some(l) => format!("{n}: {r:.2}× (Cramér–Rao limit of these data {l:.2}×)"),
-                None => format!("{n}: {r:.2}×"),
+            .map(|(n, r)| {
+                let change = if *r >= 1.0 { format!("{r:.2}× narrower") } else { format!("{:.2}× wider", 1.0 / r) };
+                match imp.information_limit.get(n) {
+                    Some(l) => format!("{n}: {change} (Cramér–Rao limit of these data {l:.2}×)"),
+                    None => format!("{n}: {change}"),
+                }
             })
             .collect();
-        html.push_str(&format!("<p>95% intervals, repaired model against model + δ: {}.</p>\n", narrowing.join("; ")));
+        html.push_str(&format!(
+            "<p>95% intervals of the repaired model against model + δ: {}.</p>\n",
+            narrowing.join("; ")
+        ));
     }
     for (name, label) in [("base_md", "before: model + δ"), ("repaired_md", "after: repaired model + δ")] {
         let Some(run) = runs.iter().find(|r| r.dir.file_name().map(|f| f == name).unwrap_or(false)) else { continue };
