@@ -468,9 +468,18 @@ pub fn mismatch_map(d: &Diagnosis, x_units: &str) -> Result<String> {
             let mut cb = p!(ChartBuilder::on(&bar)
                 .margin(8)
                 .margin_top(40)
-                .y_label_area_size(40)
+                .margin_right(30)
+                .y_label_area_size(75)
                 .build_cartesian_2d(0.0..1.0, -max..max));
-            p!(cb.configure_mesh().disable_x_axis().disable_mesh().y_desc("δ/σ").draw());
+            p!(cb
+                .configure_mesh()
+                .disable_x_axis()
+                .disable_mesh()
+                .y_labels(5)
+                .y_label_style(("sans-serif", 15))
+                .axis_desc_style(("sans-serif", 15))
+                .y_desc("δ/σ")
+                .draw());
             p!(cb.draw_series((0..100).map(|i| {
                 let v0 = -max + 2.0 * max * i as f64 / 100.0;
                 let v1 = v0 + 2.0 * max / 100.0;
@@ -478,7 +487,7 @@ pub fn mismatch_map(d: &Diagnosis, x_units: &str) -> Result<String> {
             })));
             Ok(())
         },
-        W + 120,
+        W + 200,
         60 + 70 * rows.len() as u32 + 60,
     )
 }
