@@ -88,6 +88,15 @@ pub fn svg(
     Ok(s)
 }
 
+/// `yr` raised at the top so that a legend of `rows` entries in a top corner
+/// sits above every point drawn: about 20 px a row plus its frame, of a
+/// plotting area of about H − 100 px. A legend drawn over the data hid the
+/// very bins where a mismatch shows.
+pub fn room_for_legend(yr: (f64, f64), rows: usize) -> (f64, f64) {
+    let share = ((20 * rows + 24) as f64 / (H - 100) as f64).min(0.6);
+    (yr.0, yr.1 + (yr.1 - yr.0) * share / (1.0 - share))
+}
+
 /// `p!(plotters call)`: the call's error as an `anyhow` error, returned.
 macro_rules! p {
     ($e:expr) => {
@@ -312,6 +321,7 @@ pub fn prediction_plot(
             .cloned()
             .chain(data.iter().flat_map(|m| [m.value - m.error, m.value + m.error])),
     );
+    let yr = room_for_legend(yr, 5);
     let xr = range_of(x.iter().cloned());
     let colour = kernel_colour(&run.summary.kernel);
     svg(
@@ -382,7 +392,7 @@ pub fn prediction_plot(
 pub fn delta_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: &str) -> Result<String> {
     let x = run.pred_col(observable, "grid", "x");
     let q = ["q025", "median", "q975"].map(|c| run.pred_col(observable, "grid", &format!("delta_{c}")));
-    let yr = range_of(q[0].iter().chain(&q[2]).cloned().chain([0.0]));
+    let yr = room_for_legend(range_of(q[0].iter().chain(&q[2]).cloned().chain([0.0])), 3);
     let xr = range_of(x.iter().cloned());
     let colour = kernel_colour(&run.summary.kernel);
     svg(
@@ -416,7 +426,7 @@ pub fn delta_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: 
                 .map(|s| s.label("δ = 0").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
             p!(chart
                 .configure_series_labels()
-                .position(SeriesLabelPosition::LowerLeft)
+                .position(SeriesLabelPosition::UpperLeft)
                 .border_style(BLACK)
                 .background_style(WHITE.mix(0.8))
                 .draw());

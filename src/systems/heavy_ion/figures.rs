@@ -196,6 +196,7 @@ pub fn prediction_boxes(run: &RunArtifacts, observable: &str, title: &str) -> Re
                 [(m.value - m.error) / k, (m.value + m.error) / k]
             }),
         ));
+    let yr = crate::engine::report::room_for_legend(yr, 5);
     let half = 0.4 * x.windows(2).map(|w| (w[1] - w[0]).abs()).fold(f64::INFINITY, f64::min).min(0.2);
     let xr = range_of(x.iter().flat_map(|v| [v - half, v + half]));
     let colour = kernel_colour(&run.summary.kernel);
