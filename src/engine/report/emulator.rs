@@ -85,12 +85,7 @@ pub fn parity_plot(rows: &[&ParityRow], observable: &str) -> Result<String> {
                     3,
                     blue.filled()
                 ))));
-            p!(chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.8))
-                .draw());
+            super::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
             Ok(())
         },
         W,
@@ -141,12 +136,7 @@ pub fn z_histogram(rows: &[&ParityRow], label: &str) -> Result<String> {
             p!(chart.draw_series(LineSeries::new(normal, BLACK.stroke_width(2))).map(|s| s
                 .label("N(0, 1): a calibrated emulator")
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
-            p!(chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.8))
-                .draw());
+            super::draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
             Ok(())
         },
         W,

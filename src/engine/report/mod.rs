@@ -97,6 +97,21 @@ pub fn room_for_legend(yr: (f64, f64), rows: usize) -> (f64, f64) {
     (yr.0, yr.1 + (yr.1 - yr.0) * share / (1.0 - share))
 }
 
+/// Draws a chart's legend, framed on a white ground, in the corner `at`
+/// (figures leave room for it with [`room_for_legend`]).
+pub fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    at: SeriesLabelPosition,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(at)
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(|e| anyhow::anyhow!("plotting: {e:?}"))
+}
+
 /// `p!(plotters call)`: the call's error as an `anyhow` error, returned.
 macro_rules! p {
     ($e:expr) => {
@@ -291,7 +306,7 @@ fn corner_marginal(
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH.stroke_width(2)))));
     }
     if legend {
-        p!(chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw());
+        draw_legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
     }
     Ok(())
 }
@@ -375,12 +390,7 @@ pub fn prediction_plot(
                     6
                 )))
                 .map(|s| s.label("data ± 1σ").legend(|(x, y)| Circle::new((x + 7, y), 3, BLACK.filled()))));
-            p!(chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.8))
-                .draw());
+            draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
             Ok(())
         },
         W,
@@ -424,12 +434,7 @@ pub fn delta_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: 
             p!(chart
                 .draw_series(DashedLineSeries::new(vec![(xr.0, 0.0), (xr.1, 0.0)], 6, 4, BLACK.stroke_width(1)))
                 .map(|s| s.label("δ = 0").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], BLACK))));
-            p!(chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.8))
-                .draw());
+            draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
             Ok(())
         },
         W,

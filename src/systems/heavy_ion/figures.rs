@@ -100,12 +100,7 @@ pub fn eta_s_plot(runs: &[&RunArtifacts], truth: &BTreeMap<String, f64>, title: 
                     .draw_series(DashedLineSeries::new(pts, 6, 4, TRUTH.stroke_width(2)))
                     .map(|s| s.label("truth").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], TRUTH))));
             }
-            p!(chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.8))
-                .draw());
+            crate::engine::report::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
 
             // Inset: ε_sw posteriors as normalised histograms.
             let inset = root
@@ -267,12 +262,7 @@ pub fn prediction_boxes(run: &RunArtifacts, observable: &str, title: &str) -> Re
                     )
                 }))
                 .map(|s| s.label("data ± 1σ").legend(|(x, y)| Circle::new((x + 7, y), 3, BLACK.filled()))));
-            p!(chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .border_style(BLACK)
-                .background_style(WHITE.mix(0.8))
-                .draw());
+            crate::engine::report::draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
             Ok(())
         },
         W,
