@@ -68,7 +68,7 @@ enum Token {
 /// The expression tree of `text`; an error says what is wrong.
 pub fn parse(text: &str) -> Result<Expr> {
     let tokens = tokenize(text)?;
-    let mut parser = Parser { tokens: &tokens, at: 0 };
+    let mut parser = Parser { tokens: &tokens, at: 0, depth: 0 };
     let out = parser.sum()?;
     if let Some(t) = parser.peek() {
         bail!("unexpected {} after a complete expression", describe(t));
@@ -114,6 +114,9 @@ fn tokenize(text: &str) -> Result<Vec<Token>> {
             }
         }
         tokens.push(token);
+        if tokens.len() > MAX_TOKENS {
+            bail!("the formula has more than {MAX_TOKENS} numbers, names and operators");
+        }
     }
     Ok(tokens)
 }
@@ -161,7 +164,18 @@ fn describe(t: &Token) -> String {
 struct Parser<'a> {
     tokens: &'a [Token],
     at: usize,
+    /// Open parentheses, calls and signs being parsed: the recursion depth.
+    depth: usize,
 }
+
+/// The deepest nesting a formula may have; deeper ones are refused rather
+/// than left to overflow the stack.
+const MAX_NESTING: usize = 200;
+
+/// The most numbers, names and operators a formula may hold: a chain
+/// `a + b + …` is a tree as deep as it is long, which compilation walks
+/// recursively.
+const MAX_TOKENS: usize = 2000;
 
 impl Parser<'_> {
     fn peek(&self) -> Option<&Token> {
@@ -184,8 +198,24 @@ impl Parser<'_> {
         }
     }
 
+    /// One level deeper (a parenthesis, a call's arguments, a sign).
+    fn descend(&mut self) -> Result<()> {
+        self.depth += 1;
+        if self.depth > MAX_NESTING {
+            bail!("the formula nests more than {MAX_NESTING} levels deep");
+        }
+        Ok(())
+    }
+
     /// `a + b - c`, left to right.
     fn sum(&mut self) -> Result<Expr> {
+        self.descend()?;
+        let out = self.sum_here();
+        self.depth -= 1;
+        out
+    }
+
+    fn sum_here(&mut self) -> Result<Expr> {
         let mut out = self.product()?;
         while let Some(op) = self.eat_op(&['+', '-']) {
             out = Expr::Binary(op, Box::new(out), Box::new(self.product()?));
@@ -204,11 +234,14 @@ impl Parser<'_> {
 
     /// A leading sign applies to the whole power after it: `-a^b = -(a^b)`.
     fn signed(&mut self) -> Result<Expr> {
-        match self.eat_op(&['-', '+']) {
-            Some('-') => Ok(Expr::Neg(Box::new(self.signed()?))),
+        self.descend()?;
+        let out = match self.eat_op(&['-', '+']) {
+            Some('-') => self.signed().map(|e| Expr::Neg(Box::new(e))),
             Some(_) => self.signed(),
             None => self.power(),
-        }
+        };
+        self.depth -= 1;
+        out
     }
 
     /// `a ^ b`, right to left, the exponent may carry a sign: `a^-b^c = a^(-(b^c))`.
@@ -296,5 +329,10 @@ mod tests {
             let e = parse(text).unwrap_err().to_string();
             assert!(e.contains(says), "{text}: {e}");
         }
+        // Nesting that would overflow the stack is refused, not followed.
+        for text in ["(".repeat(600) + "a" + &")".repeat(600), "-".repeat(600) + "a", "a^".repeat(600) + "a"] {
+            assert!(parse(&text).unwrap_err().to_string().contains("levels deep"), "{}", &text[..20]);
+        }
+        assert!(parse(&"a+".repeat(100_000)).unwrap_err().to_string().contains("more than 2000"));
     }
 }
