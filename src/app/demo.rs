@@ -33,7 +33,7 @@ pub fn run(seed: u64, full: bool, out: &Path) -> Result<()> {
         analysis.sampler.smc.particles = DEMO_PARTICLES.min(full_particles);
         analysis.sampler.smc.replicates = DEMO_REPLICATES.min(full_replicates);
         println!(
-            "Sampling: {} replicates x {} particles per calibration, a quarter of the config's {full_replicates} x {full_particles}, for speed;\nthe verdict and intervals agree with the full run's (mdpipe demo --full) within Monte Carlo error.\n",
+            "Sampling: {} replicates x {} particles per calibration, a quarter of the config's {full_replicates} x {full_particles}, for speed;\non the default seed the verdict and intervals agree with the full run's (mdpipe demo --full) within Monte Carlo error.\n",
             analysis.sampler.smc.replicates, analysis.sampler.smc.particles
         );
     }

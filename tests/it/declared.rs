@@ -223,6 +223,11 @@ fn bad_declarations_get_errors_naming_file_table_and_formula() {
             vec!["clash.toml", "'g' is both a parameter and a constant"],
         ),
         (
+            "euler.toml",
+            base.replace("constants = { h0 = 60.0 }", "constants = { h0 = 60.0, e = 1.0 }"),
+            vec!["euler.toml", "'e' is a mathematical constant"],
+        ),
+        (
             "target.toml",
             base.replace("rates = { v = \"-f\" }", "rates = { w = \"-f\" }"),
             vec!["target.toml", "[[candidates]] constant_force", "no state variable 'w'"],

@@ -392,6 +392,11 @@ impl Variables {
         names.extend(d.states.iter().map(|s| s.name.clone()));
         let rate_at = names.len();
         names.extend(d.states.iter().map(|s| format!("d_{}", s.name)));
+        // PI, E, e, TAU and their Greek spellings are constants in every
+        // formula; a variable of that name would be silently shadowed.
+        if let Some(n) = names.iter().find(|n| super::tape::Tape::constant(n).is_some()) {
+            bail!("{file}: [model]: '{n}' is a mathematical constant in formulas (PI, π, E, e, TAU, τ); give the variable another name");
+        }
         if names.len() > MAX_NAMES {
             bail!("{file}: [model]: {} names (input, parameters, constants, states and rates); at most {MAX_NAMES} are supported", names.len());
         }
