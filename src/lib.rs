@@ -12,6 +12,7 @@
 pub mod app;
 pub mod base;
 pub mod engine;
+pub mod pipeline;
 pub mod systems;
 
 // Short paths for the library's users (and the tests).

@@ -42,7 +42,7 @@ pub fn calibrate(
     sampler: Option<String>,
     time_limit: Option<f64>,
 ) -> Result<()> {
-    let analysis = systems::load(&args.config)?;
+    let analysis = crate::pipeline::load(&args.config)?;
     let overrides = parse_overrides(args.data, kernel, observables, sampler)?;
     let problem = Problem::new(&analysis, &overrides)?;
     if let Some(t) = time_limit.filter(|t| !(t.is_finite() && *t >= 0.0)) {
@@ -62,7 +62,7 @@ pub fn calibrate(
 }
 
 pub fn compare(args: CalibrationArgs, sampler: Option<String>, replicates: Option<usize>) -> Result<()> {
-    let analysis = systems::load(&args.config)?;
+    let analysis = crate::pipeline::load(&args.config)?;
     artifacts::check_writable(&args.out)?;
     if let Some(n) = replicates {
         if args.data.is_some() {
@@ -82,7 +82,7 @@ pub fn compare(args: CalibrationArgs, sampler: Option<String>, replicates: Optio
 }
 
 pub fn diagnose(args: CalibrationArgs) -> Result<()> {
-    let analysis = systems::load(&args.config)?;
+    let analysis = crate::pipeline::load(&args.config)?;
     let overrides = parse_overrides(args.data, None, None, None)?;
     artifacts::check_writable(&args.out)?;
     let run = diagnose::run(
@@ -167,11 +167,17 @@ pub fn run_study(
     executor: &str,
     case: Option<usize>,
 ) -> Result<()> {
-    use crate::systems::heavy_ion::study_runner;
     let config = Config::load(config)?;
-    let out = out.unwrap_or_else(|| PathBuf::from("outputs").join(&config.name));
+    let run: crate::pipeline::RunConfig = match &config.run {
+        Some(table) => config.decode(table, "run")?,
+        None => bail!(
+            "{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)",
+            config.path.display()
+        ),
+    };
+    let out = crate::pipeline::study_out(&config, &run, out.as_deref());
     let start = std::time::Instant::now();
-    let opts = study_runner::RunOptions {
+    let opts = crate::pipeline::RunOptions {
         out: out.clone(),
         seed,
         stage,
@@ -181,7 +187,7 @@ pub fn run_study(
         mdpipe: std::env::current_exe()?,
         case,
     };
-    let outcomes = study_runner::run(&config, &opts)?;
+    let outcomes = crate::pipeline::run(&config, &opts)?;
     let ran: Vec<&str> = outcomes.iter().filter(|o| o.ran).map(|o| o.stage.as_str()).collect();
     println!(
         "ran {} stage(s) [{}] in {:.1} s; outputs in {}",

@@ -30,7 +30,7 @@ pub struct DesignSpec {
     pub slurm: SlurmSpec,
 }
 
-#[derive(Clone, Debug, serde::Deserialize)]
+#[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DesignParameter {
     pub name: String,

@@ -4,7 +4,7 @@
 //! intact and says so.
 
 use crate::pipeline::{tmpdir, write_config};
-use mdpipe::systems::heavy_ion::study_runner::STAGES;
+use mdpipe::pipeline::STAGES;
 use rand::{Rng, SeedableRng};
 use std::collections::BTreeMap;
 use std::io::BufRead;

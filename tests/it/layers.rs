@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 /// Units from the bottom up, with their rank.
-const UNITS: [(&str, u32); 17] = [
+const UNITS: [(&str, u32); 18] = [
     ("base", 0),
     ("engine::gp", 1),
     ("engine::model", 2),
@@ -22,8 +22,9 @@ const UNITS: [(&str, u32); 17] = [
     ("systems::ball_drop", 7),
     ("systems::heavy_ion", 7),
     ("systems", 8),
-    ("app", 9),
-    ("engine", 10),
+    ("pipeline", 9),
+    ("app", 10),
+    ("engine", 11),
 ];
 
 /// The unit of a module path such as `engine::calibrate::smc` (longest match).

@@ -5,7 +5,7 @@
 //! script are the runs the simulate stage would have made.
 
 use mdpipe::config::Config;
-use mdpipe::systems::heavy_ion::study_runner::{run, RunOptions, StageOutcome, STAGES};
+use mdpipe::pipeline::{run, RunOptions, StageOutcome, STAGES};
 use std::path::{Path, PathBuf};
 
 pub(crate) fn tmpdir(tag: &str) -> PathBuf {
@@ -267,12 +267,12 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     // A declared variant whose own parameter has no prior is refused, naming the config and the field.
     let mut declared = config.clone();
     declared.model = mdpipe::emulator::EmulatorFamily::model_table(&out.join("emulator"));
-    let declaration = mdpipe::emulator::family::CandidateDeclaration {
-        name: "annihilation".into(),
-        description: "p annihilation".into(),
-        emulator: out.join("candidates/proton_annihilation/emulator"),
-        parameters: Default::default(),
-    };
+    let declaration = mdpipe::emulator::family::CandidateDeclaration::of_emulator(
+        "annihilation",
+        "p annihilation",
+        out.join("candidates/proton_annihilation/emulator"),
+        Default::default(),
+    );
     declared.candidates = vec![declaration.to_table().unwrap()];
     let msg = format!(
         "{:#}",

@@ -28,11 +28,45 @@ struct EmulatorModelTable {
 pub struct CandidateDeclaration {
     pub name: String,
     /// What physics the variant adds, in a phrase.
+    #[serde(default)]
     pub description: String,
-    pub emulator: PathBuf,
+    /// The variant emulator's folder. In a `[run]` study `mdpipe run` builds
+    /// it and fills it in (the standalone commands find it the same way).
+    #[serde(default)]
+    pub emulator: Option<PathBuf>,
     /// Uniform priors of the variant's own parameters (beyond the model's θ).
     #[serde(default)]
     pub parameters: BTreeMap<String, ParamSpec>,
+    /// How `mdpipe run` turns the physics on in the study's simulator:
+    /// keys added to each point's parameter file,
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub parameter_file: BTreeMap<String, toml::Value>,
+    /// other values of the command's placeholders (`[run.simulator] placeholders`),
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub placeholders: BTreeMap<String, String>,
+    /// or a command of its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command: Option<String>,
+}
+
+impl CandidateDeclaration {
+    /// A variant emulator's declaration (no simulator switches).
+    pub fn of_emulator(
+        name: &str,
+        description: &str,
+        emulator: PathBuf,
+        parameters: BTreeMap<String, ParamSpec>,
+    ) -> Self {
+        CandidateDeclaration {
+            name: name.into(),
+            description: description.into(),
+            emulator: Some(emulator),
+            parameters,
+            parameter_file: BTreeMap::new(),
+            placeholders: BTreeMap::new(),
+            command: None,
+        }
+    }
 }
 
 impl CandidateDeclaration {
@@ -88,7 +122,14 @@ impl ModelFamily for EmulatorFamily {
 /// own, whose priors the declaration gives.
 fn declared_candidate(config: &Config, c: &CandidateDeclaration) -> Result<CandidateModel> {
     let file = config.path.display();
-    let dir = config.resolve(&c.emulator);
+    let switches = !c.parameter_file.is_empty() || !c.placeholders.is_empty() || c.command.is_some();
+    if switches && config.run.is_none() {
+        bail!("{file}: [[candidates]] {}: `parameter_file`, `placeholders` and `command` tell `mdpipe run` how to run the variant; this config has no [run] table, so nothing would run it", c.name);
+    }
+    let emulator = c.emulator.as_ref().ok_or_else(|| {
+        anyhow!("{file}: [[candidates]] {}: no `emulator`: give the variant emulator's folder, or build it with `mdpipe run` (a [run] study's commands then find it in the study's outputs)", c.name)
+    })?;
+    let dir = config.resolve(emulator);
     let model = EmulatedModel::load(&dir).with_context(|| {
         format!("{file}: [[candidates]] {}: loading the variant emulator {}", c.name, dir.display())
     })?;

@@ -58,6 +58,17 @@ pub struct Job<'a> {
     pub label: String,
     /// The mdpipe executable, for `{mdpipe}` (a library caller's own binary is not it).
     pub mdpipe: PathBuf,
+    /// The point with id `i` gets `{seed}` = `seed + i`: distinct designs
+    /// need seeds far apart (`point_seed_base`).
+    pub seed: u64,
+}
+
+/// A base of points' seeds for one design, from the study's seed and the
+/// design's label: far apart for different labels, and below 2^52 so that
+/// any language's arithmetic (a bash array script's too) adds ids exactly.
+pub fn point_seed_base(study_seed: u64, label: &str) -> u64 {
+    let digest = crate::base::artifacts::sha256_hex(format!("{study_seed}:{label}").as_bytes());
+    u64::from_str_radix(&digest[..10], 16).unwrap_or(0) << 12
 }
 
 /// A point that failed every attempt.
@@ -123,6 +134,7 @@ pub fn run(job: &Job, executor: Executor, show_progress: bool) -> Result<Executi
         }
         let paths = spec::PointPaths {
             id: p.id,
+            seed: job.seed.wrapping_add(p.id.max(0) as u64),
             folder: PathBuf::from("$MDPIPE_POINT"),
             param_file: abs(&p.param_file),
             design: abs(&job.design),

@@ -27,8 +27,15 @@ pub struct SimulatorSpec {
     /// Shell command for one point, run from the design folder. Substituted:
     /// `{point}` (the folder the point's outputs go to), `{param_file}` (its
     /// iEBE-MUSIC parameter file), `{id}`, `{design}` (design.parquet),
-    /// `{mdpipe}` (this executable) and `{<parameter>}` for each design parameter.
+    /// `{mdpipe}` (this executable), `{seed}` (a seed of the point's own),
+    /// `{<parameter>}` for each design parameter and `{<name>}` for each of
+    /// `placeholders`.
     pub command: String,
+    /// Values of the command's own placeholders, e.g. `{ radiation = "off" }`
+    /// for `--radiation {radiation}`: a diagnose candidate switches its
+    /// physics on by giving one another value.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub placeholders: BTreeMap<String, String>,
     pub output: OutputKind,
     /// Wall-time limit of one attempt: "90s", "20m", "2h", "HH:MM:SS" or "D-HH:MM:SS".
     #[serde(default = "default_time_limit")]
@@ -80,9 +87,17 @@ impl SimulatorSpec {
         if self.slurm.poll_seconds.is_some_and(|p| !(p > 0.0)) {
             bail!("slurm.poll_seconds must be positive");
         }
-        let known: Vec<&str> = ["point", "param_file", "id", "design", "mdpipe"]
+        if let Some(name) = self.placeholders.keys().find(|k| BUILT_IN.contains(&k.as_str()) || parameters.contains(k))
+        {
+            bail!(
+                "placeholders: {{{name}}} is already the point's own (a design parameter or one of {})",
+                BUILT_IN.join(", ")
+            );
+        }
+        let known: Vec<&str> = BUILT_IN
             .into_iter()
             .chain(parameters.iter().map(String::as_str))
+            .chain(self.placeholders.keys().map(String::as_str))
             .collect();
         for name in placeholders(&self.command) {
             if !known.contains(&name.as_str()) {
@@ -103,7 +118,11 @@ impl SimulatorSpec {
     pub fn render(&self, point: &PointPaths, values: &BTreeMap<String, f64>) -> String {
         let mut cmd = self.command.clone();
         let quoted = |p: &Path| shell_quote(&p.display().to_string());
+        for (name, value) in &self.placeholders {
+            cmd = cmd.replace(&format!("{{{name}}}"), value);
+        }
         for (name, value) in [
+            ("seed", point.seed.to_string()),
             ("point", quoted(&point.folder)),
             ("param_file", quoted(&point.param_file)),
             ("id", point.id.to_string()),
@@ -119,9 +138,48 @@ impl SimulatorSpec {
     }
 }
 
+impl SimulatorSpec {
+    /// The command as one task of a design's Slurm array script, run from the
+    /// design folder: the point's folder is `runs/NNNN`, each parameter's
+    /// value is read from the point's parameter file (`parameters` gives
+    /// each name's file key) and `{seed}` is `seed_base` + the task id, as the
+    /// executors give it. `{param_file}` and `{id}` are left for the script
+    /// writer (`engine::design::write_points`).
+    pub fn array_command(&self, parameters: &[(String, String)], seed_base: u64, mdpipe: &Path) -> String {
+        let point = "runs/$(printf '%04d' $SLURM_ARRAY_TASK_ID)";
+        let mut cmd = self.command.clone();
+        for (name, value) in &self.placeholders {
+            cmd = cmd.replace(&format!("{{{name}}}"), value);
+        }
+        for (name, key) in parameters {
+            let read = format!("$(awk -v k={} '$1 == k {{ print $2 }}' {{param_file}})", shell_quote(key));
+            cmd = cmd.replace(&format!("{{{name}}}"), &read);
+        }
+        for (name, value) in [
+            ("point", format!("\"{point}\"")),
+            ("design", "design.parquet".to_string()),
+            ("mdpipe", shell_quote(&mdpipe.display().to_string())),
+            ("seed", format!("$(({seed_base} + SLURM_ARRAY_TASK_ID))")),
+        ] {
+            cmd = cmd.replace(&format!("{{{name}}}"), &value);
+        }
+        format!("mkdir -p \"{point}\"\n{cmd}")
+    }
+}
+
+/// The placeholders every command may use.
+pub const BUILT_IN: [&str; 6] = ["point", "param_file", "id", "design", "mdpipe", "seed"];
+
+/// The placeholders a command uses, in order.
+pub fn placeholders_of(command: &str) -> Vec<String> {
+    placeholders(command)
+}
+
 /// The paths substituted into one point's command.
 pub struct PointPaths {
     pub id: i64,
+    /// The point's own seed, for a stochastic simulator.
+    pub seed: u64,
     pub folder: std::path::PathBuf,
     pub param_file: std::path::PathBuf,
     pub design: std::path::PathBuf,
@@ -205,6 +263,7 @@ mod tests {
         assert!(err.contains("{eta_s}"), "{err}");
         let paths = PointPaths {
             id: 7,
+            seed: 3,
             folder: "/r/.attempts/0007.a1".into(),
             param_file: "/d/parameters/parameter_007".into(),
             design: "/d/design.parquet".into(),

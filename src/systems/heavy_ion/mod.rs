@@ -71,7 +71,6 @@ pub mod family;
 pub mod figures;
 pub mod mock;
 pub mod study;
-pub mod study_runner;
 
 /// GeV·fm.
 const HBARC: f64 = 0.197_326_98;
@@ -551,21 +550,21 @@ impl StandInCandidate {
 
     /// Its `[[candidates]]` declaration, with its variant emulator at `emulator`.
     pub fn declaration(&self, emulator: std::path::PathBuf) -> crate::engine::emulator::family::CandidateDeclaration {
-        crate::engine::emulator::family::CandidateDeclaration {
-            name: self.name.into(),
-            description: self.description.into(),
+        let parameters = self
+            .parameter
+            .iter()
+            .map(|p| {
+                let spec =
+                    crate::base::config::ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() };
+                (p.name.to_string(), spec)
+            })
+            .collect();
+        crate::engine::emulator::family::CandidateDeclaration::of_emulator(
+            self.name,
+            self.description,
             emulator,
-            parameters: self
-                .parameter
-                .iter()
-                .map(|p| {
-                    (
-                        p.name.to_string(),
-                        crate::base::config::ParamSpec { min: p.min, max: p.max, truth: None, units: p.units.into() },
-                    )
-                })
-                .collect(),
-        }
+            parameters,
+        )
     }
 }
 

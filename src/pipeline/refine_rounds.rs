@@ -15,11 +15,11 @@
 //! emulator) and `OUT/refine/rounds.json` / `rounds.md`; `rounds.json` names
 //! the emulator the calibrations use.
 
-use super::{absolute, Runner};
+use super::stages::{absolute, Runner};
 use crate::base::artifacts::{self, Provenance};
 use crate::base::progress::observer;
 use crate::engine::calibrate::{self, Overrides, Problem};
-use crate::engine::execute;
+use crate::engine::design::DesignSpec;
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::refine::{self, ObservableRatio};
 use anyhow::{anyhow, bail, Context, Result};
@@ -299,17 +299,16 @@ impl Runner<'_> {
     fn run_new_points(&self, round_dir: &Path, ids: &[i64], points: &[Vec<f64>], names: &[String]) -> Result<PathBuf> {
         let design_dir = round_dir.join("design");
         let spec_path = self.config.resolve(&self.run.design);
-        let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
-        if let Some(command) = self.array_command(false) {
-            spec.slurm.command = command;
-        }
+        let simulator = self.simulator(false)?;
+        let label = format!("refinement design {}", round_dir.file_name().unwrap_or_default().to_string_lossy());
+        let spec = self.with_array_command(&DesignSpec::load(&spec_path)?, &simulator, &label);
         let prov = Provenance::new(
             artifacts::sha256_hex(&std::fs::read(&spec_path)?),
             String::new(),
             self.opts.seed,
             &format!("run {} --stage refine", self.config.path.display()),
         );
-        let runs = write_new_points(
+        write_new_points(
             &spec,
             ids,
             points,
@@ -318,42 +317,7 @@ impl Runner<'_> {
             &format!("mdpipe refine ({} points)", ids.len()),
             &design_dir,
         )?;
-        let span = crate::engine::design::span_of(ids);
-        let design = design_dir.join("design.parquet");
-        let exec_points = crate::engine::design::read_points(&design)?
-            .into_iter()
-            .map(|(id, values)| execute::Point {
-                id,
-                param_file: crate::engine::design::parameter_file(&design_dir, id, span),
-                values,
-            })
-            .collect();
-        let spec_run = self.simulator(false)?;
-        let job = execute::Job {
-            spec: &spec_run,
-            workdir: design_dir.clone(),
-            design,
-            runs: runs.clone(),
-            points: exec_points,
-            label: "refinement design".into(),
-            mdpipe: self.opts.mdpipe.clone(),
-        };
-        let report = execute::run(&job, self.opts.executor, self.opts.show_progress)?;
-        if !report.failed.is_empty() {
-            report.print_failures();
-            if report.failed.len() == ids.len() {
-                bail!(
-                    "every one of the {} refinement runs failed; see {}",
-                    ids.len(),
-                    execute::ExecutionReport::path(&runs).display()
-                );
-            }
-            println!(
-                "  warning: {} of {} refinement points failed and are left out (never averaged in)",
-                report.failed.len(),
-                ids.len()
-            );
-        }
+        self.run_design(&design_dir, &simulator, &label)?;
         let table = round_dir.join("training.parquet");
         self.ingest_design(&design_dir, &table)?;
         Ok(table)

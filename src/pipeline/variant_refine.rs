@@ -1,62 +1,53 @@
 //! The diagnose stage's refinement of variant emulators: when the verdict is
 //! "emulator_limited" and `[run.refine] variant_budget` allows runs, each
-//! variant the verdict lists gets new stand-in runs where its own posterior
-//! lies (`engine::refine::variant`), is retrained on every run so far, and
+//! variant the verdict lists gets new runs where its own posterior
+//! lies (`engine::refine::variant`), run by the executor as the candidates
+//! stage ran its design, is retrained on every run so far, and
 //! the diagnosis is made once more with the refined variants. Writes
 //! `diagnose/refine/<candidate>/` (rounds, pilots, designs with runs,
 //! emulators) and `diagnose/refine/diagnosis_before.json`; the diagnosis in
 //! `diagnose/` is the one after refinement.
 
-use super::{absolute, Runner};
+use super::stages::{absolute, Runner};
+use super::variants::Variant;
 use crate::base::artifacts::Provenance;
 use crate::base::config::Config;
 use crate::base::progress::observer;
 use crate::engine::calibrate::{Analysis, Overrides};
+use crate::engine::design::DesignSpec;
 use crate::engine::diagnose::Diagnosis;
 use crate::engine::emulator::{read_training_table, TrainingTable};
 use crate::engine::refine::variant::{refine_variant, PointRunner, RoundSettings};
-use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams, StandInCandidate};
 use anyhow::{anyhow, Result};
 use std::path::Path;
 
-/// New event-by-event stand-in runs of one variant, ingested as the
-/// candidates stage ingests its design.
+/// New runs of one variant at the points refinement chose, through the
+/// executor as the candidates stage ran its design, then ingested.
 struct VariantRuns<'r, 'a> {
     runner: &'r Runner<'a>,
-    candidate: &'static StandInCandidate,
-    delta_f: DeltaF,
+    variant: Variant,
     seed: u64,
 }
 
 impl PointRunner for VariantRuns<'_, '_> {
     fn run(&self, names: &[String], points: &[Vec<f64>], first_id: i64, dir: &Path) -> Result<TrainingTable> {
-        let run = self.runner.run;
+        let r = self.runner;
         let design_dir = dir.join("design");
-        let spec_path = self.runner.config.resolve(&run.design);
-        let mut spec = crate::engine::design::DesignSpec::load(&spec_path)?;
-        spec.parameters.extend(self.candidate.design_parameter());
+        let spec = self.variant.design_spec(&DesignSpec::load(&r.config.resolve(&r.run.design))?);
+        let label = format!("refinement of {} from {first_id}", self.variant.name);
+        let spec = r.with_array_command(&spec, &self.variant.simulator, &label);
         let ids: Vec<i64> = (first_id..first_id + points.len() as i64).collect();
         let prov = Provenance::new(
-            self.runner.config.hash.clone(),
+            r.config.hash.clone(),
             String::new(),
             self.seed,
-            &format!("run {} --stage diagnose (refining {})", self.runner.config.path.display(), self.candidate.name),
+            &format!("run {} --stage diagnose (refining {})", r.config.path.display(), self.variant.name),
         );
-        let label = format!("mdpipe refine, variant {} ({} points)", self.candidate.name, ids.len());
-        let runs = super::refine_rounds::write_new_points(&spec, &ids, points, names, &prov, &label, &design_dir)?;
-        let d = heavy_ion::read_design_points(&design_dir.join("design.parquet"))?;
-        let at: Vec<(i64, HeavyIonParams)> = d.ids.into_iter().zip(d.points).collect();
-        heavy_ion::simulate_runs(
-            &at,
-            self.delta_f,
-            run.events.unwrap_or_default(),
-            run.oversample,
-            self.seed,
-            Layout::Hdf5,
-            &runs,
-        )?;
+        let made_by = format!("mdpipe refine, variant {} ({} points)", self.variant.name, ids.len());
+        super::refine_rounds::write_new_points(&spec, &ids, points, names, &prov, &made_by, &design_dir)?;
+        r.run_design(&design_dir, &self.variant.simulator, &label)?;
         let table = dir.join("training.parquet");
-        self.runner.ingest_design(&design_dir, &table)?;
+        r.ingest_design(&design_dir, &table)?;
         read_training_table(&table, names)
     }
 }
@@ -81,16 +72,18 @@ impl Runner<'_> {
             budget: settings.variant_budget,
             draws: settings.draws,
         };
-        let model_delta_f: DeltaF = self.run.model_delta_f.parse()?;
+        let variants = self.variants()?;
         for (k, name) in diagnosis.verdict.refine.iter().enumerate() {
-            let candidate = heavy_ion::candidate(name)?;
+            let declared = variants.iter().find(|v| &v.name == name);
             let variant = analysis
                 .candidates()?
                 .into_iter()
                 .find(|c| &c.name == name)
                 .ok_or_else(|| anyhow!("the verdict lists {name}, which is not declared"))?;
             let seed = self.opts.seed.wrapping_add(9_000 + 100 * k as u64);
-            let runner = VariantRuns { runner: self, candidate, delta_f: candidate.delta_f(model_delta_f), seed };
+            let declared =
+                declared.ok_or_else(|| anyhow!("the verdict lists {name}, which the study does not declare"))?;
+            let runner = VariantRuns { runner: self, variant: declared.clone(), seed };
             let out = self.paths.diagnose().join("refine").join(name);
             let emulator = self.paths.candidate(name).join("emulator");
             let refined = refine_variant(

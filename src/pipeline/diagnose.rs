@@ -1,0 +1,60 @@
+//! The diagnose stage.
+
+use super::stages::*;
+use crate::base::artifacts::{self};
+use crate::base::progress::observer;
+use crate::engine::calibrate::Overrides;
+use crate::systems::heavy_ion::figures::HeavyIonFigures;
+use anyhow::{Context, Result};
+
+impl Runner<'_> {
+    /// `mdpipe diagnose` on the study's data (the mock's, or the config's
+    /// measurements) with every candidate's variant emulator declared;
+    /// when the verdict rests on variant emulators and `[run.refine]
+    /// variant_budget` allows, they are refined and the diagnosis made again.
+    pub(super) fn diagnose(&mut self) -> Result<()> {
+        let mut config = self.study_config()?;
+        config.candidates = self.variants()?.into_iter().map(|v| v.declaration).collect();
+        let out = self.paths.diagnose();
+        // A previous run's refined variants are of other settings (its runs would mix with new ones).
+        if out.join("refine").exists() {
+            std::fs::remove_dir_all(out.join("refine")).with_context(|| {
+                format!("removing the previous variant refinement {}", out.join("refine").display())
+            })?;
+        }
+        let overrides = Overrides { observables: Some(self.diagnose_observables()), ..Default::default() };
+        let settings = crate::engine::diagnose::DiagnoseSettings::default();
+        let seed = self.opts.seed.wrapping_add(77);
+        let analysis = self.analysis(&config)?;
+        let mut d = crate::engine::diagnose::run(
+            &analysis,
+            &overrides,
+            seed,
+            &settings,
+            Some(&out),
+            observer(self.opts.show_progress),
+        )?;
+        if self.refine_variants(&mut config, &analysis, &overrides, &d.diagnosis)? {
+            crate::engine::diagnose::print(&d.diagnosis);
+            artifacts::write_json_atomic(&out.join("refine").join("diagnosis_before.json"), &d.diagnosis)?;
+            println!("  refined the variant emulators the verdict listed; diagnosing again");
+            d = crate::engine::diagnose::run(
+                &self.analysis(&config)?,
+                &overrides,
+                seed,
+                &settings,
+                Some(&out),
+                observer(self.opts.show_progress),
+            )?;
+        }
+        crate::engine::diagnose::print(&d.diagnosis);
+        crate::engine::report::write(
+            std::slice::from_ref(&out),
+            &out.join("report.html"),
+            &format!("mdpipe run: {} (diagnose)", self.config.name),
+            &[&HeavyIonFigures],
+        )?;
+        println!("  {}", out.join("report.html").display());
+        Ok(())
+    }
+}

@@ -1,0 +1,170 @@
+//! `mdpipe run`: a study end to end, as a sequence of stages that each write
+//! their artifacts under one output folder and are skipped when their inputs
+//! have not changed. The simulate stage runs `[run.simulator]` (any
+//! simulator) or, without it, the heavy-ion stand-in, through
+//! `engine::execute` (local processes or a Slurm array). The mock, candidates
+//! and diagnose stages, and the study's assessment, belong to the stand-in's
+//! study (`mock_delta_f`); with a user's simulator the calibrations use the
+//! config's measurements and are tabulated in calibrate/cases.md.
+//!
+//! | stage       | writes (under OUT/)                                             |
+//! |-------------|-----------------------------------------------------------------|
+//! | design      | design/, validation_design/ (design.parquet, parameter files, submit.slurm) |
+//! | simulate    | design/runs/, validation_design/runs/ (one folder per point, execution.json) |
+//! | ingest      | training.parquet, validation.parquet (+ .report.json)           |
+//! | emulator    | emulator/ (trained, then validated: validation.json)            |
+//! | mock        | mock/runs/, mock/measurements.parquet                           |
+//! | refine      | refine/round_<r>/ (pilots, design with runs, tables, emulator), refine/rounds.json, rounds.md (only with `[run.refine]`; the stages after it use its emulator) |
+//! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json (or calibrate/cases.md, cases.json) |
+//! | report      | report.html                                                     |
+//! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator with validation.json) per `[run] candidates` entry |
+//! | diagnose    | diagnose/ (diagnosis.json, report.html and every calibration; refine/<candidate>/ and refine/diagnosis_before.json when variants were refined) |
+//!
+//! The last two run only when `[run] candidates` names physics from the
+//! stand-in's library (`heavy_ion::CANDIDATES`): each gets a variant
+//! emulator trained on runs with that physics switched on, and `diagnose`
+//! weighs the variants against the model on the mock data.
+//! A stage's key hashes its settings and its upstream stages' keys (the
+//! simulate stage's, and so ingest's, also the run folders' contents); a stage
+//! whose stamp (`OUT/stages/<stage>.json`) holds the same key, and whose
+//! outputs exist, is skipped. Within the calibrate stage each case is stamped
+//! too (`OUT/stages/calibrate/<case>.json`), so an interrupted stage resumes
+//! with the cases it had not finished.
+
+mod cases;
+mod complete;
+mod diagnose;
+mod refine_rounds;
+mod run_config;
+mod runs;
+mod stages;
+mod stand_in;
+mod variant_refine;
+mod variants;
+
+use crate::base::artifacts::{self};
+use crate::base::config::Config;
+use crate::engine::emulator::EmulatorSettings;
+use crate::engine::execute::{self};
+use anyhow::{anyhow, bail, Context, Result};
+pub use complete::{fill_in_from_study, load, study_out};
+pub use refine_rounds::{RefineConfig, Rounds};
+pub use run_config::RunConfig;
+use stages::*;
+pub use stages::{RunOptions, RunPaths, StageOutcome, STAGES};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Runs the study (or one stage of it). Returns what ran and what was skipped.
+pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
+    let table = config.run.as_ref().ok_or_else(|| {
+        anyhow!(
+            "{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)",
+            config.path.display()
+        )
+    })?;
+    let run: &RunConfig = &config.decode(table, "run")?;
+    if let Some(s) = &opts.stage {
+        if !STAGES.contains(&s.as_str()) {
+            bail!("--stage {s}: unknown stage (use one of {})", STAGES.join(", "));
+        }
+    }
+    let spec = crate::engine::design::DesignSpec::load(&config.resolve(&run.design))?;
+    let design_parameters: Vec<String> = spec.parameters.iter().map(|p| p.name.clone()).collect();
+    if opts.case.is_some() && opts.stage.as_deref() != Some("calibrate") {
+        bail!("--case needs --stage calibrate");
+    }
+    execute::spec::seconds_of(&run.calibration_time_limit).context("[run] calibration_time_limit")?;
+    run.validate(&design_parameters).with_context(|| format!("{}: [run]", config.path.display()))?;
+    variants::check_priors_inside_design(config, &spec).with_context(|| format!("{}", config.path.display()))?;
+    artifacts::check_writable(&opts.out)?;
+    std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
+    let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
+    let mut r = Runner {
+        config,
+        run,
+        emulator,
+        paths: RunPaths { out: opts.out.clone() },
+        opts,
+        keys: BTreeMap::new(),
+        running_key: String::new(),
+        outcomes: Vec::new(),
+    };
+    // Every candidate's declaration is checked before anything runs.
+    let variants = r.variants()?;
+    for stage in plan(&r, &variants)? {
+        r.stage(stage.name, &stage.upstream, &stage.outputs, stage.body)?;
+    }
+    Ok(r.outcomes)
+}
+
+/// One stage of a study: what it needs, what it leaves, what it does.
+struct Stage<'a> {
+    name: &'static str,
+    upstream: Vec<&'static str>,
+    outputs: Vec<PathBuf>,
+    body: fn(&mut Runner<'a>) -> Result<()>,
+}
+
+/// The study's stages in order, from its config: the mock stage for the
+/// stand-in's mock data, refine with `[run.refine]`, candidates and diagnose
+/// when the study declares candidates.
+fn plan<'a>(r: &Runner<'a>, variants: &[variants::Variant]) -> Result<Vec<Stage<'a>>> {
+    let (run, paths) = (r.run, &r.paths);
+    let stage = |name, upstream: &[&'static str], outputs: Vec<PathBuf>, body: fn(&mut Runner<'a>) -> Result<()>| {
+        Stage { name, upstream: upstream.to_vec(), outputs, body }
+    };
+    let mut stages = vec![
+        stage(
+            "design",
+            &[],
+            vec![paths.design().join("design.parquet"), paths.validation_design().join("design.parquet")],
+            Runner::design,
+        ),
+        stage(
+            "simulate",
+            &["design"],
+            vec![paths.design().join("runs"), paths.validation_design().join("runs")],
+            Runner::simulate,
+        ),
+        stage("ingest", &["simulate"], vec![paths.training(), paths.validation()], Runner::ingest),
+        stage(
+            "emulator",
+            &["ingest"],
+            vec![paths.emulator().join("emulator.json"), paths.emulator().join("validation.json")],
+            Runner::emulator,
+        ),
+    ];
+    let mut data: Vec<&'static str> = vec!["emulator"];
+    if run.stand_in_study() {
+        stages.push(stage("mock", &[], vec![paths.measurements()], Runner::mock));
+        data.push("mock");
+    }
+    let mut fitted = data.clone();
+    let only = r.opts.stage.as_deref();
+    if run.refine.is_some() {
+        stages.push(stage("refine", &data, vec![r.refine_dir().join("rounds.json")], Runner::refine));
+        fitted.push("refine");
+    } else if only == Some("refine") {
+        bail!("--stage refine: {} has no [run.refine] table", r.config.path.display());
+    }
+    let assessed =
+        if run.stand_in_study() { paths.out.join("study.json") } else { paths.calibrate().join("cases.json") };
+    stages.push(stage("calibrate", &fitted, vec![assessed], Runner::calibrate));
+    stages.push(stage("report", &["calibrate"], vec![paths.out.join("report.html")], Runner::report));
+    if variants.is_empty() {
+        if let Some(s) = only.filter(|s| *s == "candidates" || *s == "diagnose") {
+            bail!(
+                "--stage {s}: {} declares no candidates ([[candidates]] or [run] candidates)",
+                r.config.path.display()
+            );
+        }
+        return Ok(stages);
+    }
+    let emulators = variants.iter().map(|v| paths.candidate(&v.name).join("emulator").join("emulator.json")).collect();
+    stages.push(stage("candidates", &["design"], emulators, Runner::candidates));
+    fitted.push("candidates");
+    let outputs = vec![paths.diagnose().join("diagnosis.json"), paths.diagnose().join("report.html")];
+    stages.push(stage("diagnose", &fitted, outputs, Runner::diagnose));
+    Ok(stages)
+}

@@ -1,0 +1,244 @@
+//! The candidates stage: each candidate physics as a variant of the study's
+//! simulator, built as the base model is built (a design over θ and the
+//! candidate's own parameters, runs through the same executor with the same
+//! retries, ingest, emulator, validation).
+//!
+//! A `[[candidates]]` table says how the simulator turns its physics on, in
+//! any of three ways: keys added to each point's parameter file
+//! (`parameter_file`), other values of the command's own placeholders
+//! (`placeholders`, declared in `[run.simulator] placeholders`), or a command
+//! of its own (`command`). Its `parameters` join θ in its design and are the
+//! priors of its fit. The stand-in's library (`[run] candidates`) gives
+//! variants of the same kind (`stand_in::library_variants`).
+
+use super::stages::*;
+use crate::base::artifacts::{self};
+use crate::base::config::{Config, ParamSpec};
+use crate::engine::design::{DesignParameter, DesignSpec};
+use crate::engine::emulator::family::CandidateDeclaration;
+use crate::engine::execute::{spec::placeholders_of, SimulatorSpec};
+use anyhow::{anyhow, bail, Context, Result};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// A candidate physics as a variant of the simulator.
+#[derive(Clone, Debug, serde::Serialize)]
+pub(super) struct Variant {
+    pub name: String,
+    /// Its `[[candidates]]` table for diagnose, `emulator` filled in.
+    pub declaration: toml::Table,
+    /// Its own parameters, as design dimensions.
+    pub parameters: Vec<DesignParameter>,
+    /// Keys added to (or replacing) the design's `fixed` keys in every parameter file.
+    pub parameter_file: BTreeMap<String, toml::Value>,
+    /// What runs at each point.
+    pub simulator: SimulatorSpec,
+    pub design_seed: u64,
+}
+
+impl Variant {
+    /// The design spec of its runs: the study's, with its parameters and keys added.
+    pub fn design_spec(&self, base: &DesignSpec) -> DesignSpec {
+        let mut spec = base.clone();
+        spec.parameters.extend(self.parameters.iter().cloned());
+        spec.fixed.extend(self.parameter_file.clone());
+        spec
+    }
+}
+
+/// A declared candidate's switch and parameters checked against the study's
+/// design and simulator, before anything runs; returns its simulator.
+pub(super) fn check_declaration(
+    c: &CandidateDeclaration,
+    spec: &DesignSpec,
+    base: &SimulatorSpec,
+) -> Result<SimulatorSpec> {
+    let folder_safe = !c.name.is_empty() && c.name.chars().all(|ch| ch.is_alphanumeric() || ch == '_' || ch == '-');
+    if !folder_safe {
+        bail!("name {:?}: use letters, digits, '_' and '-' (it names the variant's folder)", c.name);
+    }
+    if c.command.is_none() && c.placeholders.is_empty() && c.parameter_file.is_empty() && c.parameters.is_empty() {
+        bail!("says nothing of how the simulator turns this physics on: give `parameter_file` keys, `placeholders` values or a `command` of its own (and its `parameters`)");
+    }
+    let mut simulator = base.clone();
+    if let Some(command) = &c.command {
+        simulator.command = command.clone();
+    }
+    let used = placeholders_of(&simulator.command);
+    for (name, value) in &c.placeholders {
+        if !used.contains(name) {
+            bail!("placeholders: {{{name}}} is not in the command `{}`", simulator.command);
+        }
+        simulator.placeholders.insert(name.clone(), value.clone());
+    }
+    let design: Vec<&DesignParameter> = spec.parameters.iter().collect();
+    for key in c.parameter_file.keys() {
+        if let Some(p) = design.iter().find(|p| p.file_key() == key || &p.name == key) {
+            bail!("parameter_file: key '{key}' is the design parameter '{}' of every point; a candidate may not overwrite it", p.name);
+        }
+    }
+    if !c.parameter_file.is_empty() && !used.iter().any(|u| u == "param_file") {
+        bail!(
+            "parameter_file: the command `{}` does not read the parameter file (no {{param_file}})",
+            simulator.command
+        );
+    }
+    for (name, prior) in &c.parameters {
+        prior.check(&format!("[candidates.parameters.{name}]"))?;
+        if design.iter().any(|p| &p.name == name || p.file_key() == name) {
+            bail!("parameter '{name}' is already a design parameter of the model");
+        }
+        if !used.iter().any(|u| u == name || u == "param_file") {
+            bail!(
+                "parameter '{name}' is used nowhere: the command `{}` has neither {{{name}}} nor {{param_file}}",
+                simulator.command
+            );
+        }
+        if let Some(t) = prior.truth.filter(|t| !(prior.min..=prior.max).contains(t)) {
+            bail!("[candidates.parameters.{name}] truth {t} lies outside its prior [{}, {}]", prior.min, prior.max);
+        }
+    }
+    let names: Vec<String> = design.iter().map(|p| p.name.clone()).chain(c.parameters.keys().cloned()).collect();
+    simulator.validate(&names).context("its simulator")?;
+    Ok(simulator)
+}
+
+/// Each θ's prior must lie inside the range the design's runs cover: an
+/// emulator is not asked where it has never seen a run.
+pub(super) fn check_priors_inside_design(config: &Config, spec: &DesignSpec) -> Result<()> {
+    for (name, prior) in &config.parameters {
+        let Some(p) = spec.parameters.iter().find(|p| &p.name == name) else {
+            bail!(
+                "[parameters.{name}] is not a parameter of the design spec (it has {})",
+                spec.parameters.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", ")
+            );
+        };
+        if prior.min < p.min || prior.max > p.max {
+            bail!(
+                "[parameters.{name}]: the prior [{}, {}] reaches outside what the design's runs cover [{}, {}]",
+                prior.min,
+                prior.max,
+                p.min,
+                p.max
+            );
+        }
+    }
+    Ok(())
+}
+
+fn design_parameter(name: &str, prior: &ParamSpec) -> DesignParameter {
+    DesignParameter {
+        name: name.into(),
+        min: prior.min,
+        max: prior.max,
+        log: false,
+        key: String::new(),
+        units: prior.units.clone(),
+    }
+}
+
+impl Runner<'_> {
+    /// Diagnose works on the last (largest) observable set.
+    pub(super) fn diagnose_observables(&self) -> Vec<String> {
+        self.run.observable_sets.last().cloned().unwrap_or_default()
+    }
+
+    /// Every candidate of the study: the stand-in's library names, then the
+    /// declared `[[candidates]]`.
+    pub(super) fn variants(&self) -> Result<Vec<Variant>> {
+        let mut variants = self.library_variants()?;
+        if self.config.candidates.is_empty() {
+            return Ok(variants);
+        }
+        let spec = DesignSpec::load(&self.config.resolve(&self.run.design))?;
+        let base = self.simulator(false)?;
+        for (k, table) in self.config.candidates.iter().enumerate() {
+            let c: CandidateDeclaration = self.config.decode(table, "[candidates]")?;
+            let where_ = format!("{}: [[candidates]] {}", self.config.path.display(), c.name);
+            let simulator = check_declaration(&c, &spec, &base).context(where_.clone())?;
+            if variants.iter().any(|v| v.name == c.name) {
+                bail!("{where_}: a second candidate of that name");
+            }
+            let mut declaration = table.clone();
+            let emulator = absolute(&self.paths.candidate(&c.name).join("emulator"));
+            declaration.insert("emulator".into(), emulator.display().to_string().into());
+            variants.push(Variant {
+                name: c.name.clone(),
+                declaration,
+                parameters: c.parameters.iter().map(|(n, p)| design_parameter(n, p)).collect(),
+                parameter_file: c.parameter_file.clone(),
+                simulator,
+                design_seed: self.opts.seed.wrapping_add(1_000 * (self.run.candidates.len() + k + 1) as u64),
+            });
+        }
+        Ok(variants)
+    }
+
+    /// One variant emulator per candidate: its design, its runs through the
+    /// executor, ingest, training and 5-fold cross-validation.
+    pub(super) fn candidates(&mut self) -> Result<()> {
+        let spec_path = self.config.resolve(&self.run.design);
+        let spec_hash = artifacts::sha256_hex(
+            &std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?,
+        );
+        let spec = DesignSpec::load(&spec_path)?;
+        for v in self.variants()? {
+            let dir = self.paths.candidate(&v.name);
+            if dir.exists() {
+                std::fs::remove_dir_all(&dir)
+                    .with_context(|| format!("removing the previous variant {}", dir.display()))?;
+            }
+            let design_dir = dir.join("design");
+            let points = self.run.candidate_points.unwrap_or(self.run.points);
+            let label = format!("candidate {}", v.name);
+            self.write_design_for(
+                &v.design_spec(&spec),
+                &v.simulator,
+                &label,
+                &spec_hash,
+                points,
+                v.design_seed,
+                &design_dir,
+            )?;
+            self.run_design(&design_dir, &v.simulator, &label)?;
+            let training = dir.join("training.parquet");
+            self.ingest_design(&design_dir, &training)?;
+            self.train_variant(&v, &training, &dir)?;
+        }
+        Ok(())
+    }
+
+    /// Trains a variant's emulator on `training` into `dir/emulator` and
+    /// cross-validates it: a variant decides verdicts as much as the base
+    /// emulator does.
+    pub(super) fn train_variant(&self, v: &Variant, training: &Path, dir: &Path) -> Result<()> {
+        let mut settings = self
+            .emulator
+            .clone()
+            .ok_or_else(|| anyhow!("{}: the candidates stage needs an [emulator] table", self.config.path.display()))?;
+        settings.parameters.extend(v.parameters.iter().map(|p| p.name.clone()));
+        let command = format!("run {} --stage candidates ({})", self.config.path.display(), v.name);
+        let (_, r) = crate::engine::emulator::train_with_settings(
+            &settings,
+            &self.config.hash,
+            &command,
+            training,
+            None,
+            &dir.join("emulator"),
+            v.design_seed,
+        )?;
+        println!(
+            "  {}: {} points x {} outputs -> {} components ({})",
+            v.name,
+            r.n_points,
+            r.n_outputs,
+            r.n_components,
+            settings.parameters.join(", ")
+        );
+        let cv = crate::engine::emulator::validate::run(&dir.join("emulator"), None, 5, v.design_seed)?;
+        if let Some(cv) = &cv.cross_validation {
+            crate::engine::emulator::validate::print(&format!("  {}: 5-fold cross-validation", v.name), cv);
+        }
+        Ok(())
+    }
+}
