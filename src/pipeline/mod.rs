@@ -63,7 +63,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
             config.path.display()
         )
     })?;
-    let run: &RunConfig = &config.decode(table, "run")?;
+    let run: &RunConfig = &RunConfig::of(config, table)?;
     if let Some(s) = &opts.stage {
         if !STAGES.contains(&s.as_str()) {
             bail!("--stage {s}: unknown stage (use one of {})", STAGES.join(", "));

@@ -2,9 +2,11 @@
 
 use super::refine_rounds::RefineConfig;
 use crate::base::artifacts::{self};
+use crate::base::config::Config;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::systems::heavy_ion::{self, DeltaF};
+use std::path::Path;
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -136,7 +138,25 @@ impl RunConfig {
     }
 }
 
+/// `command` with `{config_dir}` replaced by the config's folder (quoted,
+/// absolute): a study's scripts can sit beside its config and be found from
+/// any working folder.
+pub(super) fn with_config_dir(command: &str, config: &Config) -> String {
+    let dir = config.path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let dir = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
+    command.replace("{config_dir}", &crate::engine::execute::spec::shell_quote(&dir.display().to_string()))
+}
+
 impl RunConfig {
+    /// The `[run]` table of `config`, its commands' `{config_dir}` filled in.
+    pub(super) fn of(config: &Config, table: &toml::Table) -> Result<RunConfig> {
+        let mut run: RunConfig = config.decode(table, "run")?;
+        if let Some(s) = run.simulator.as_mut() {
+            s.command = with_config_dir(&s.command, config);
+        }
+        Ok(run)
+    }
+
     /// A study on the stand-in's mock data (with its truth known), rather than on measurements.
     pub fn stand_in_study(&self) -> bool {
         self.mock_delta_f.is_some()

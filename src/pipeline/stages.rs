@@ -151,11 +151,11 @@ impl Runner<'_> {
                 "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "set": self.diagnose_observables(), "kernels": run.kernels, "seed": self.opts.seed})
             }
             "candidates" => {
-                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "candidates": run.candidates, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
+                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "variants": serde_json::to_value(self.variants()?)?, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
                 "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed})
             }
             "diagnose" => {
-                serde_json::json!({"config": self.config.hash, "observables": self.diagnose_observables(), "seed": self.opts.seed})
+                serde_json::json!({"config": self.config.hash, "data": self.data_hash()?, "observables": self.diagnose_observables(), "seed": self.opts.seed})
             }
             _ => serde_json::json!({"config": self.analysis_hash()?}),
         })

@@ -153,7 +153,8 @@ impl Runner<'_> {
         let spec = DesignSpec::load(&self.config.resolve(&self.run.design))?;
         let base = self.simulator(false)?;
         for (k, table) in self.config.candidates.iter().enumerate() {
-            let c: CandidateDeclaration = self.config.decode(table, "[candidates]")?;
+            let mut c: CandidateDeclaration = self.config.decode(table, "[candidates]")?;
+            c.command = c.command.map(|command| super::run_config::with_config_dir(&command, self.config));
             let where_ = format!("{}: [[candidates]] {}", self.config.path.display(), c.name);
             let simulator = check_declaration(&c, &spec, &base).context(where_.clone())?;
             if variants.iter().any(|v| v.name == c.name) {

@@ -28,6 +28,7 @@ pub struct SimulatorSpec {
     /// `{point}` (the folder the point's outputs go to), `{param_file}` (its
     /// iEBE-MUSIC parameter file), `{id}`, `{design}` (design.parquet),
     /// `{mdpipe}` (this executable), `{seed}` (a seed of the point's own),
+    /// `{config_dir}` (the config's folder, in `mdpipe run`),
     /// `{<parameter>}` for each design parameter and `{<name>}` for each of
     /// `placeholders`.
     pub command: String,
