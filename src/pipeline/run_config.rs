@@ -6,9 +6,9 @@ use crate::base::config::Config;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::systems::heavy_ion::{self, DeltaF};
-use std::path::Path;
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
+use std::path::Path;
 use std::path::PathBuf;
 
 /// The `[run]` table of an analysis config.

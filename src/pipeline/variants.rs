@@ -243,3 +243,70 @@ impl Runner<'_> {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec() -> DesignSpec {
+        toml::from_str(
+            "name = \"d\"\n[[parameter]]\nname = \"activity\"\nmin = 1.0\nmax = 2.0\n[[parameter]]\nname = \"half_life\"\nmin = 1.0\nmax = 4.0\nkey = \"T_half\"\n",
+        )
+        .unwrap()
+    }
+
+    fn simulator() -> SimulatorSpec {
+        toml::from_str(
+            "command = \"sim {param_file} {point} --background {background}\"\noutput = \"table\"\nplaceholders = { background = \"off\" }",
+        )
+        .unwrap()
+    }
+
+    fn refusal(candidate: &str) -> String {
+        let c: CandidateDeclaration = toml::from_str(candidate).unwrap();
+        format!("{:#}", check_declaration(&c, &spec(), &simulator()).expect_err("accepted"))
+    }
+
+    #[test]
+    fn bad_declarations_are_refused_with_the_field_at_fault() {
+        let cases = [
+            // A placeholder the command does not have.
+            ("name = \"a\"\nplaceholders = { radiation = \"on\" }", "{radiation} is not in the command"),
+            // A key that would overwrite a design parameter, by name or by file key.
+            ("name = \"a\"\nparameter_file = { T_half = 3 }", "design parameter 'half_life'"),
+            ("name = \"a\"\nparameter_file = { activity = 3 }", "design parameter 'activity'"),
+            // A parameter the simulator never sees.
+            (
+                "name = \"a\"\ncommand = \"sim {point} --background {background}\"\n[parameters.eps]\nmin = 0.0\nmax = 1.0",
+                "parameter 'eps' is used nowhere",
+            ),
+            // Parameter-file keys with a command that reads no parameter file.
+            ("name = \"a\"\ncommand = \"sim {point} {background}\"\nparameter_file = { x = 1 }", "does not read the parameter file"),
+            // Nothing said of how the physics is switched on.
+            ("name = \"a\"", "says nothing of how"),
+            // A parameter that is θ already, and a bad prior.
+            ("name = \"a\"\n[parameters.activity]\nmin = 0.0\nmax = 1.0", "already a design parameter"),
+            ("name = \"a\"\n[parameters.eps]\nmin = 1.0\nmax = 0.0", "min < max"),
+            ("name = \"a\"\n[parameters.eps]\nmin = 0.0\nmax = 1.0\ntruth = 2.0", "outside its prior"),
+            ("name = \"a b\"\nplaceholders = { background = \"on\" }", "name \"a b\""),
+        ];
+        for (candidate, expected) in cases {
+            let msg = refusal(candidate);
+            assert!(msg.contains(expected), "{candidate:?}: expected {expected:?} in {msg:?}");
+        }
+        let good: CandidateDeclaration = toml::from_str(
+            "name = \"bg\"\nplaceholders = { background = \"on\" }\n[parameters.rate]\nmin = 0.0\nmax = 1.0",
+        )
+        .unwrap();
+        let s = check_declaration(&good, &spec(), &simulator()).unwrap();
+        assert_eq!(s.placeholders["background"], "on");
+    }
+
+    #[test]
+    fn a_prior_beyond_the_design_is_refused_before_any_run() {
+        let text = "name = \"t\"\n[model]\nkind = \"emulator\"\n[data]\nmeasurements = \"d.csv\"\n[parameters.activity]\nmin = 0.5\nmax = 2.0\n[parameters.half_life]\nmin = 1.0\nmax = 4.0\n";
+        let config: Config = toml::from_str(text).unwrap();
+        let msg = format!("{:#}", check_priors_inside_design(&config, &spec()).unwrap_err());
+        assert!(msg.contains("[parameters.activity]") && msg.contains("[1, 2]"), "{msg}");
+    }
+}

@@ -15,11 +15,11 @@ fn mdpipe() -> Command {
     Command::new(env!("CARGO_BIN_EXE_mdpipe"))
 }
 
-/// A toy simulator, y(x) = a + b x² at six x: it fails for the ids in
+/// A toy simulator, y(x) = a + b x² (+ c x³, a candidate's term) at six x: it fails for the ids in
 /// `$FAIL` while `$marks/down` exists, sleeps past any limit for `$HANG`, fails the first time for
 /// `$FLAKY` (a marker file remembers), and otherwise writes outputs.csv.
 const SIMULATOR: &str = r#"#!/bin/bash
-id=$1; a=$2; b=$3; out=$4; marks=$5
+id=$1; a=$2; b=$3; out=$4; marks=$5; c=${6:-0}
 for f in $FAIL; do [ "$id" = "$f" ] && [ -e "$marks/down" ] && { echo "solver diverged at design point $id" >&2; exit 3; }; done
 for h in $HANG; do [ "$id" = "$h" ] && sleep 60; done
 if [ "$id" = "$FLAKY" ] && [ ! -e "$marks/flaky_$id" ]; then
@@ -29,9 +29,20 @@ sleep "$NAP"
 {
   echo "observable,x,value"
   for x in 0.1 0.3 0.5 0.7 0.9 1.1; do
-    awk -v a="$a" -v b="$b" -v x="$x" 'BEGIN { printf "y,%s,%.12g\n", x, a + b * x * x }'
+    awk -v a="$a" -v b="$b" -v c="$c" -v x="$x" 'BEGIN { printf "y,%s,%.12g\n", x, a + b * x * x + c * x * x * x }'
   done
 } > "$out/outputs.csv"
+"#;
+
+/// A candidate with a command of its own: the toy with a cubic term c x³.
+const CUBIC: &str = r#"
+[[candidates]]
+name = "cubic"
+description = "a cubic term c x^3"
+command = "FAIL= HANG= FLAKY= NAP=0 bash {config_dir}/sim.sh {id} {a} {b} {point} {config_dir}/marks {c}"
+[candidates.parameters.c]
+min = 0.0
+max = 1.0
 "#;
 
 /// A study of the toy simulator: 16 training and 4 validation points over
@@ -211,7 +222,7 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
     assert_eq!(design_ids(&out.join("training.parquet")), vec![0, 1, 2, 3, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14, 15]);
 }
 
-fn slurm_answers() -> bool {
+pub(crate) fn slurm_answers() -> bool {
     Command::new("sinfo")
         .args(["-h", "-o", "%T"])
         .output()
@@ -249,7 +260,7 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
     let config = write_study(
         &dir,
         "FAIL= HANG= FLAKY=5 NAP=1",
-        "time_limit = \"2m\"\nretries = 2\nparallel = 2\nslurm = { poll_seconds = 1.0 }",
+        &("time_limit = \"2m\"\nretries = 2\nparallel = 2\nslurm = { poll_seconds = 1.0 }\n\n".to_string() + CUBIC),
     );
     let slurm = dir.join("slurm");
     assert!(run(&config, &slurm, &["--stage", "design"]).status.success());
@@ -339,6 +350,12 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
         }
     }
     assert!(slurm.join("calibrate/cases.md").exists() && slurm.join("report.html").exists());
+    // The candidate's variant: its runs through Slurm equal the local ones, and so does the diagnosis.
+    tables_equal(&slurm.join("candidates/cubic/training.parquet"), &local.join("candidates/cubic/training.parquet"));
+    let (a, b) = (json(&slurm.join("diagnose/diagnosis.json")), json(&local.join("diagnose/diagnosis.json")));
+    assert_eq!(a["verdict"], b["verdict"]);
+    assert_eq!(a["candidates"], b["candidates"]);
+    assert_eq!(a["verdict"]["best"], "none", "no cubic term in the data: {:#}", a["verdict"]);
 }
 
 /// An array that can never start (held here; a partition limit it can never
@@ -386,4 +403,56 @@ fn a_slurm_array_that_cannot_start_stops_with_the_reason() {
     let _ = Command::new("scancel").arg(&job).output();
     assert!(!status.success(), "a held array must stop the run");
     assert!(stderr.contains("JobHeldUser") && stderr.contains(&format!("scancel {job}")), "{stderr}");
+}
+
+/// `scancel` of a running array: the pending tasks never started, so they
+/// use none of their attempts; mdpipe stops saying so, and run again it
+/// submits them and every point ends with exactly the attempts it made.
+#[test]
+fn cancelled_pending_tasks_use_no_attempt() {
+    if !slurm_answers() {
+        assert!(std::env::var("CI").is_err(), "CI=true but no Slurm cluster answers: .ci/run starts one");
+        eprintln!("SKIPPED cancelled_pending_tasks_use_no_attempt: no Slurm cluster answers here");
+        return;
+    }
+    let dir = tmpdir("slurm-cancel");
+    let config = write_study(
+        &dir,
+        "FAIL= HANG= FLAKY= NAP=3",
+        "time_limit = \"2m\"\nretries = 0\nparallel = 1\nslurm = { poll_seconds = 1.0 }",
+    );
+    let out = dir.join("out");
+    assert!(run(&config, &out, &["--stage", "design"]).status.success());
+    let child = mdpipe()
+        .arg("run")
+        .arg(&config)
+        .args(["--seed", "5", "--out"])
+        .arg(&out)
+        .args(["--stage", "simulate", "--executor", "slurm"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let state = out.join("design/runs/.attempts/slurm.json");
+    let start = Instant::now();
+    while !state.exists() {
+        assert!(start.elapsed() < Duration::from_secs(120), "no array submitted in 120 s");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    let job = json(&state)["submissions"][0]["job_id"].as_str().unwrap().to_string();
+    assert!(Command::new("scancel").arg(&job).status().unwrap().success());
+    let o = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "mdpipe went on after the array was cancelled");
+    assert!(stderr.contains("left the queue without starting"), "{stderr}");
+
+    // Run again: with no retries allowed, every point that never started still runs.
+    let o = run(&config, &out, &["--stage", "simulate", "--executor", "slurm"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = json(&out.join("design/runs/execution.json"));
+    let failed = report["failed"].as_array().unwrap();
+    // Tasks running at the scancel were killed: those count (at most one, parallel = 1).
+    assert!(failed.len() <= 1, "more failures than tasks running at the scancel: {report:#}");
+    assert_eq!(report["succeeded"].as_u64().unwrap() as usize + failed.len(), 16, "{report:#}");
 }

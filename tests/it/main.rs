@@ -19,3 +19,4 @@ mod pipeline;
 mod readers;
 mod report;
 mod sbc;
+mod your_simulator;

@@ -194,6 +194,27 @@ pub struct Improvement {
     /// Empty for emulated models and for parameters the data cannot identify.
     #[serde(default)]
     pub information_limit: BTreeMap<String, f64>,
+    /// The parameters' true values, when the config knows them (mock data).
+    #[serde(default)]
+    pub truth: BTreeMap<String, f64>,
+}
+
+impl Improvement {
+    /// Whether the repaired fit's and the MD fit's 95% intervals of `name`
+    /// cover its true value, when the config knows it: a narrower interval
+    /// that misses the truth is no repair, a wider one that covers it may be.
+    pub fn truth_coverage(&self, name: &str) -> String {
+        let Some(&t) = self.truth.get(name) else { return String::new() };
+        let covers =
+            |f: Option<&FitFigures>| f.and_then(|f| f.parameters.get(name)).map(|p| p.q025 <= t && t <= p.q975);
+        match (covers(self.after.first()), covers(self.before.get(1))) {
+            (Some(true), Some(false)) => format!("; it covers the truth {t}, which MD alone missed"),
+            (Some(true), Some(true)) => format!("; both cover the truth {t}"),
+            (Some(false), Some(true)) => format!("; it misses the truth {t}, which MD alone covered"),
+            (Some(false), Some(false)) => format!("; both miss the truth {t}"),
+            _ => String::new(),
+        }
+    }
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -420,7 +441,8 @@ pub fn run(
             })
             .collect();
         let information_limit = information_limit(&winner.problem, &winner.calibration, &md);
-        improvement = Some(Improvement { before, after, interval_narrowing, information_limit });
+        let truth = winner.problem.analysis.truth_values();
+        improvement = Some(Improvement { before, after, interval_narrowing, information_limit, truth });
         repaired_md = Some(rep_md);
     }
     let diagnosis = Diagnosis {
@@ -791,7 +813,7 @@ pub fn print(d: &Diagnosis) {
                 .map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)"))
                 .unwrap_or_default();
             let change = if *r >= 1.0 { format!("{r:.1}x narrower") } else { format!("{:.1}x wider", 1.0 / r) };
-            println!("  95% interval of {n}: {change} than with MD alone{limit}");
+            println!("  95% interval of {n}: {change} than with MD alone{limit}{}", imp.truth_coverage(n));
         }
     }
 }

@@ -122,6 +122,11 @@ pub fn has_ended(runs: &Path, id: i64, tag: &str) -> bool {
     attempt_path(runs, id, tag, ".exit").exists()
 }
 
+/// Whether an attempt's script ever started (it takes its lock first thing).
+pub fn started(runs: &Path, id: i64, tag: &str) -> bool {
+    attempt_path(runs, id, tag, ".lock").exists()
+}
+
 /// Whether an attempt's script still holds its lock (it is running on this machine).
 pub fn is_running_here(runs: &Path, id: i64, tag: &str) -> bool {
     let Ok(f) = std::fs::OpenOptions::new().write(true).open(attempt_path(runs, id, tag, ".lock")) else {

@@ -69,16 +69,26 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
                 }
             }
         }
+        let mut never_started = Vec::new();
         if let Some(last) = state.submissions.last() {
             let tag = format!("j{}", last.job_id);
             for &id in &last.ids {
                 let still_queued = live.iter().any(|(t, _)| *t == id);
-                if !still_queued && !done(id) && !attempt::has_ended(&job.runs, id, &tag) {
-                    attempt::mark_lost(&job.runs, id, &tag)?;
-                    seen.insert((id, tag.clone()));
-                    tracker.ended(id, attempt::settle(&job.runs, id, &tag, job.spec.output)?);
+                if still_queued || done(id) || attempt::has_ended(&job.runs, id, &tag) {
+                    continue;
                 }
+                if !attempt::started(&job.runs, id, &tag) {
+                    // Cancelled while pending (scancel): no attempt was made.
+                    never_started.push(id);
+                    continue;
+                }
+                attempt::mark_lost(&job.runs, id, &tag)?;
+                seen.insert((id, tag.clone()));
+                tracker.ended(id, attempt::settle(&job.runs, id, &tag, job.spec.output)?);
             }
+        }
+        if !never_started.is_empty() && live.is_empty() {
+            return stop_cancelled(&mut state, &path, &never_started);
         }
         if !live.is_empty() {
             let job_id = state.submissions.last().map(|s| s.job_id.clone()).unwrap_or_default();
@@ -97,6 +107,21 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
         state.submissions.push(Submission { job_id, ids: again });
         artifacts::write_json_atomic(&path, &state)?;
     }
+}
+
+/// Tasks that left the queue without starting were cancelled (scancel), not
+/// failed: they use no attempt. mdpipe stops, saying so, and forgets them
+/// in its state, so that running it again submits them afresh.
+fn stop_cancelled(state: &mut State, path: &Path, ids: &[i64]) -> Result<()> {
+    let job_id = state.submissions.last().map(|s| s.job_id.clone()).unwrap_or_default();
+    if let Some(last) = state.submissions.last_mut() {
+        last.ids.retain(|id| !ids.contains(id));
+    }
+    artifacts::write_json_atomic(path, state)?;
+    bail!(
+        "{} task(s) of array job {job_id} left the queue without starting (cancelled, e.g. by scancel): points {ids:?} did not run and used none of their attempts; run the same command again to submit them",
+        ids.len()
+    )
 }
 
 /// Submits `ids` as one array; returns the array's job id.
