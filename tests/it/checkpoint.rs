@@ -63,15 +63,59 @@ fn resumed_smc_equals_uninterrupted_smc_bit_for_bit() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The ensemble sampler runs through the same driver: stopped after every
+/// step and resumed each time, it ends with the draws of an uninterrupted run.
+#[test]
+fn resumed_ensemble_equals_uninterrupted_ensemble_bit_for_bit() {
+    use mdpipe::calibrate::ensemble::{Ensemble, EnsembleSettings};
+    let p = problem();
+    let ensemble = Ensemble::new(EnsembleSettings { walkers: 16, steps: 30, burn: 10, thin: 1, stretch: 2.0 });
+    let whole = ensemble.run(&p.prior, &p.likelihood, 9, &Silent);
+    let dir = std::env::temp_dir().join(format!("mdpipe-checkpoint-ensemble-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut stops = 0;
+    let resumed = loop {
+        match ensemble.run_checkpointed(&p.prior, &p.likelihood, 9, &Silent, Some(&stop_every_step(&dir, "e"))) {
+            Ok(out) => break out,
+            Err(stopped) => {
+                stops += 1;
+                assert!(stopped.dir.join("ensemble.json").exists());
+                assert!(stops < 100, "no progress across resumes");
+            }
+        }
+    };
+    assert_eq!(stops, 39, "one stop per step before the last");
+    for (a, b) in resumed.chains.chains.iter().zip(&whole.chains.chains) {
+        assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()), "draws differ after resuming");
+    }
+    assert_eq!(resumed.acceptance.to_bits(), whole.acceptance.to_bits());
+    assert_eq!(resumed.likelihood_evaluations, whole.likelihood_evaluations);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn calibrate_time_limit_stops_and_the_same_command_resumes() {
+    time_limit_stops_and_resumes(&[]);
+}
+
+#[test]
+fn calibrate_ensemble_time_limit_stops_and_the_same_command_resumes() {
+    time_limit_stops_and_resumes(&["--sampler", "ensemble"]);
+}
+
+/// `mdpipe calibrate --time-limit 0` (with `sampler`'s options) stops after
+/// its first step with the state saved; the same command without the limit
+/// resumes and ends with the draws of a run never stopped.
+fn time_limit_stops_and_resumes(sampler: &[&str]) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let out = std::env::temp_dir().join(format!("mdpipe-time-limit-{}", std::process::id()));
+    let tag = sampler.last().unwrap_or(&"smc").to_string();
+    let out = std::env::temp_dir().join(format!("mdpipe-time-limit-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let cmd = |extra: &[&str], dir: &Path| {
         let mut args = vec!["calibrate", "pipeline/ball_drop.toml", "--kernel", "II", "--seed", "4", "--out"];
         let d = dir.display().to_string();
         args.push(&d);
+        args.extend_from_slice(sampler);
         args.extend_from_slice(extra);
         std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe")).args(&args).current_dir(root).output().unwrap()
     };

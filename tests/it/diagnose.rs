@@ -666,37 +666,96 @@ fn heavy_ion_blind_effect(k: usize, rng: &mut Xoshiro256PlusPlus) -> HeavyIonBli
     HeavyIonBlind { params, delta_f, hard_tail, expected }
 }
 
-/// Mock data from the smooth stand-in (with `b`'s effect) in the analysis
-/// bins, with the real iEBE-MUSIC table's errors (relative for spectra,
-/// absolute for v_n) and Gaussian noise; also the noise-free values.
+/// The noise-free values of the smooth stand-in (with `b`'s effect) in the
+/// analysis bins, with the real iEBE-MUSIC table's errors: what the size of
+/// an effect is measured on.
+fn smooth_truth(b: &HeavyIonBlind) -> Vec<mdpipe::artifacts::Measurement> {
+    use mdpipe::systems::heavy_ion::events::SmoothTables;
+    let edges = mdpipe::ingest::IngestSettings::default().pt_edges;
+    let truth = SmoothTables::new(&b.params, b.delta_f).expected(&edges);
+    let mut clean = Vec::new();
+    for (obs, values) in &truth {
+        for (i, &v) in values.iter().enumerate() {
+            let x = 0.5 * (edges[i] + edges[i + 1]);
+            let v = v * hard_tail_factor(b, obs, x);
+            clean.push(mdpipe::artifacts::Measurement::new(obs, x, v, data_error(obs, x, v)));
+        }
+    }
+    clean
+}
+
+/// `smooth_truth` with Gaussian noise of its errors: data whose only
+/// randomness is the measurement's, and the noise-free values.
 fn smooth_mock(
     b: &HeavyIonBlind,
     rng: &mut Xoshiro256PlusPlus,
 ) -> (Vec<mdpipe::artifacts::Measurement>, Vec<mdpipe::artifacts::Measurement>) {
-    use mdpipe::systems::heavy_ion::events::SmoothTables;
     use rand_distr::{Distribution, StandardNormal};
-    let edges = mdpipe::ingest::IngestSettings::default().pt_edges;
-    let truth = SmoothTables::new(&b.params, b.delta_f).expected(&edges);
-    let (mut data, mut clean) = (Vec::new(), Vec::new());
-    for (obs, values) in &truth {
-        for (i, &v) in values.iter().enumerate() {
-            let x = 0.5 * (edges[i] + edges[i + 1]);
-            let tail = 1.0 + b.hard_tail * x.powi(3);
-            let v = if obs.ends_with("spectrum") { v * tail } else { v / tail };
-            let e = data_error(obs, x, v);
+    let clean = smooth_truth(b);
+    let data = clean
+        .iter()
+        .map(|m| {
             let z: f64 = StandardNormal.sample(rng);
-            clean.push(mdpipe::artifacts::Measurement::new(obs, x, v, e));
-            data.push(mdpipe::artifacts::Measurement::new(obs, x, v + e * z, e));
-        }
-    }
+            mdpipe::artifacts::Measurement::new(&m.observable, m.x, m.value + m.error * z, m.error)
+        })
+        .collect();
     (data, clean)
+}
+
+/// The out-of-library hard tail: spectra × (1 + a pT³), v_n diluted by it.
+fn hard_tail_factor(b: &HeavyIonBlind, obs: &str, x: f64) -> f64 {
+    let tail = 1.0 + b.hard_tail * x.powi(3);
+    if obs.ends_with("spectrum") {
+        tail
+    } else {
+        1.0 / tail
+    }
+}
+
+/// Events of the stand-in per blind data set: the study's mock statistics,
+/// whose errors are 0.4–2.8× the reference tables'.
+const BLIND_EVENTS: usize = 6000;
+
+/// Blind data as real data are made: event-by-event runs of the stand-in
+/// with `b`'s physics on (the hard tail applied to what was measured),
+/// ingested with jackknife errors and the bins' covariance over the same
+/// events. Returns the measurements and the covariance file.
+fn event_mock(b: &HeavyIonBlind, names: &[String], seed: u64, dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    use mdpipe::systems::heavy_ion::{self, events::Layout};
+    let runs = dir.join("runs");
+    let _ = std::fs::remove_dir_all(&runs);
+    std::fs::create_dir_all(&runs).unwrap();
+    let oversample = heavy_ion::events::DEFAULT_OVERSAMPLE;
+    heavy_ion::simulate_runs(&[(0, b.params)], b.delta_f, BLIND_EVENTS, oversample, seed, Layout::Hdf5, &runs).unwrap();
+    let (mut ingested, _) =
+        mdpipe::ingest::ingest_runs(&runs, None, &mdpipe::ingest::IngestSettings::default()).unwrap();
+    ingested.rows.retain(|r| names.contains(&r.observable));
+    let factor = |obs: &str, x: f64| hard_tail_factor(b, obs, x);
+    let data: Vec<mdpipe::artifacts::Measurement> = ingested
+        .rows
+        .iter()
+        .map(|r| {
+            let f = factor(&r.observable, r.x);
+            mdpipe::artifacts::Measurement::new(&r.observable, r.x, r.value * f, r.error * f)
+        })
+        .collect();
+    let mut covariance = mdpipe::ingest::single_point_covariance(&ingested).unwrap();
+    for e in covariance.iter_mut() {
+        e.covariance *= factor(&e.observable_a, e.x_a) * factor(&e.observable_b, e.x_b);
+    }
+    let (data_path, cov_path) = (dir.join("data.csv"), dir.join("covariance.csv"));
+    mdpipe::artifacts::write_measurements(&data_path, &data, None).unwrap();
+    mdpipe::base::covariance::write_covariance_csv(&cov_path, &covariance).unwrap();
+    (data_path, cov_path)
 }
 
 /// The heavy-ion blind campaign: 25 seeded data sets (5 each: no effect, the
 /// three library candidates at weak to strong size, an out-of-library hard
-/// tail) and 15 more null ones, smooth stand-in values with the real
-/// iEBE-MUSIC table's errors and Gaussian noise, diagnosed against emulators
-/// of the stand-in. `pick` chooses which are diagnosed, as in `ball_drop_blind`.
+/// tail) and 15 more null ones, each made as real data are, by event-by-event
+/// runs of the stand-in with the physics on, ingested (`event_mock`), and
+/// diagnosed against emulators of the stand-in. An effect's size is measured
+/// on the noise-free smooth values with the real table's errors. `pick`
+/// chooses which are diagnosed, as in `ball_drop_blind`.
 fn heavy_ion_blind(tag: &str, pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str, String, f64)> {
     use mdpipe::model::Simulator;
     let dir = std::env::temp_dir().join(format!("mdpipe-blind-hi-{tag}-{}", std::process::id()));
@@ -713,7 +772,7 @@ fn heavy_ion_blind(tag: &str, pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&
     let mut rows = Vec::new();
     for k in 0..25 + EXTRA_NULLS {
         let b = heavy_ion_blind_effect(if k < 25 { k } else { 0 }, &mut rng);
-        let (data, clean) = smooth_mock(&b, &mut rng);
+        let clean = smooth_truth(&b);
         // Noise-free size of the effect: the largest |truth − best f_eq fit|/σ,
         // the fit a χ² grid search over (η/s, ε_sw) on the model emulator.
         let xs: Vec<f64> = edges.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
@@ -739,17 +798,10 @@ fn heavy_ion_blind(tag: &str, pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&
         if !pick(b.expected, best.1) {
             continue;
         }
-        let path = dir.join(format!("blind_{k}.csv"));
-        mdpipe::artifacts::write_measurements(&path, &data, None).unwrap();
-        let run = diagnose::run(
-            &cfg,
-            &Overrides { data: Some(path), ..Default::default() },
-            200 + k as u64,
-            &settings,
-            None,
-            &Silent,
-        )
-        .unwrap();
+        let case = dir.join(format!("blind_{k}"));
+        let (data, covariance) = event_mock(&b, &names, 5_000 + k as u64, &case);
+        let analysis = cfg.with_data_and_covariance(&data, &covariance);
+        let run = diagnose::run(&analysis, &Overrides::default(), 200 + k as u64, &settings, None, &Silent).unwrap();
         println!(
             "  data set {k:>2}: concealed {:<20} verdict {:<20} noise-free mismatch {:.1}σ",
             b.expected, run.diagnosis.verdict.best, best.1

@@ -120,6 +120,12 @@ impl Analysis {
         Analysis { data: path.to_path_buf(), covariance: None, ..self.clone() }
     }
 
+    /// The same analysis on other measurements with their own covariance
+    /// beyond the errors (real data's, e.g. a jackknife over their events).
+    pub fn with_data_and_covariance(&self, path: &Path, covariance: &Path) -> Analysis {
+        Analysis { data: path.to_path_buf(), covariance: Some(covariance.to_path_buf()), ..self.clone() }
+    }
+
     /// Bounds of a discrepancy hyperparameter.
     pub fn hyper_bounds(&self, hyper: &str) -> Result<[f64; 2]> {
         self.hyper_bounds.get(hyper).copied().ok_or_else(|| {

@@ -120,6 +120,20 @@ pub mod f64_bits {
     }
 }
 
+/// `#[serde(with = "f64_bits_rows")]`: a `Vec<Vec<f64>>` stored as bit patterns.
+pub mod f64_bits_rows {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &[Vec<f64>], s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(v.iter().map(|row| row.iter().map(|x| x.to_bits()).collect::<Vec<u64>>()))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<f64>>, D::Error> {
+        let rows = Vec::<Vec<u64>>::deserialize(d)?;
+        Ok(rows.into_iter().map(|row| row.into_iter().map(f64::from_bits).collect()).collect())
+    }
+}
+
 /// `#[serde(with = "f64_bit")]`: one `f64` stored as its bit pattern.
 pub mod f64_bit {
     use serde::{Deserialize, Deserializer, Serializer};

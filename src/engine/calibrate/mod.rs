@@ -13,6 +13,7 @@ pub mod diagnostics;
 pub mod ensemble;
 pub mod guard;
 pub mod joint;
+pub mod kernel;
 pub mod likelihood;
 pub mod prior;
 pub mod settings;
@@ -100,10 +101,11 @@ impl LogLikelihood for MdLikelihood {
 
 /// Posterior draws grouped into chains (walkers for the ensemble sampler,
 /// replicates for SMC). Each chain is row-major `draws × dim`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Chains {
     pub names: Vec<String>,
     pub dim: usize,
+    #[serde(with = "checkpoint::f64_bits_rows")]
     pub chains: Vec<Vec<f64>>,
 }
 
@@ -382,7 +384,7 @@ pub fn run_checkpointed(
     );
     let sampled = match problem.sampler {
         SamplerKind::Smc => run_smc(problem, seed, observer, checkpoint, &label)?,
-        SamplerKind::Ensemble => run_ensemble(problem, seed, observer, &label),
+        SamplerKind::Ensemble => run_ensemble(problem, seed, observer, checkpoint, &label)?,
     };
     let wall = start.elapsed().as_secs_f64();
     let jitter = crate::engine::gp::jitter_events() - jitter_before;
@@ -418,13 +420,26 @@ fn run_smc(
     Ok(Sampled { evidence: Some((out.log_evidence, out.log_evidence_err)), chains: out.chains, details, evaluations })
 }
 
-fn run_ensemble(problem: &Problem, seed: u64, observer: &dyn Observer, label: &str) -> Sampled {
+fn run_ensemble(
+    problem: &Problem,
+    seed: u64,
+    observer: &dyn Observer,
+    checkpoint: Option<&checkpoint::Checkpointing>,
+    label: &str,
+) -> Result<Sampled> {
     let settings = problem.analysis.sampler.ensemble.clone();
     observer.begin(&format!("ensemble {label}"), (settings.burn + settings.steps) as u64);
-    let out = ensemble::Ensemble::new(settings).run(&problem.prior, &problem.likelihood, seed, observer);
+    let out = ensemble::Ensemble::new(settings).run_checkpointed(
+        &problem.prior,
+        &problem.likelihood,
+        seed,
+        observer,
+        checkpoint,
+    );
     observer.end();
+    let out = out?;
     let details = summary::SamplerDetails::Ensemble { walkers: out.chains.chains.len(), acceptance: out.acceptance };
-    Sampled { chains: out.chains, evidence: None, details, evaluations: out.likelihood_evaluations }
+    Ok(Sampled { chains: out.chains, evidence: None, details, evaluations: out.likelihood_evaluations })
 }
 
 /// Writes `posterior.parquet`, `summary.json` and `predictions.parquet` into `dir`.

@@ -21,6 +21,7 @@
 //! that copies of one particle that the moves failed to separate lower the ESS.
 
 use super::checkpoint::{f64_bit, f64_bits, Checkpointing, Stopped};
+use super::kernel::{drive, End, SamplerKernel};
 use super::prior::UniformPrior;
 use super::{Chains, LogLikelihood, TermStructure};
 use crate::base::progress::Observer;
@@ -153,11 +154,12 @@ impl Smc {
         let k = self.settings.replicates.max(1);
         let kernel = Kernel::new(&self.settings, prior, likelihood);
         let started = std::time::Instant::now();
-        let results: Vec<ReplicateEnd> = (0..k)
+        let results: Vec<End<ReplicateOutput>> = (0..k)
             .into_par_iter()
             .map(|r| {
                 let rseed = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(r as u64 * 0xD1B5_4A32_D192_ED03 + 1);
-                kernel.run_replicate(rseed, observer, ck.map(|c| (c, r)))
+                let name = format!("replicate_{r}");
+                drive(&kernel, rseed, observer, ck.map(|c| (c, name.as_str())))
             })
             .collect();
         let stopped = |reason| Stopped {
@@ -168,9 +170,9 @@ impl Smc {
         let mut replicates = Vec::with_capacity(k);
         for (r, end) in results.into_iter().enumerate() {
             match end {
-                ReplicateEnd::Done(out) => replicates.push(out),
-                ReplicateEnd::Stuck(why) => return Err(stopped(Some(format!("replicate {r}: {why}")))),
-                ReplicateEnd::OutOfTime => return Err(stopped(None)),
+                End::Done(out) => replicates.push(out),
+                End::Stuck(why) => return Err(stopped(Some(format!("replicate {r}: {why}")))),
+                End::OutOfTime => return Err(stopped(None)),
             }
         }
         // Pooled estimate Ẑ = mean_k Ẑ_k; its relative variance is Σ_k v_k / K²
@@ -605,13 +607,6 @@ fn initial_cloud(
 /// (typical runs take 10–60).
 pub const MAX_TEMPERING_STEPS: usize = 1000;
 
-/// How a replicate ended.
-enum ReplicateEnd {
-    Done(ReplicateOutput),
-    OutOfTime,
-    Stuck(String),
-}
-
 /// One replicate's whole state between tempering steps (after BlackJAX's
 /// tempered SMC state): everything a checkpoint must store to resume it.
 #[derive(Clone, serde::Serialize, serde::Deserialize)]
@@ -634,6 +629,9 @@ struct ReplicateState {
     steps: Vec<SmcStep>,
     evaluations: u64,
     term_evaluations: u64,
+    /// The weights at β = 1, set by the step that reaches it.
+    #[serde(default, with = "f64_bits")]
+    final_weights: Vec<f64>,
 }
 
 /// What stays fixed while a replicate tempers: the target and the settings
@@ -649,6 +647,34 @@ struct Kernel<'a> {
     max_steps: usize,
     final_steps: usize,
     target_ess: f64,
+}
+
+impl SamplerKernel for Kernel<'_> {
+    type State = ReplicateState;
+    type Output = ReplicateOutput;
+
+    fn init(&self, seed: u64) -> ReplicateState {
+        self.init_replicate(seed)
+    }
+
+    fn step(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<bool, String> {
+        match self.temper(st, observer)? {
+            Some(weights) => {
+                st.final_weights = weights;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+
+    fn finish(&self, mut st: ReplicateState) -> ReplicateOutput {
+        let weights = std::mem::take(&mut st.final_weights);
+        self.finish_replicate(st, &weights)
+    }
+
+    fn progress_units(&self) -> u64 {
+        1000
+    }
 }
 
 impl<'a> Kernel<'a> {
@@ -675,49 +701,8 @@ impl<'a> Kernel<'a> {
         }
     }
 
-    /// One replicate from the prior (or from its saved state), to its end or
-    /// until it stops (time limit, no progress) with its state saved.
-    fn run_replicate(&self, seed: u64, observer: &dyn Observer, ck: Option<(&Checkpointing, usize)>) -> ReplicateEnd {
-        let (state_name, done_name) =
-            (ck.map(|(_, r)| format!("replicate_{r}")), ck.map(|(_, r)| format!("replicate_{r}.done")));
-        if let (Some((c, _)), Some(name)) = (ck, &done_name) {
-            if let Some(done) = c.load::<ReplicateOutput>(name) {
-                observer.advance(1000);
-                return ReplicateEnd::Done(done);
-            }
-        }
-        let saved = ck.zip(state_name.as_ref()).and_then(|((c, _), name)| c.load::<ReplicateState>(name));
-        let mut state = saved.unwrap_or_else(|| self.init(seed));
-        let mut last_save = std::time::Instant::now();
-        let weights = loop {
-            let stuck = match self.step(&mut state, observer) {
-                Ok(Some(w)) => break w,
-                Ok(None) => None,
-                Err(why) => Some(why),
-            };
-            if let (Some((c, _)), Some(name)) = (ck, &state_name) {
-                let out_of_time = c.out_of_time();
-                if out_of_time || stuck.is_some() || last_save.elapsed() >= c.min_interval {
-                    c.save(name, &state);
-                    last_save = std::time::Instant::now();
-                }
-                if out_of_time && stuck.is_none() {
-                    return ReplicateEnd::OutOfTime;
-                }
-            }
-            if let Some(why) = stuck {
-                return ReplicateEnd::Stuck(why);
-            }
-        };
-        let out = self.finish(state, &weights);
-        if let (Some((c, _)), Some(name)) = (ck, &done_name) {
-            c.save(name, &out);
-        }
-        ReplicateEnd::Done(out)
-    }
-
     /// The particles drawn from the prior, at β = 0.
-    fn init(&self, seed: u64) -> ReplicateState {
+    fn init_replicate(&self, seed: u64) -> ReplicateState {
         let mut master = Xoshiro256PlusPlus::seed_from_u64(seed);
         let mut rngs: Vec<Xoshiro256PlusPlus> = (0..self.n)
             .map(|_| {
@@ -741,6 +726,7 @@ impl<'a> Kernel<'a> {
             steps: Vec::new(),
             evaluations: self.n as u64,
             term_evaluations: 0,
+            final_weights: Vec::new(),
         }
     }
 
@@ -749,7 +735,7 @@ impl<'a> Kernel<'a> {
     /// error when tempering cannot go on: no particle has a finite likelihood
     /// (the weights are undefined), or β has not reached 1 in
     /// [`MAX_TEMPERING_STEPS`] steps.
-    fn step(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<Option<Vec<f64>>, String> {
+    fn temper(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<Option<Vec<f64>>, String> {
         if !st.cloud.loglik.iter().any(|l| l.is_finite()) {
             return Err(format!(
                 "tempering made no progress at β = {:.3e}: no particle has a finite likelihood",
@@ -802,7 +788,7 @@ impl<'a> Kernel<'a> {
 
     /// At β = 1: the evidence's error, then equal-weight draws, moved to
     /// separate the copies that resampling made.
-    fn finish(&self, mut st: ReplicateState, weights: &[f64]) -> ReplicateOutput {
+    fn finish_replicate(&self, mut st: ReplicateState, weights: &[f64]) -> ReplicateOutput {
         let nf = self.n as f64;
         // Lee & Whiteley (2018): Var(Ẑ)/Z² ≈ 1 - (n/(n-1))^T Σ_{i,j: E_i≠E_j} W_i W_j.
         let mut eve_mass = vec![0.0; self.n];

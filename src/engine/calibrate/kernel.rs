@@ -1,0 +1,79 @@
+//! One interface for every sampler, after BlackJAX's kernels and argmin's
+//! executor: a sampler says how to make its state (`init`), how one step
+//! moves it (`step`) and what the final state yields (`finish`); [`drive`]
+//! owns the loop around them, so checkpoints, time limits and progress work
+//! the same for every sampler. A state is one serializable value: saved
+//! whole, it resumes to exactly the draws of an uninterrupted run.
+
+use super::checkpoint::Checkpointing;
+use crate::base::progress::Observer;
+
+pub trait SamplerKernel {
+    type State: serde::Serialize + serde::de::DeserializeOwned;
+    type Output: serde::Serialize + serde::de::DeserializeOwned;
+
+    /// The state before the first step.
+    fn init(&self, seed: u64) -> Self::State;
+    /// Moves the state one step; `Ok(true)` once it is finished, an error
+    /// when it cannot go on.
+    fn step(&self, state: &mut Self::State, observer: &dyn Observer) -> Result<bool, String>;
+    /// The result of a finished state.
+    fn finish(&self, state: Self::State) -> Self::Output;
+    /// The progress units a whole run reports (given at once for a run whose
+    /// finished output is loaded from a checkpoint).
+    fn progress_units(&self) -> u64;
+}
+
+/// How a driven run ended.
+pub enum End<O> {
+    Done(O),
+    /// Stopped at the checkpoint's time limit, the state saved.
+    OutOfTime,
+    /// Could not go on (the reason); the last state is saved when checkpointing.
+    Stuck(String),
+}
+
+/// Runs `kernel` from its saved state under `name` in `ck` (or from `init`)
+/// to its end, saving the state at the checkpoint's interval, when stuck and
+/// at the time limit, and the finished output under `<name>.done`.
+pub fn drive<K: SamplerKernel>(
+    kernel: &K,
+    seed: u64,
+    observer: &dyn Observer,
+    ck: Option<(&Checkpointing, &str)>,
+) -> End<K::Output> {
+    let done_name = ck.map(|(_, name)| format!("{name}.done"));
+    if let (Some((c, _)), Some(done)) = (ck, &done_name) {
+        if let Some(out) = c.load::<K::Output>(done) {
+            observer.advance(kernel.progress_units());
+            return End::Done(out);
+        }
+    }
+    let mut state = ck.and_then(|(c, name)| c.load::<K::State>(name)).unwrap_or_else(|| kernel.init(seed));
+    let mut last_save = std::time::Instant::now();
+    loop {
+        let stuck = match kernel.step(&mut state, observer) {
+            Ok(true) => break,
+            Ok(false) => None,
+            Err(why) => Some(why),
+        };
+        if let Some((c, name)) = ck {
+            let out_of_time = c.out_of_time();
+            if out_of_time || stuck.is_some() || last_save.elapsed() >= c.min_interval {
+                c.save(name, &state);
+                last_save = std::time::Instant::now();
+            }
+            if out_of_time && stuck.is_none() {
+                return End::OutOfTime;
+            }
+        }
+        if let Some(why) = stuck {
+            return End::Stuck(why);
+        }
+    }
+    let out = kernel.finish(state);
+    if let (Some((c, _)), Some(done)) = (ck, &done_name) {
+        c.save(done, &out);
+    }
+    End::Done(out)
+}
