@@ -264,17 +264,14 @@ pub fn f64_frame(columns: Vec<(String, Vec<f64>)>) -> Result<DataFrame> {
 pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     let rows = match ext.as_str() {
-        "parquet" | "pq" => read_measurements_parquet(path)?,
         "dat" => read_paper_table(path)?,
-        _ => read_measurements_csv(path)?,
+        _ => read_measurements_table(path)?,
     };
     if rows.is_empty() {
         bail!("{}: no measurements in file", path.display());
     }
     Ok(rows)
 }
-
-const MEASUREMENT_COLUMNS: [&str; 4] = ["observable", "x", "value", "error"];
 
 fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
     let file = path.display();
@@ -292,79 +289,23 @@ fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
     Ok(())
 }
 
-fn read_measurements_csv(path: &Path) -> Result<Vec<Measurement>> {
-    let file = path.display();
-    let mut reader = csv::ReaderBuilder::new()
-        .comment(Some(b'#'))
-        .trim(csv::Trim::All)
-        .from_path(path)
-        .with_context(|| format!("opening measurements file {file}"))?;
-    let headers = reader.headers().with_context(|| format!("{file}: reading header"))?.clone();
-    let mut idx = [0usize; 4];
-    for (k, name) in MEASUREMENT_COLUMNS.iter().enumerate() {
-        idx[k] = headers.iter().position(|h| h == *name).ok_or_else(|| {
-            anyhow!(
-                "{file}: line 1: missing column '{name}' (expected columns: observable, x, value, error; found: {})",
-                headers.iter().collect::<Vec<_>>().join(", ")
-            )
-        })?;
-    }
-    let mut out = Vec::new();
-    for rec in reader.records() {
-        let rec = rec.with_context(|| format!("{file}: malformed CSV"))?;
-        let line = rec.position().map(|p| p.line()).unwrap_or(0);
-        let where_ = format!("line {line}");
-        let field = |k: usize| rec.get(idx[k]).unwrap_or("");
-        let num = |k: usize| -> Result<f64> {
-            let s = field(k);
-            s.parse::<f64>().map_err(|_| {
-                anyhow!("{file}: {where_}, field '{}': cannot parse {:?} as a number", MEASUREMENT_COLUMNS[k], s)
-            })
-        };
-        let m = Measurement {
-            observable: field(0).to_string(),
-            x: num(1)?,
-            value: num(2)?,
-            error: num(3)?,
-            line: line as usize,
-        };
-        validate_row(path, &where_, &m)?;
-        out.push(m);
-    }
-    Ok(out)
-}
-
-fn read_measurements_parquet(path: &Path) -> Result<Vec<Measurement>> {
-    let file = path.display();
-    let df = read_parquet(path)?;
-    let col = |name: &str| {
-        df.column(name)
-            .map_err(|_| anyhow!("{file}: missing column '{name}' (expected columns: observable, x, value, error)"))
-    };
-    let obs =
-        col("observable")?.str().map_err(|_| anyhow!("{file}: column 'observable' must be a string column"))?.clone();
-    let num = |name: &str| -> Result<Float64Chunked> {
-        let c = col(name)?.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?;
-        Ok(c.f64()?.clone())
-    };
+/// Measurements from a CSV or Parquet long table, each row checked.
+fn read_measurements_table(path: &Path) -> Result<Vec<Measurement>> {
+    let raw = super::table::RawTable::read(path)?;
+    let expected = |e: anyhow::Error| anyhow!("{e:#} (expected columns: observable, x, value, error)");
+    let observables = raw.strings(path, "observable").map_err(expected)?;
+    let num = |name: &str| raw.numbers(path, name).map_err(expected);
     let (x, value, error) = (num("x")?, num("value")?, num("error")?);
-    let mut out = Vec::with_capacity(df.height());
-    for i in 0..df.height() {
-        let where_ = format!("row {}", i + 1);
-        let get = |c: &Float64Chunked, name: &str| {
-            c.get(i).ok_or_else(|| anyhow!("{file}: {where_}, field '{name}': missing value"))
-        };
+    let mut out = Vec::with_capacity(raw.height());
+    for i in 0..raw.height() {
         let m = Measurement {
-            observable: obs
-                .get(i)
-                .ok_or_else(|| anyhow!("{file}: {where_}, field 'observable': missing value"))?
-                .to_string(),
-            x: get(&x, "x")?,
-            value: get(&value, "value")?,
-            error: get(&error, "error")?,
-            line: i + 1,
+            observable: observables[i].clone(),
+            x: x[i],
+            value: value[i],
+            error: error[i],
+            line: raw.line(i),
         };
-        validate_row(path, &where_, &m)?;
+        validate_row(path, &raw.location(i), &m)?;
         out.push(m);
     }
     Ok(out)

@@ -17,7 +17,6 @@
 
 use super::artifacts::read_parquet;
 use anyhow::{anyhow, bail, Context, Result};
-use polars::prelude::*;
 use std::path::Path;
 
 pub const COVARIANCE_COLUMNS: [&str; 5] = ["observable_a", "x_a", "observable_b", "x_b", "covariance"];
@@ -122,37 +121,21 @@ fn read_csv_rows(path: &Path, columns: [&str; 5]) -> Result<Vec<CovarianceEntry>
 }
 
 fn read_parquet_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
-    let file = path.display();
+    use super::columns::{f64_column, str_column};
     let df = read_parquet(path)?;
-    let col = |name: &str| {
-        df.column(name)
-            .map_err(|_| anyhow!("{file}: missing column '{name}' (expected: {})", COVARIANCE_COLUMNS.join(", ")))
-    };
-    let text = |name: &str| -> Result<StringChunked> {
-        Ok(col(name)?.str().map_err(|_| anyhow!("{file}: column '{name}' must be a string column"))?.clone())
-    };
-    let num = |name: &str| -> Result<Float64Chunked> {
-        Ok(col(name)?
-            .cast(&DataType::Float64)
-            .map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?
-            .f64()?
-            .clone())
-    };
-    let (oa, ob) = (text("observable_a")?, text("observable_b")?);
-    let (xa, xb, c) = (num("x_a")?, num("x_b")?, num("covariance")?);
-    (0..df.height())
-        .map(|i| {
-            let missing = |name: &str| anyhow!("{file}: row {}, field '{name}': missing value", i + 1);
-            Ok(CovarianceEntry {
-                observable_a: oa.get(i).ok_or_else(|| missing("observable_a"))?.to_string(),
-                x_a: xa.get(i).ok_or_else(|| missing("x_a"))?,
-                observable_b: ob.get(i).ok_or_else(|| missing("observable_b"))?.to_string(),
-                x_b: xb.get(i).ok_or_else(|| missing("x_b"))?,
-                covariance: c.get(i).ok_or_else(|| missing("covariance"))?,
-                line: i + 1,
-            })
+    let (oa, ob) = (str_column(&df, path, "observable_a")?, str_column(&df, path, "observable_b")?);
+    let (xa, xb) = (f64_column(&df, path, "x_a")?, f64_column(&df, path, "x_b")?);
+    let c = f64_column(&df, path, "covariance")?;
+    Ok((0..df.height())
+        .map(|i| CovarianceEntry {
+            observable_a: oa[i].clone(),
+            x_a: xa[i],
+            observable_b: ob[i].clone(),
+            x_b: xb[i],
+            covariance: c[i],
+            line: i + 1,
         })
-        .collect()
+        .collect())
 }
 
 /// Entries as CSV text, header first.

@@ -2,6 +2,8 @@
 //! of the crate beyond itself.
 
 pub mod artifacts;
+pub mod columns;
 pub mod config;
 pub mod covariance;
 pub mod progress;
+pub mod table;

@@ -368,27 +368,29 @@ pub fn parameter_file(dir: &Path, id: i64, n: usize) -> std::path::PathBuf {
     dir.join("parameters").join(format!("parameter_{id:0width$}", width = parameter_file_width(n)))
 }
 
+/// A design.parquet's columns: the parameter names in the file's order, the
+/// design ids, and each parameter's values.
+pub struct DesignColumns {
+    pub names: Vec<String>,
+    pub ids: Vec<i64>,
+    pub columns: Vec<Vec<f64>>,
+}
+
+/// Reads a design.parquet (from `mdpipe design`: `design_id` plus one column per parameter).
+pub fn read_columns(design: &Path) -> Result<DesignColumns> {
+    let df = artifacts::read_parquet(design)?;
+    let column = |name: &str| crate::base::columns::f64_column(&df, design, name);
+    let ids = column("design_id")?.into_iter().map(|v| v as i64).collect();
+    let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).filter(|n| n != "design_id").collect();
+    let columns = names.iter().map(|n| column(n)).collect::<Result<_>>()?;
+    Ok(DesignColumns { names, ids, columns })
+}
+
 /// The points of a design.parquet: each design id with its parameter values by name.
 pub fn read_points(design: &Path) -> Result<Vec<(i64, BTreeMap<String, f64>)>> {
-    use polars::prelude::DataType;
-    let df = artifacts::read_parquet(design)?;
-    let column = |name: &str| -> Result<Vec<f64>> {
-        let c = df
-            .column(name)
-            .map_err(|_| anyhow!("{}: missing column '{name}'", design.display()))?
-            .cast(&DataType::Float64)?;
-        let ca = c.f64()?;
-        (0..df.height())
-            .map(|i| {
-                ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", design.display(), i + 1))
-            })
-            .collect()
-    };
-    let ids = column("design_id")?;
-    let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).filter(|n| n != "design_id").collect();
-    let columns: Vec<Vec<f64>> = names.iter().map(|n| column(n)).collect::<Result<_>>()?;
-    Ok((0..ids.len())
-        .map(|i| (ids[i] as i64, names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect()))
+    let d = read_columns(design)?;
+    Ok((0..d.ids.len())
+        .map(|i| (d.ids[i], d.names.iter().zip(&d.columns).map(|(n, c)| (n.clone(), c[i])).collect()))
         .collect())
 }
 

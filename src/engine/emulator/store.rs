@@ -166,24 +166,11 @@ fn write_folder(
 }
 
 fn f64s(df: &DataFrame, file: &Path, name: &str) -> Result<Vec<f64>> {
-    let c = df.column(name).map_err(|_| anyhow!("{}: missing column '{name}'", file.display()))?;
-    let c = c.cast(&DataType::Float64)?;
-    let ca = c.f64()?;
-    (0..df.height())
-        .map(|i| ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", file.display(), i + 1)))
-        .collect()
+    crate::base::columns::f64_column(df, file, name)
 }
 
 fn strs(df: &DataFrame, file: &Path, name: &str) -> Result<Vec<String>> {
-    let c = df.column(name).map_err(|_| anyhow!("{}: missing column '{name}'", file.display()))?;
-    let ca = c.str().map_err(|_| anyhow!("{}: column '{name}' must be strings", file.display()))?;
-    (0..df.height())
-        .map(|i| {
-            ca.get(i)
-                .map(String::from)
-                .ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", file.display(), i + 1))
-        })
-        .collect()
+    crate::base::columns::str_column(df, file, name)
 }
 
 fn load_metadata(dir: &Path) -> Result<Metadata> {

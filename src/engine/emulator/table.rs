@@ -8,7 +8,8 @@
 //! Wide: one row per design point, `design_id`, the parameter columns, and
 //! one column per output named `observable[x]` (or just `observable`, x = 0).
 
-use anyhow::{anyhow, bail, Context, Result};
+use crate::base::table::RawTable;
+use anyhow::{anyhow, bail, Result};
 use polars::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -221,114 +222,6 @@ impl TrainingTable {
             cols.push(Column::new(name.as_str().into(), v));
         }
         Ok(DataFrame::new(n * m, cols)?)
-    }
-}
-
-/// A table read as text cells (CSV) or typed columns (Parquet), with
-/// row numbers for error messages.
-enum RawTable {
-    Csv { headers: Vec<String>, rows: Vec<(usize, Vec<String>)> },
-    Parquet(DataFrame),
-}
-
-impl RawTable {
-    fn read(path: &Path) -> Result<RawTable> {
-        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        if ext == "parquet" || ext == "pq" {
-            return Ok(RawTable::Parquet(crate::base::artifacts::read_parquet(path)?));
-        }
-        let mut reader = csv::ReaderBuilder::new()
-            .comment(Some(b'#'))
-            .trim(csv::Trim::All)
-            .from_path(path)
-            .with_context(|| format!("opening table {}", path.display()))?;
-        let headers: Vec<String> = reader
-            .headers()
-            .with_context(|| format!("{}: reading header", path.display()))?
-            .iter()
-            .map(String::from)
-            .collect();
-        let mut rows = Vec::new();
-        for rec in reader.records() {
-            let rec = rec.with_context(|| format!("{}: malformed CSV", path.display()))?;
-            let line = rec.position().map(|p| p.line() as usize).unwrap_or(0);
-            rows.push((line, rec.iter().map(String::from).collect()));
-        }
-        Ok(RawTable::Csv { headers, rows })
-    }
-
-    fn columns(&self) -> Vec<String> {
-        match self {
-            RawTable::Csv { headers, .. } => headers.clone(),
-            RawTable::Parquet(df) => df.get_column_names().iter().map(|s| s.to_string()).collect(),
-        }
-    }
-
-    fn height(&self) -> usize {
-        match self {
-            RawTable::Csv { rows, .. } => rows.len(),
-            RawTable::Parquet(df) => df.height(),
-        }
-    }
-
-    /// "line N" (CSV) or "row N" (Parquet, 1-based).
-    fn location(&self, i: usize) -> String {
-        match self {
-            RawTable::Csv { rows, .. } => format!("line {}", rows[i].0),
-            RawTable::Parquet(_) => format!("row {}", i + 1),
-        }
-    }
-
-    fn has(&self, name: &str) -> bool {
-        self.columns().iter().any(|c| c == name)
-    }
-
-    fn missing(&self, path: &Path, name: &str) -> anyhow::Error {
-        anyhow!("{}: missing column '{name}' (found: {})", path.display(), self.columns().join(", "))
-    }
-
-    fn numbers(&self, path: &Path, name: &str) -> Result<Vec<f64>> {
-        let file = path.display();
-        match self {
-            RawTable::Csv { headers, rows } => {
-                let k = headers.iter().position(|h| h == name).ok_or_else(|| self.missing(path, name))?;
-                rows.iter()
-                    .map(|(line, cells)| {
-                        let s = cells.get(k).map(String::as_str).unwrap_or("");
-                        s.parse::<f64>()
-                            .map_err(|_| anyhow!("{file}: line {line}, field '{name}': cannot parse {s:?} as a number"))
-                    })
-                    .collect()
-            }
-            RawTable::Parquet(df) => {
-                let c = df.column(name).map_err(|_| self.missing(path, name))?;
-                let c = c.cast(&DataType::Float64).map_err(|_| anyhow!("{file}: column '{name}' must be numeric"))?;
-                let ca = c.f64()?;
-                (0..df.height())
-                    .map(|i| ca.get(i).ok_or_else(|| anyhow!("{file}: row {}, field '{name}': missing value", i + 1)))
-                    .collect()
-            }
-        }
-    }
-
-    fn strings(&self, path: &Path, name: &str) -> Result<Vec<String>> {
-        match self {
-            RawTable::Csv { headers, rows } => {
-                let k = headers.iter().position(|h| h == name).ok_or_else(|| self.missing(path, name))?;
-                Ok(rows.iter().map(|(_, cells)| cells.get(k).cloned().unwrap_or_default()).collect())
-            }
-            RawTable::Parquet(df) => {
-                let c = df.column(name).map_err(|_| self.missing(path, name))?;
-                let ca = c.str().map_err(|_| anyhow!("{}: column '{name}' must be a string column", path.display()))?;
-                (0..df.height())
-                    .map(|i| {
-                        ca.get(i)
-                            .map(String::from)
-                            .ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", path.display(), i + 1))
-                    })
-                    .collect()
-            }
-        }
     }
 }
 

@@ -5,9 +5,10 @@
 
 use super::{missing_points, point_folders, IngestReport, Ingested, IngestedRow, PointReport};
 use crate::base::artifacts::{self, Provenance};
-use anyhow::{anyhow, bail, Context, Result};
+use crate::base::table::RawTable;
+use anyhow::{anyhow, bail, Result};
 use polars::prelude::*;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Reads every point's table; like `ingest_runs`, with `design` (default
 /// `runs_dir/design.parquet`) naming the points expected.
@@ -53,82 +54,28 @@ pub fn ingest_tables(runs_dir: &Path, design: Option<&Path>) -> Result<(Ingested
 }
 
 fn read_point(id: i64, dir: &Path) -> Result<(String, Vec<IngestedRow>)> {
-    let csv_path = dir.join("outputs.csv");
-    let parquet_path = dir.join("outputs.parquet");
-    if csv_path.exists() {
-        return Ok((csv_path.display().to_string(), read_csv(id, &csv_path)?));
-    }
-    if parquet_path.exists() {
-        return Ok((parquet_path.display().to_string(), read_parquet(id, &parquet_path)?));
-    }
-    bail!("{}: no outputs.csv or outputs.parquet", dir.display())
+    let path = [dir.join("outputs.csv"), dir.join("outputs.parquet")]
+        .into_iter()
+        .find(|p| p.exists())
+        .ok_or_else(|| anyhow!("{}: no outputs.csv or outputs.parquet", dir.display()))?;
+    Ok((path.display().to_string(), read_table(id, &path)?))
 }
 
-fn read_csv(id: i64, path: &PathBuf) -> Result<Vec<IngestedRow>> {
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .from_path(path)
-        .with_context(|| format!("opening {}", path.display()))?;
-    let headers = reader.headers().with_context(|| format!("{}: reading the header", path.display()))?.clone();
-    let column = |name: &str| headers.iter().position(|h| h == name);
-    let need = |name: &str| {
-        column(name).ok_or_else(|| {
-            anyhow!(
-                "{}: no '{name}' column (the columns are observable, x, value and optionally error)",
-                path.display()
-            )
-        })
-    };
-    let (o, x, v, e) = (need("observable")?, need("x")?, need("value")?, column("error"));
-    let mut rows = Vec::new();
-    for (i, record) in reader.records().enumerate() {
-        let line = i + 2;
-        let record = record.with_context(|| format!("{}: line {line}", path.display()))?;
-        let number = |k: usize, field: &str| -> Result<f64> {
-            let text = record.get(k).unwrap_or("");
-            text.parse::<f64>()
-                .map_err(|_| anyhow!("{}: line {line}, field '{field}': {text:?} is not a number", path.display()))
-        };
-        let x_value = number(x, "x")?;
-        if !x_value.is_finite() {
-            bail!("{}: line {line}, field 'x': not finite", path.display());
-        }
-        rows.push(IngestedRow {
-            design_id: id,
-            observable: record.get(o).unwrap_or("").to_string(),
-            x: x_value,
-            value: number(v, "value")?,
-            error: e.map(|k| number(k, "error")).transpose()?.unwrap_or(0.0),
-            n_events: 0,
-        });
+/// A point's `observable, x, value[, error]` table; values may be undefined
+/// (a bin the run could not fill), the x must be finite.
+fn read_table(id: i64, path: &Path) -> Result<Vec<IngestedRow>> {
+    let raw = RawTable::read(path)?;
+    let hint = |e: anyhow::Error| anyhow!("{e:#} (the columns are observable, x, value and optionally error)");
+    let observables = raw.strings(path, "observable").map_err(hint)?;
+    let (xs, values) = (raw.numbers(path, "x").map_err(hint)?, raw.numbers(path, "value").map_err(hint)?);
+    let errors = if raw.has("error") { raw.numbers(path, "error")? } else { vec![0.0; raw.height()] };
+    if let Some(i) = xs.iter().position(|x| !x.is_finite()) {
+        bail!("{}: {}, field 'x': not finite", path.display(), raw.location(i));
     }
-    if rows.is_empty() {
+    if raw.height() == 0 {
         bail!("{}: no rows", path.display());
     }
-    Ok(rows)
-}
-
-fn read_parquet(id: i64, path: &Path) -> Result<Vec<IngestedRow>> {
-    let df = artifacts::read_parquet(path)?;
-    let text = |name: &str| -> Result<Vec<String>> {
-        let c =
-            df.column(name).map_err(|_| anyhow!("{}: no '{name}' column", path.display()))?.cast(&DataType::String)?;
-        let ca = c.str()?.clone();
-        Ok((0..df.height()).map(|i| ca.get(i).unwrap_or("").to_string()).collect())
-    };
-    let numbers = |name: &str| -> Result<Vec<f64>> {
-        let c =
-            df.column(name).map_err(|_| anyhow!("{}: no '{name}' column", path.display()))?.cast(&DataType::Float64)?;
-        let ca = c.f64()?.clone();
-        (0..df.height())
-            .map(|i| {
-                ca.get(i).ok_or_else(|| anyhow!("{}: row {}, field '{name}': missing value", path.display(), i + 1))
-            })
-            .collect()
-    };
-    let (observables, xs, values) = (text("observable")?, numbers("x")?, numbers("value")?);
-    let errors = if df.column("error").is_ok() { numbers("error")? } else { vec![0.0; df.height()] };
-    Ok((0..df.height())
+    Ok((0..raw.height())
         .map(|i| IngestedRow {
             design_id: id,
             observable: observables[i].clone(),

@@ -648,29 +648,11 @@ pub struct DesignPoints {
 /// Reads `design.parquet` (from `mdpipe design`: `design_id` plus one column per parameter).
 pub fn read_design_points(design: &std::path::Path) -> anyhow::Result<DesignPoints> {
     use anyhow::Context;
-    use polars::prelude::DataType;
-    let df = crate::base::artifacts::read_parquet(design)?;
-    let names: Vec<String> = df.get_column_names().iter().map(|s| s.to_string()).filter(|n| n != "design_id").collect();
-    let numbers = |name: &str| -> anyhow::Result<Vec<f64>> {
-        let c = df
-            .column(name)
-            .map_err(|_| anyhow::anyhow!("{}: missing column '{name}'", design.display()))?
-            .cast(&DataType::Float64)?;
-        let ca = c.f64()?;
-        (0..df.height())
-            .map(|i| {
-                ca.get(i).ok_or_else(|| {
-                    anyhow::anyhow!("{}: row {}, field '{name}': missing value", design.display(), i + 1)
-                })
-            })
-            .collect()
-    };
-    let ids: Vec<i64> = numbers("design_id")?.into_iter().map(|v| v as i64).collect();
-    let columns: Vec<Vec<f64>> = names.iter().map(|n| numbers(n)).collect::<anyhow::Result<_>>()?;
+    let crate::engine::design::DesignColumns { names, ids, columns } = crate::engine::design::read_columns(design)?;
     let points: Vec<HeavyIonParams> = (0..ids.len())
         .map(|i| {
-            HeavyIonParams::from_named(&names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect::<Vec<_>>())
-                .with_context(|| format!("{}: row {}", design.display(), i + 1))
+            let named: Vec<(String, f64)> = names.iter().zip(&columns).map(|(n, c)| (n.clone(), c[i])).collect();
+            HeavyIonParams::from_named(&named).with_context(|| format!("{}: row {}", design.display(), i + 1))
         })
         .collect::<anyhow::Result<_>>()?;
     if points.is_empty() {
