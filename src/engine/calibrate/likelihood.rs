@@ -19,7 +19,7 @@ use super::joint::{add_lower_block, JointLayout};
 use crate::engine::gp::{copy_lower, gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
 use crate::engine::model::Simulator;
 use std::cell::RefCell;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 
 /// Per-thread scratch so that evaluations allocate nothing.
@@ -70,9 +70,26 @@ pub struct MdLikelihood {
     model_covariance: bool,
     /// One Gaussian over all points instead of independent blocks.
     pub joint: Option<JointLayout>,
+    /// Factorizations of this likelihood's covariances that needed jitter.
+    jitter_events: AtomicUsize,
 }
 
 impl MdLikelihood {
+    /// How many of this likelihood's covariance matrices needed jitter to
+    /// factorize: reported in the run's summary, so regularisation is never silent.
+    pub fn jitter_events(&self) -> usize {
+        self.jitter_events.load(Ordering::Relaxed)
+    }
+
+    fn note_jitter(&self, jitter: f64, n: usize) {
+        if jitter > 0.0 && self.jitter_events.fetch_add(1, Ordering::Relaxed) == 0 {
+            eprintln!(
+                "warning: a covariance matrix ({n}x{n}) of the likelihood was not numerically positive definite; \
+                 added jitter {jitter:.1e} (further events are counted in the run summary)"
+            );
+        }
+    }
+
     pub fn new(simulator: Arc<dyn Simulator>, blocks: Vec<ObservableBlock>, kernel: Option<DiscrepancyKernel>) -> Self {
         let n_theta = simulator.parameter_names().len();
         let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
@@ -85,6 +102,7 @@ impl MdLikelihood {
             n_theta,
             log_jacobian,
             model_covariance,
+            jitter_events: AtomicUsize::new(0),
             joint: None,
         }
     }
@@ -292,7 +310,10 @@ impl MdLikelihood {
         let mut resid = std::mem::take(&mut ws.joint_resid);
         self.fill_joint(joint, params, true, ws, &mut chol.factor, &mut resid);
         let total = match chol.factorize() {
-            Ok(_) => gaussian_logpdf_factored(&chol, &mut resid),
+            Ok(jitter) => {
+                self.note_jitter(jitter, chol.n());
+                gaussian_logpdf_factored(&chol, &mut resid)
+            }
             Err(_) => f64::NEG_INFINITY,
         };
         ws.joint_chol = Some(chol);
@@ -446,8 +467,9 @@ impl MdLikelihood {
                 );
             }
             block.add_data_covariance(inv_scale * inv_scale, &mut chol.factor);
-            if chol.factorize().is_err() {
-                return f64::NEG_INFINITY;
+            match chol.factorize() {
+                Ok(jitter) => self.note_jitter(jitter, chol.n()),
+                Err(_) => return f64::NEG_INFINITY,
             }
             total = gaussian_logpdf_factored(chol, resid);
         }

@@ -373,7 +373,7 @@ pub fn run_checkpointed(
     checkpoint: Option<&checkpoint::Checkpointing>,
 ) -> Result<Calibration> {
     let start = std::time::Instant::now();
-    let jitter_before = crate::engine::gp::jitter_events();
+    let jitter_before = problem.likelihood.jitter_events();
     let failures_before = problem.simulator.failures();
     guard::check(problem, seed)?;
     let label = format!(
@@ -387,7 +387,7 @@ pub fn run_checkpointed(
         SamplerKind::Ensemble => run_ensemble(problem, seed, observer, checkpoint, &label)?,
     };
     let wall = start.elapsed().as_secs_f64();
-    let jitter = crate::engine::gp::jitter_events() - jitter_before;
+    let jitter = problem.likelihood.jitter_events() - jitter_before;
     let mut summary = summary::summarize(
         problem,
         &sampled.chains,
