@@ -1,0 +1,340 @@
+//! The particle cloud and its moves: the cloud drawn from the prior, move
+//! groups with their proposal factors, and Metropolis-within-Gibbs sweeps
+//! (a joint likelihood's φ moves screened by the block's marginal).
+
+use super::*;
+
+/// Lower Cholesky factor of the particles' covariance (in the unbounded space).
+pub(super) fn proposal_factor(x: &[f64], dim: usize) -> Vec<f64> {
+    let n = x.len() / dim;
+    let mut mean = vec![0.0; dim];
+    for row in x.chunks(dim) {
+        for k in 0..dim {
+            mean[k] += row[k] / n as f64;
+        }
+    }
+    let mut ws = CholeskyWorkspace::new(dim);
+    ws.factor.iter_mut().for_each(|v| *v = 0.0);
+    for row in x.chunks(dim) {
+        for j in 0..dim {
+            let dj = row[j] - mean[j];
+            for i in j..dim {
+                ws.factor[i + j * dim] += (row[i] - mean[i]) * dj / (n as f64 - 1.0).max(1.0);
+            }
+        }
+    }
+    // A small floor keeps a collapsed cloud movable (u is O(1) under the prior).
+    for k in 0..dim {
+        ws.factor[k + k * dim] += 1e-18;
+    }
+    if ws.factorize().is_err() {
+        let mut diag = vec![0.0; dim * dim];
+        for k in 0..dim {
+            diag[k + k * dim] = 0.1;
+        }
+        return diag;
+    }
+    for j in 0..dim {
+        for i in 0..j {
+            ws.factor[i + j * dim] = 0.0;
+        }
+    }
+    ws.factor
+}
+
+/// Coordinates moved together by one random-walk Metropolis proposal.
+#[derive(Clone, serde::Serialize, serde::Deserialize)]
+pub(super) struct MoveGroup {
+    pub(super) coords: Vec<usize>,
+    /// Lower Cholesky factor of the cloud's covariance of `coords` (recomputed
+    /// from the cloud before every use, so not stored).
+    #[serde(skip)]
+    pub(super) factor: Vec<f64>,
+    #[serde(with = "f64_bit")]
+    pub(super) scale: f64,
+    /// The likelihood term whose own parameters these are; `None` means the
+    /// move can change every term (a full evaluation).
+    pub(super) term: Option<usize>,
+}
+
+/// The move groups: one joint move of everything, and when the likelihood is a
+/// sum of independent terms, a move of the shared parameters and one move per
+/// term of its own parameters (Metropolis within Gibbs). A term's move costs one
+/// term, not the whole likelihood, which is what makes many observables with
+/// their own discrepancy hyperparameters affordable.
+pub(super) fn move_groups(dim: usize, structure: Option<&TermStructure>) -> Vec<MoveGroup> {
+    let group = |coords: Vec<usize>, term| MoveGroup {
+        scale: 2.38 / (coords.len() as f64).sqrt(),
+        factor: Vec::new(),
+        coords,
+        term,
+    };
+    let mut groups = vec![group((0..dim).collect(), None)];
+    if let Some(st) = structure {
+        if !st.shared.is_empty() {
+            groups.push(group(st.shared.clone(), None));
+        }
+        for (t, own) in st.own.iter().enumerate() {
+            if !own.is_empty() {
+                groups.push(group(own.clone(), Some(t)));
+            }
+        }
+    }
+    groups
+}
+
+pub(super) fn update_factors(groups: &mut [MoveGroup], x: &[f64], dim: usize) {
+    for g in groups.iter_mut() {
+        if g.coords.len() == dim {
+            g.factor = proposal_factor(x, dim);
+        } else {
+            let sub: Vec<f64> = x.chunks(dim).flat_map(|row| g.coords.iter().map(move |&c| row[c])).collect();
+            g.factor = proposal_factor(&sub, g.coords.len());
+        }
+    }
+}
+
+/// The particle cloud between tempering steps, in the unbounded coordinates u.
+#[derive(Clone, serde::Serialize, serde::Deserialize)]
+pub(super) struct Cloud {
+    pub(super) dim: usize,
+    #[serde(with = "f64_bits")]
+    pub(super) x: Vec<f64>,
+    #[serde(with = "f64_bits")]
+    pub(super) loglik: Vec<f64>,
+    #[serde(with = "f64_bits")]
+    pub(super) logprior: Vec<f64>,
+    /// Per particle, each likelihood term (empty without a term structure).
+    #[serde(with = "f64_bits")]
+    pub(super) terms: Vec<f64>,
+    pub(super) n_terms: usize,
+}
+
+impl Cloud {
+    pub(super) fn resample(&mut self, ancestors: &[usize]) {
+        self.x = reindex(&self.x, self.dim, ancestors);
+        self.loglik = ancestors.iter().map(|&a| self.loglik[a]).collect();
+        self.logprior = ancestors.iter().map(|&a| self.logprior[a]).collect();
+        if self.n_terms > 0 {
+            self.terms = reindex(&self.terms, self.n_terms, ancestors);
+        }
+    }
+}
+
+#[derive(Default)]
+pub(super) struct MoveCounts {
+    pub(super) accepted: Vec<u64>,
+    pub(super) proposed: Vec<u64>,
+    pub(super) full_evaluations: u64,
+    pub(super) term_evaluations: u64,
+}
+
+impl MoveCounts {
+    pub(super) fn merge(mut self, other: MoveCounts) -> MoveCounts {
+        if self.accepted.is_empty() {
+            return other;
+        }
+        for (a, b) in self.accepted.iter_mut().zip(&other.accepted) {
+            *a += b;
+        }
+        for (a, b) in self.proposed.iter_mut().zip(&other.proposed) {
+            *a += b;
+        }
+        self.full_evaluations += other.full_evaluations;
+        self.term_evaluations += other.term_evaluations;
+        self
+    }
+
+    pub(super) fn acceptance(&self, g: usize) -> f64 {
+        self.accepted[g] as f64 / self.proposed[g].max(1) as f64
+    }
+}
+
+/// `sweeps` rounds of random-walk Metropolis moves, one per group in turn, of
+/// every particle at inverse temperature β (target `L(x(u))^β π_u(u)`).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn mutate(
+    cloud: &mut Cloud,
+    rngs: &mut [Xoshiro256PlusPlus],
+    groups: &[MoveGroup],
+    beta: f64,
+    sweeps: usize,
+    prior: &UniformPrior,
+    likelihood: &dyn LogLikelihood,
+) -> MoveCounts {
+    let (dim, nt) = (cloud.dim, cloud.n_terms);
+    let mut term_chunks: Vec<&mut [f64]> = if nt > 0 {
+        cloud.terms.chunks_mut(nt).collect()
+    } else {
+        (0..cloud.loglik.len()).map(|_| &mut [][..]).collect()
+    };
+    cloud
+        .x
+        .par_chunks_mut(dim)
+        .zip(cloud.loglik.par_iter_mut())
+        .zip(cloud.logprior.par_iter_mut())
+        .zip(term_chunks.par_iter_mut())
+        .zip(rngs.par_iter_mut())
+        .map(|((((xi, li), pi), ti), rng)| {
+            let (mut z, mut prop, mut prop_x, mut cur_x, mut prop_terms) =
+                (vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; nt]);
+            let mut counts =
+                MoveCounts { accepted: vec![0; groups.len()], proposed: vec![0; groups.len()], ..Default::default() };
+            // Each term's screen at the current point, NaN until computed;
+            // reset whenever a move changes the shared parameters.
+            let mut screens = vec![f64::NAN; groups.iter().filter_map(|g| g.term).max().map_or(0, |t| t + 1)];
+            for _ in 0..sweeps {
+                for (gi, g) in groups.iter().enumerate() {
+                    if g.term.is_some() && !li.is_finite() {
+                        continue; // a term move cannot repair an impossible point
+                    }
+                    let k = g.coords.len();
+                    for zk in z[..k].iter_mut() {
+                        *zk = rng.sample(StandardNormal);
+                    }
+                    prop.copy_from_slice(xi);
+                    for a in 0..k {
+                        let mut s = 0.0;
+                        for b in 0..=a {
+                            s += g.factor[a + b * k] * z[b];
+                        }
+                        prop[g.coords[a]] += g.scale * s;
+                    }
+                    counts.proposed[gi] += 1;
+                    let lpi = prior.from_unbounded_with_log_density(&prop, &mut prop_x);
+                    // Far out in u the logistic rounds onto a bound: outside the open box.
+                    if !prior.contains(&prop_x) {
+                        continue;
+                    }
+                    // Terms that are not separable (nt = 0) move at the cost of a
+                    // whole evaluation, paid only for moves their screen lets through.
+                    let screened = match g.term {
+                        Some(t) if nt == 0 => {
+                            screen_change(likelihood, prior, xi, &prop_x, &mut cur_x, &mut screens[t], t)
+                        }
+                        None | Some(_) => None,
+                    };
+                    if let Some((ds, _)) = screened {
+                        counts.term_evaluations += 1;
+                        let u: f64 = rng.random();
+                        if u.ln() >= beta * ds + lpi - *pi {
+                            continue;
+                        }
+                    }
+                    let (lp, new_term) = match g.term {
+                        Some(t) if nt > 0 => {
+                            counts.term_evaluations += 1;
+                            let lt = likelihood.log_likelihood_term(&prop_x, t);
+                            (*li - ti[t] + lt, lt)
+                        }
+                        _ => {
+                            counts.full_evaluations += 1;
+                            let lp = if nt > 0 {
+                                likelihood.log_likelihood_terms(&prop_x, &mut prop_terms)
+                            } else {
+                                likelihood.log_likelihood(&prop_x)
+                            };
+                            (lp, f64::NAN)
+                        }
+                    };
+                    let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
+                    // After a screen, the second stage corrects for the screen's
+                    // error; the prior's ratio was exact in the first.
+                    let second = match screened {
+                        Some((ds, _)) => -beta * ds,
+                        None => lpi - *pi,
+                    };
+                    let log_ratio = if li.is_finite() {
+                        beta * (lp - *li) + second
+                    } else if lp.is_finite() {
+                        f64::INFINITY
+                    } else {
+                        f64::NEG_INFINITY
+                    };
+                    let u: f64 = rng.random();
+                    if u.ln() < log_ratio {
+                        xi.copy_from_slice(&prop);
+                        *li = lp;
+                        *pi = lpi;
+                        match g.term {
+                            Some(t) if nt > 0 => ti[t] = new_term,
+                            _ => ti.copy_from_slice(&prop_terms),
+                        }
+                        match (g.term, screened) {
+                            (Some(t), Some((_, at_prop))) => screens[t] = at_prop,
+                            (Some(t), None) => screens[t] = f64::NAN,
+                            (None, _) => screens.iter_mut().for_each(|s| *s = f64::NAN),
+                        }
+                        counts.accepted[gi] += 1;
+                    }
+                }
+            }
+            counts
+        })
+        .reduce(MoveCounts::default, MoveCounts::merge)
+}
+
+/// The first stage of a delayed-acceptance move of term `t`'s own parameters
+/// (Christen & Fox 2005): the change of the likelihood's screen from the
+/// current point (`u`, unbounded) to the proposal `prop_x`. A move passes the
+/// first stage with probability `min(1, exp(β Δs) × prior ratio)` and is then
+/// accepted with probability `min(1, exp(β (Δlog L − Δs)))`, which keeps the
+/// target exact for any screen that is a fixed function of the point; a good
+/// screen only saves the whole evaluations of moves it would reject anyway.
+/// `None` (plain Metropolis) without a screen or where either value is not
+/// finite: the choice is symmetric in the two points, so each kind of move
+/// keeps detailed balance on its own. `at_cur` is the screen at the current
+/// point (NaN: not yet computed; then it is). Returns the change and the
+/// screen at the proposal.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn screen_change(
+    likelihood: &dyn LogLikelihood,
+    prior: &UniformPrior,
+    u: &[f64],
+    prop_x: &[f64],
+    cur_x: &mut [f64],
+    at_cur: &mut f64,
+    t: usize,
+) -> Option<(f64, f64)> {
+    let at_prop = likelihood.screening_term(prop_x, t)?;
+    if at_cur.is_nan() {
+        prior.from_unbounded(u, cur_x);
+        *at_cur = likelihood.screening_term(cur_x, t)?;
+    }
+    let change = at_prop - *at_cur;
+    change.is_finite().then_some((change, at_prop))
+}
+
+/// Draws the particles from the prior, in the unbounded coordinates u (see
+/// `UniformPrior::to_unbounded`), with their log-likelihoods (and terms).
+pub(super) fn initial_cloud(
+    prior: &UniformPrior,
+    likelihood: &dyn LogLikelihood,
+    rngs: &mut [Xoshiro256PlusPlus],
+    n: usize,
+    n_terms: usize,
+) -> Cloud {
+    let dim = prior.dim();
+    let mut x = vec![0.0; n * dim];
+    let mut terms = vec![0.0; n * n_terms];
+    let mut term_chunks: Vec<&mut [f64]> =
+        if n_terms > 0 { terms.chunks_mut(n_terms).collect() } else { (0..n).map(|_| &mut [][..]).collect() };
+    let loglik: Vec<f64> = x
+        .par_chunks_mut(dim)
+        .zip(rngs.par_iter_mut())
+        .zip(term_chunks.par_iter_mut())
+        .map(|((row, rng), t)| {
+            let mut draw = vec![0.0; dim];
+            prior.sample(rng, &mut draw);
+            prior.to_unbounded(&draw, row);
+            if n_terms > 0 {
+                likelihood.log_likelihood_terms(&draw, t)
+            } else {
+                likelihood.log_likelihood(&draw)
+            }
+        })
+        .collect();
+    drop(term_chunks);
+    let logprior: Vec<f64> = x.chunks(dim).map(|u| prior.log_density_unbounded(u)).collect();
+    Cloud { dim, x, loglik, logprior, terms, n_terms }
+}

@@ -1,0 +1,82 @@
+//! Tempering: the next inverse temperature β from the weights' effective
+//! sample size, and multinomial resampling.
+
+use super::*;
+
+pub fn log_sum_exp(v: &[f64]) -> f64 {
+    let m = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    if !m.is_finite() {
+        return m;
+    }
+    m + v.iter().map(|x| (x - m).exp()).sum::<f64>().ln()
+}
+
+/// ESS of weights `exp(delta * loglik)`, relative to nothing (absolute count).
+pub(super) fn weight_ess(loglik: &[f64], max_ll: f64, delta: f64) -> f64 {
+    let (mut s, mut s2) = (0.0, 0.0);
+    for &l in loglik {
+        let w = (delta * (l - max_ll)).exp();
+        s += w;
+        s2 += w * w;
+    }
+    if s2 == 0.0 {
+        0.0
+    } else {
+        s * s / s2
+    }
+}
+
+/// Largest increment Δ ≤ 1 - β whose weights keep ESS ≥ target.
+pub(super) fn next_increment(loglik: &[f64], beta: f64, target_ess: f64) -> f64 {
+    let max_ll = loglik.iter().cloned().filter(|l| l.is_finite()).fold(f64::NEG_INFINITY, f64::max);
+    let remaining = 1.0 - beta;
+    if weight_ess(loglik, max_ll, remaining) >= target_ess {
+        return remaining;
+    }
+    let (mut lo, mut hi) = (0.0, remaining);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if weight_ess(loglik, max_ll, mid) >= target_ess {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    // Guarantee progress even when a single particle dominates.
+    lo.max(1e-12 * remaining).min(remaining)
+}
+
+/// Multinomial resampling via sorted uniforms: ancestors come out sorted, so
+/// copies of one particle are adjacent.
+pub(super) fn multinomial_ancestors<R: Rng>(weights: &[f64], rng: &mut R) -> Vec<usize> {
+    let n = weights.len();
+    // Sorted uniforms from normalized cumulative exponential spacings.
+    let mut cum = Vec::with_capacity(n + 1);
+    let mut acc = 0.0;
+    for _ in 0..=n {
+        let u: f64 = rng.random();
+        acc += -(1.0 - u).ln();
+        cum.push(acc);
+    }
+    let total = cum[n];
+    let mut out = Vec::with_capacity(n);
+    let mut j = 0;
+    let mut cw = weights[0];
+    for &c in cum.iter().take(n) {
+        let u = c / total;
+        while u > cw && j + 1 < n {
+            j += 1;
+            cw += weights[j];
+        }
+        out.push(j);
+    }
+    out
+}
+
+pub(super) fn reindex(x: &[f64], dim: usize, ancestors: &[usize]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(x.len());
+    for &a in ancestors {
+        out.extend_from_slice(&x[a * dim..(a + 1) * dim]);
+    }
+    out
+}

@@ -1,0 +1,192 @@
+//! The decision rule (see the module above): which candidate is named, who
+//! still stands against it, and when the verdict rests on an emulator.
+
+use super::*;
+
+/// The single candidates a candidate combines: `a+b` → {a, b}.
+pub(super) fn members(name: &str) -> std::collections::BTreeSet<&str> {
+    name.split('+').collect()
+}
+
+/// Index of the candidate to name among `ranked` (best evidence first): the
+/// best, unless a candidate it contains comes within `strong` of it; then
+/// that one (the best such), and so on down.
+pub(super) fn occam(ranked: &[&CandidateResult], strong: f64) -> usize {
+    let mut chosen = 0;
+    while let Some((i, _)) = ranked
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| {
+            let (inner, outer) = (members(&r.name), members(&ranked[chosen].name));
+            inner.len() < outer.len()
+                && inner.is_subset(&outer)
+                && ranked[chosen].log_evidence - r.log_evidence <= strong
+        })
+        .max_by(|a, b| a.1.log_evidence.total_cmp(&b.1.log_evidence))
+    {
+        chosen = i;
+    }
+    chosen
+}
+
+/// The best alternative to `winner` among `ranked`: a candidate that does not
+/// contain it (a+b is the winner a with more, not another explanation).
+pub(super) fn runner_up<'c>(winner: &CandidateResult, ranked: &'c [CandidateResult]) -> Option<&'c CandidateResult> {
+    let mine = members(&winner.name);
+    ranked.iter().find(|c| c.name != winner.name && !mine.is_subset(&members(&c.name)))
+}
+
+/// The best candidate, when it beats the base model by more than
+/// `strong_log_bf`, fits adequately and is not itself beaten by the MD fit.
+pub(super) fn named_candidate<'c>(
+    candidates: &'c [CandidateResult],
+    settings: &DiagnoseSettings,
+    z_md: f64,
+) -> Option<&'c CandidateResult> {
+    candidates.first().filter(|c| {
+        c.log_bayes_factor > settings.strong_log_bf
+            && c.p_value >= settings.min_p_value
+            && c.log_evidence > z_md - settings.strong_log_bf
+    })
+}
+
+/// The other explanations `best` does not beat decisively: candidates that
+/// neither contain it nor are contained in it (Occam's rule settled those),
+/// fit adequately, and trail it by no more than `strong_log_bf` plus twice
+/// the Monte Carlo error of the difference.
+pub(super) fn rivals<'c>(
+    best: &CandidateResult,
+    candidates: &'c [CandidateResult],
+    settings: &DiagnoseSettings,
+) -> Vec<&'c CandidateResult> {
+    let mine = members(&best.name);
+    candidates
+        .iter()
+        .filter(|c| c.name != best.name && c.p_value >= settings.min_p_value)
+        .filter(|c| {
+            let theirs = members(&c.name);
+            !mine.is_subset(&theirs) && !theirs.is_subset(&mine)
+        })
+        .filter(|c| best.log_evidence - c.log_evidence <= decisive_lead(best, c, settings))
+        .collect()
+}
+
+/// The lead in log evidence of `a` over `b` that names `a` alone:
+/// `strong_log_bf` plus twice the Monte Carlo error of the difference.
+pub(super) fn decisive_lead(a: &CandidateResult, b: &CandidateResult, settings: &DiagnoseSettings) -> f64 {
+    let err = (a.log_evidence_err.powi(2) + b.log_evidence_err.powi(2)).sqrt();
+    settings.strong_log_bf + 2.0 * if err.is_finite() { err } else { 0.0 }
+}
+
+/// The verdict: a named candidate, "ambiguous", "unexplained" or "none" (see
+/// the module docs).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn decide(
+    candidates: &[CandidateResult],
+    named: Option<&CandidateResult>,
+    (rivals, suggestion): (&[&CandidateResult], Option<Suggestion>),
+    runs: &[CandidateRun],
+    mismatch: &[ObservableMismatch],
+    base: &Summary,
+    settings: &DiagnoseSettings,
+    (z_base, z_md): (f64, f64),
+) -> Verdict {
+    let base_p = p_value(base.fit.chi2, base.fit.dof);
+    let significant = z_md - z_base > settings.strong_log_bf || base_p < settings.min_p_value;
+    let best = candidates.first();
+    // Posterior model probabilities with equal prior odds.
+    let mut all_z = vec![z_base, z_md];
+    all_z.extend(candidates.iter().map(|c| c.log_evidence));
+    let lse = crate::engine::calibrate::smc::log_sum_exp(&all_z);
+    let prob = |z: f64| (z - lse).exp();
+    let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
+    let verdict = |best: &str, statement: String, confidence: f64| Verdict {
+        best: best.into(),
+        standing: Vec::new(),
+        suggestion: None,
+        refine: Vec::new(),
+        statement,
+        confidence,
+    };
+    let emulator_limited = |standing: Vec<&CandidateResult>| {
+        let refine = to_refine(&standing);
+        Verdict {
+            best: "emulator_limited".into(),
+            statement: emulator_limited_statement(standing[0], &refine, mismatch, settings.min_p_value),
+            confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
+            standing: standing.iter().map(|s| s.name.clone()).collect(),
+            suggestion: None,
+            refine,
+        }
+    };
+    if let (None, true, Some(standing)) = (named, significant, unnamed_on_emulator(candidates, settings)) {
+        return emulator_limited(standing);
+    }
+    match named {
+        Some(c) if rests_on_emulator(c) => emulator_limited(std::iter::once(c).chain(rivals.iter().copied()).collect()),
+        Some(c) if !rivals.is_empty() => {
+            let standing: Vec<&CandidateResult> = std::iter::once(c).chain(rivals.iter().copied()).collect();
+            Verdict {
+                best: "ambiguous".into(),
+                statement: ambiguous_statement(&standing, suggestion.as_ref(), mismatch, settings.strong_log_bf),
+                confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
+                standing: standing.iter().map(|s| s.name.clone()).collect(),
+                suggestion,
+                refine: Vec::new(),
+            }
+        }
+        Some(c) => {
+            // What a reader means by confidence in "the data need c": the
+            // probability of every model that contains c, pairs included.
+            let mine = members(&c.name);
+            let needed = candidates.iter().filter(|k| mine.is_subset(&members(&k.name))).map(|k| prob(k.log_evidence)).sum();
+            verdict(&c.name, named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), needed)
+        }
+        None if significant => {
+            let w = worst.map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max)).unwrap_or_default();
+            let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
+            verdict("unexplained", format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.", z_md - z_base), prob(z_md))
+        }
+        None => verdict(
+            "none",
+            format!(
+                "no significant mismatch: δ is consistent with zero (largest posterior-mean |δ| = {:.1}σ), the model alone fits with χ²/dof = {:.2}, and no candidate is favoured (best log BF = {:.1}).",
+                worst.map(|w| w.max_sigma).unwrap_or(0.0),
+                base.fit.chi2_per_dof,
+                best.map(|c| c.log_bayes_factor).unwrap_or(f64::NAN)
+            ),
+            prob(z_base),
+        ),
+    }
+}
+
+/// Whether a fit rests on its emulator: the emulator's share of the
+/// predictive variance at the data is above one half.
+pub(super) fn rests_on_emulator(c: &CandidateResult) -> bool {
+    c.emulator_share > EMULATOR_DOMINATES
+}
+
+/// When the leader beats the base model strongly but was not named (its fit
+/// fails the χ² test or the MD fit beats it) while resting on its emulator:
+/// the leader and every other such candidate within a decisive lead of it.
+/// Their χ² and evidence are then set by the emulator's error, not the data,
+/// so rejecting them would be as unfounded as naming them; only refinement
+/// can decide (a coarse emulator's mean can miss by more than its sd, and a
+/// χ²/dof of 2 at 98% emulator share says exactly that).
+pub(super) fn unnamed_on_emulator<'c>(
+    candidates: &'c [CandidateResult],
+    settings: &DiagnoseSettings,
+) -> Option<Vec<&'c CandidateResult>> {
+    let leader = candidates.first().filter(|c| c.log_bayes_factor > settings.strong_log_bf && rests_on_emulator(c))?;
+    let trailing = candidates[1..].iter().filter(|c| {
+        rests_on_emulator(c)
+            && c.log_bayes_factor > settings.strong_log_bf
+            && leader.log_evidence - c.log_evidence <= decisive_lead(leader, c, settings)
+    });
+    Some(std::iter::once(leader).chain(trailing).collect())
+}
+
+/// The standing candidates whose variant emulators must be refined.
+pub(super) fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
+    standing.iter().filter(|s| rests_on_emulator(s)).map(|s| s.name.clone()).collect()
+}

@@ -1,0 +1,183 @@
+//! What a diagnosis is: its settings, the mismatch located, each candidate's
+//! result, the verdict and the repair, as `diagnosis.json` stores them.
+
+use super::*;
+
+#[derive(Clone, Debug)]
+pub struct DiagnoseSettings {
+    pub kernel: DiscrepancyKernel,
+    pub strong_log_bf: f64,
+    pub min_p_value: f64,
+    /// Refit the winner with MD on top (step 3); blind tests skip it.
+    pub repair: bool,
+}
+
+impl Default for DiagnoseSettings {
+    fn default() -> Self {
+        DiagnoseSettings { kernel: DiscrepancyKernel::KernelII, strong_log_bf: 3.0, min_p_value: 1e-3, repair: true }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Region {
+    pub x_from: f64,
+    pub x_to: f64,
+    /// "above": data above the model (δ > 0); "below": δ < 0.
+    pub sign: String,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ObservableMismatch {
+    pub observable: String,
+    /// x ranges (within the data) where the 95% band of δ excludes zero.
+    pub regions: Vec<Region>,
+    /// Largest |posterior-mean δ| at a data point, in units of its 1σ error.
+    pub max_sigma: f64,
+    pub x_at_max: f64,
+    /// "above", "below", "mixed" or "none".
+    pub sign: String,
+    /// Whether |δ| grows with x over the data.
+    pub grows_with_x: bool,
+    /// Posterior of the growth exponent r of the discrepancy kernel.
+    pub r: ParamSummary,
+    /// Posterior-predictive check of the no-MD fit: residuals (y − η̂)
+    /// standardized by the whole predictive sd (measurement error, posterior
+    /// spread of η and, for an emulator, its own uncertainty), and χ².
+    pub no_md_residuals: Vec<(f64, f64)>,
+    /// Runs of consecutive data points whose no-MD residual exceeds 2 in
+    /// size with one sign (kept if two or more points, or one beyond 3): where
+    /// the model alone misses. Where an emulator's uncertainty leaves the δ
+    /// band wide (`regions` empty), this still locates the mismatch.
+    #[serde(default)]
+    pub residual_regions: Vec<Region>,
+    pub no_md_chi2: f64,
+    pub no_md_dof: usize,
+    /// Posterior-mean δ/σ at each data point: one row of the mismatch map.
+    pub map: Vec<(f64, f64)>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct CandidateResult {
+    pub name: String,
+    pub description: String,
+    pub log_evidence: f64,
+    pub log_evidence_err: f64,
+    /// Against the base model without MD.
+    pub log_bayes_factor: f64,
+    pub log_bayes_factor_err: f64,
+    pub parameters: BTreeMap<String, ParamSummary>,
+    pub chi2_per_dof: f64,
+    pub p_value: f64,
+    pub converged: bool,
+    /// The model's (an emulator's) share of the fit's predictive variance at
+    /// the data, in the observable where it is largest (`FitQuality`).
+    #[serde(default)]
+    pub emulator_share: f64,
+    /// That observable ("" for an exact model).
+    #[serde(default)]
+    pub emulator_share_observable: String,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Verdict {
+    /// A candidate name, "ambiguous", "emulator_limited", "none" or "unexplained".
+    pub best: String,
+    /// For "ambiguous": the candidates still standing, best evidence first.
+    #[serde(default)]
+    pub standing: Vec<String>,
+    /// For "ambiguous": the measurement that would best separate the first two.
+    #[serde(default)]
+    pub suggestion: Option<Suggestion>,
+    /// For "emulator_limited": the candidates whose variant emulators must be
+    /// refined (more runs where their posteriors lie) before a verdict.
+    #[serde(default)]
+    pub refine: Vec<String>,
+    pub statement: String,
+    /// Posterior probability, with equal prior odds among the base, MD and
+    /// candidate models: for a named candidate, of every model that contains
+    /// it (the probability that the data need it); for `none`, of the base
+    /// model; for `unexplained`, of the MD model; otherwise of the models
+    /// still standing.
+    pub confidence: f64,
+}
+
+impl Verdict {
+    /// The verdict's probability in words: what it is the probability of.
+    pub fn confidence_phrase(&self) -> String {
+        let v = self;
+        let p = v.confidence;
+        let what = match v.best.as_str() {
+            "none" => "that nothing is missing".to_string(),
+            "unexplained" => "of the model-discrepancy fit".to_string(),
+            "ambiguous" | "emulator_limited" => "of the models still standing".to_string(),
+            name => format!("that the data need {name}, over every model that contains it"),
+        };
+        let shown = if p > 0.999 { "> 0.999".to_string() } else { format!("{p:.3}") };
+        format!("posterior probability {shown} {what}")
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FitFigures {
+    pub label: String,
+    pub chi2_per_dof: f64,
+    pub log_evidence: f64,
+    pub log_evidence_err: f64,
+    pub parameters: BTreeMap<String, ParamSummary>,
+    /// Largest |posterior-mean δ|/σ per observable (0 without MD).
+    pub delta_max_sigma: BTreeMap<String, f64>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Improvement {
+    pub before: Vec<FitFigures>,
+    pub after: Vec<FitFigures>,
+    /// Width of the 95% interval of each model parameter, before (MD) / after (repaired).
+    pub interval_narrowing: BTreeMap<String, f64>,
+    /// The largest narrowing these data allow: the MD width over the repaired
+    /// model's Cramér–Rao 95% width (2 × 1.96 × sd) at its posterior median.
+    /// Empty for emulated models and for parameters the data cannot identify.
+    #[serde(default)]
+    pub information_limit: BTreeMap<String, f64>,
+    /// The parameters' true values, when the config knows them (mock data).
+    #[serde(default)]
+    pub truth: BTreeMap<String, f64>,
+}
+
+impl Improvement {
+    /// Whether the repaired fit's and the MD fit's 95% intervals of `name`
+    /// cover its true value, when the config knows it: a narrower interval
+    /// that misses the truth is no repair, a wider one that covers it may be.
+    pub fn truth_coverage(&self, name: &str) -> String {
+        let Some(&t) = self.truth.get(name) else { return String::new() };
+        let covers =
+            |f: Option<&FitFigures>| f.and_then(|f| f.parameters.get(name)).map(|p| p.q025 <= t && t <= p.q975);
+        match (covers(self.after.first()), covers(self.before.get(1))) {
+            (Some(true), Some(false)) => format!("; it covers the truth {t}, which MD alone missed"),
+            (Some(true), Some(true)) => format!("; both cover the truth {t}"),
+            (Some(false), Some(true)) => format!("; it misses the truth {t}, which MD alone covered"),
+            (Some(false), Some(false)) => format!("; both miss the truth {t}"),
+            _ => String::new(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Diagnosis {
+    pub mismatch: Vec<ObservableMismatch>,
+    pub candidates: Vec<CandidateResult>,
+    pub verdict: Verdict,
+    pub improvement: Option<Improvement>,
+    pub base_log_evidence: f64,
+    pub md_log_evidence: f64,
+    pub provenance: Provenance,
+}
+
+/// Everything `diagnose` computed, for the report.
+pub struct DiagnoseRun {
+    pub diagnosis: Diagnosis,
+    pub base: Calibration,
+    pub md: Calibration,
+    pub candidates: Vec<(String, Calibration)>,
+    pub repaired_md: Option<Calibration>,
+}

@@ -1,0 +1,186 @@
+//! The verdict in words, and the diagnosis as the terminal shows it.
+
+use super::*;
+
+/// "…the data cannot yet choose between A (…) and B (…): …; to separate them, measure …".
+pub(super) fn ambiguous_statement(
+    standing: &[&CandidateResult],
+    suggestion: Option<&Suggestion>,
+    mismatch: &[ObservableMismatch],
+    strong: f64,
+) -> String {
+    let who: Vec<String> = standing
+        .iter()
+        .map(|c| {
+            let fitted: Vec<String> = c
+                .parameters
+                .iter()
+                .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
+                .collect();
+            format!(
+                "{} ({}; log BF {:.1} ± {:.1} against the model as it is; {})",
+                c.name,
+                c.description,
+                c.log_bayes_factor,
+                c.log_bayes_factor_err,
+                fitted.join(", ")
+            )
+        })
+        .collect();
+    let (a, b) = (standing[0], standing[1]);
+    let gap = a.log_evidence - b.log_evidence;
+    let err = (a.log_evidence_err.powi(2) + b.log_evidence_err.powi(2)).sqrt();
+    let next = suggestion.map(|s| format!("; {}", suggest::phrase(s))).unwrap_or_default();
+    format!(
+        "{}the data cannot yet choose between {}: {} leads {} by log BF {gap:.1} ± {err:.1}, short of the decisive {strong} (plus twice its error){next}.",
+        mismatch_phrase(mismatch),
+        who.join(" and "),
+        a.name,
+        b.name
+    )
+}
+
+/// The observable where the emulator carries the largest share ("" when none does).
+pub(super) fn worst_share_observable(fit: &crate::engine::calibrate::summary::FitQuality) -> String {
+    fit.per_observable_share
+        .iter()
+        .filter(|(_, v)| **v > 0.0)
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(k, _)| k.clone())
+        .unwrap_or_default()
+}
+
+/// "…the data lead to X, but its emulator carries N% of the variance: refine …".
+pub(super) fn emulator_limited_statement(
+    c: &CandidateResult,
+    refine: &[String],
+    mismatch: &[ObservableMismatch],
+    min_p_value: f64,
+) -> String {
+    let poor = if c.p_value < min_p_value {
+        format!(" (its χ²/dof of {:.2} cannot yet tell a wrong candidate from a coarse emulator)", c.chi2_per_dof)
+    } else {
+        String::new()
+    };
+    format!(
+        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data{}, so the emulator, not the data, decides how well it fits{poor}: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
+        mismatch_phrase(mismatch),
+        c.name,
+        c.log_bayes_factor,
+        c.log_bayes_factor_err,
+        100.0 * c.emulator_share,
+        if c.emulator_share_observable.is_empty() { String::new() } else { format!(" in {}", c.emulator_share_observable) },
+        if refine.len() > 1 { "s" } else { "" },
+        refine.join(" and "),
+        if refine.len() > 1 { "their" } else { "its" },
+        if refine.len() > 1 { "s" } else { "" },
+        if refine.len() > 1 { "" } else { "s" },
+    )
+}
+
+/// "…the data favour X (what it is), k = … over the runner-up by log BF = …".
+pub(super) fn named_statement(
+    c: &CandidateResult,
+    model: &CandidateModel,
+    runner_up: Option<&CandidateResult>,
+    mismatch: &[ObservableMismatch],
+) -> String {
+    let fitted: Vec<String> = model
+        .extra_parameters
+        .iter()
+        .map(|(n, spec)| {
+            let p = &c.parameters[n];
+            format!(
+                "{n} = {:.3} [{:.3}, {:.3}]{}",
+                p.median,
+                p.q025,
+                p.q975,
+                if spec.units.is_empty() { String::new() } else { format!(" {}", spec.units) }
+            )
+        })
+        .collect();
+    let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
+    let trend = mismatch_phrase(mismatch);
+    let runner = runner_up
+        .map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence))
+        .unwrap_or_default();
+    format!(
+        "{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.",
+        c.name.replace('_', " "),
+        c.description,
+        c.log_bayes_factor
+    )
+}
+
+/// Plain-text summary for the terminal.
+pub fn print(d: &Diagnosis) {
+    println!("Locate (model + MD; δ in units of the measurement error):");
+    for m in &d.mismatch {
+        let show = |rs: &[Region]| -> String {
+            if rs.is_empty() {
+                "no region".into()
+            } else {
+                rs.iter().map(|r| format!("[{:.2}, {:.2}] {}", r.x_from, r.x_to, r.sign)).collect::<Vec<_>>().join(", ")
+            }
+        };
+        println!(
+            "  {:<14} max |δ| = {:>5.1}σ at x = {:.2}; δ ≠ 0 in {}; r = {:.2} [{:.2}, {:.2}]; no-MD χ²/n = {:.1}, misses in {}",
+            m.observable,
+            m.max_sigma,
+            m.x_at_max,
+            show(&m.regions),
+            m.r.median,
+            m.r.q025,
+            m.r.q975,
+            m.no_md_chi2 / m.no_md_dof as f64,
+            show(&m.residual_regions)
+        );
+    }
+    println!(
+        "Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):",
+        d.md_log_evidence - d.base_log_evidence
+    );
+    let width = d.candidates.iter().map(|c| c.name.chars().count()).max().unwrap_or(0).max(16);
+    for c in &d.candidates {
+        let share = if c.emulator_share > 0.0 {
+            format!("   emulator share {:.0}% ({})", 100.0 * c.emulator_share, c.emulator_share_observable)
+        } else {
+            String::new()
+        };
+        println!(
+            "  {:<width$} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}",
+            c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof
+        );
+    }
+    println!("Verdict: {} ({})", d.verdict.best, d.verdict.confidence_phrase());
+    println!("  {}", d.verdict.statement);
+    if let Some(imp) = &d.improvement {
+        // With MD the χ² is of η alone: what δ had to absorb, not the MD fit's misfit.
+        println!("Repair (before → after; χ²/dof of the model part η alone, δ left out):");
+        for f in imp.before.iter().chain(&imp.after) {
+            let g: Vec<String> = f
+                .parameters
+                .iter()
+                .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
+                .collect();
+            let dmax = f.delta_max_sigma.values().cloned().fold(0.0, f64::max);
+            println!(
+                "  {:<34} χ²/dof {:>6.2}  log Z {:>8.2}  max|δ| {:>4.1}σ  {}",
+                f.label,
+                f.chi2_per_dof,
+                f.log_evidence,
+                dmax,
+                g.join(", ")
+            );
+        }
+        for (n, r) in &imp.interval_narrowing {
+            let limit = imp
+                .information_limit
+                .get(n)
+                .map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)"))
+                .unwrap_or_default();
+            let change = if *r >= 1.0 { format!("{r:.1}x narrower") } else { format!("{:.1}x wider", 1.0 / r) };
+            println!("  95% interval of {n}: {change} than with MD alone{limit}{}", imp.truth_coverage(n));
+        }
+    }
+}
