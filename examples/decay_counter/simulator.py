@@ -18,9 +18,11 @@ Three pieces of physics can be switched on:
   * a room background: `--background on` and `background_rate` (counts/s);
   * a radioactive daughter: `--chain` and `daughter_half_life` (s), whose
     decays the detector counts too.
-A fourth, `efficiency_drift` (fraction of efficiency lost per second, in the
-parameter file), is physics the bundled study does not declare: the blind
-tests hide it in data to check that mdpipe does not give it a wrong name.
+A fourth, `efficiency_modulation` (in the parameter file: an efficiency that
+swings by this fraction with period `modulation_period`, default 4 s, as a
+detector whose temperature cycles), is physics the bundled study does not
+declare: the blind tests hide it in data to check that mdpipe does not give
+it a wrong name.
 """
 import argparse
 import math
@@ -115,9 +117,10 @@ def main():
         times.sort()
         if p.get("detector_model", "ideal") == "nonparalyzable":
             times = dead_time_filter(times, number(p, "dead_time_us") * 1e-6)
-        drift = number(p, "efficiency_drift", 0.0)
-        if drift > 0:
-            times = [t for t in times if rng.random() < 1.0 - drift * t]
+        swing = number(p, "efficiency_modulation", 0.0)
+        if swing > 0:
+            omega = 2.0 * math.pi / number(p, "modulation_period", 4.0)
+            times = [t for t in times if rng.random() < 1.0 - 0.5 * swing * (1.0 + math.sin(omega * t))]
         for t in times:
             counts[min(int(t / BIN), len(counts) - 1)] += 1
     os.makedirs(a.out, exist_ok=True)
