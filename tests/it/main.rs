@@ -8,6 +8,7 @@ mod cluster;
 mod common;
 mod declared;
 mod diagnose;
+mod diagnose_heavy_ion;
 mod emulator;
 mod family;
 mod faults;
