@@ -1,6 +1,7 @@
 //! The command line: what each command and flag means (clap). `main.rs`
 //! parses it and hands it to [`super::run`].
 
+use super::{bench, commands, demo, simulate};
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -294,4 +295,91 @@ pub enum SimulateSystem {
         #[arg(long, value_delimiter = ',', default_values_t = [0.1, 0.2, 0.3])]
         sigma: Vec<f64>,
     },
+}
+
+impl Command {
+    /// Runs the command: each variant hands its arguments to its function in
+    /// `commands` (or `demo`, `bench`, `simulate`), so a new command is a
+    /// variant here and a function there.
+    pub fn run(self) -> anyhow::Result<()> {
+        match self {
+            Command::Calibrate { args, kernel, observables, sampler, time_limit } => {
+                commands::calibrate(args, kernel, observables, sampler, time_limit)
+            }
+            Command::Compare { args, sampler, replicates } => commands::compare(args, sampler, replicates),
+            Command::Diagnose { args } => commands::diagnose(args),
+            Command::Design { spec, points, seed, out } => commands::design(&spec, points, seed, &out),
+            Command::TrainEmulator { config, training, design, seed, out } => {
+                commands::train_emulator(&config, &training, design.as_deref(), seed, &out)
+            }
+            Command::ValidateEmulator { emulator, validation, folds, seed } => {
+                commands::validate_emulator(&emulator, validation.as_deref(), folds, seed)
+            }
+            Command::Report { dirs, out, png } => commands::report(&dirs, &out, png.as_deref()),
+            Command::Run { config, stage, force, seed, out, executor, case } => {
+                commands::run_study(&config, stage, force, seed, out, &executor, case)
+            }
+            Command::Refine { config, seed, out, executor } => {
+                commands::run_study(&config, Some("refine".into()), false, seed, out, &executor, None)
+            }
+            Command::Demo { seed, full, out } => demo::run(seed, full, &out),
+            Command::Bench {
+                config,
+                evaluations,
+                likelihood_only,
+                sampler,
+                out,
+                seed,
+                emulator,
+                heavy_ion_events,
+                diagnose,
+            } => bench::command(bench::BenchArgs {
+                config,
+                evaluations,
+                likelihood_only,
+                sampler,
+                out,
+                seed,
+                emulator,
+                heavy_ion_events,
+                diagnose,
+            }),
+            Command::Ingest { runs, pt_bins, design, min_events, format, out } => {
+                commands::ingest(&runs, pt_bins, design.as_deref(), min_events, &format, &out)
+            }
+            Command::Simulate {
+                system:
+                    SimulateSystem::HeavyIon {
+                        point,
+                        design,
+                        only,
+                        point_folder,
+                        delta_f,
+                        events,
+                        oversample,
+                        seed,
+                        layout,
+                        relative_error,
+                        errors_from,
+                        out,
+                    },
+            } => simulate::heavy_ion(simulate::HeavyIonArgs {
+                point,
+                design,
+                only,
+                point_folder,
+                delta_f,
+                events,
+                oversample,
+                seed,
+                layout,
+                relative_error,
+                errors_from,
+                out,
+            }),
+            Command::Simulate {
+                system: SimulateSystem::BallDrop { seed, out, k, g, v0, h0, points, t_max, sigma },
+            } => simulate::ball_drop(seed, &out, k, g, v0, h0, points, t_max, &sigma),
+        }
+    }
 }

@@ -1,11 +1,10 @@
-//! `mdpipe run`: a study end to end, as a sequence of stages that each write
-//! their artifacts under one output folder and are skipped when their inputs
-//! have not changed. The simulate stage runs `[run.simulator]` (any
-//! simulator) or, without it, the heavy-ion stand-in, through
-//! `engine::execute` (local processes or a Slurm array). The mock, candidates
-//! and diagnose stages, and the study's assessment, belong to the stand-in's
-//! study (`mock_delta_f`); with a user's simulator the calibrations use the
-//! config's measurements and are tabulated in calibrate/cases.md.
+//! `mdpipe run`: a study end to end for any simulator, as a sequence of
+//! stages that each write their artifacts under one output folder and are
+//! skipped when their inputs have not changed. The simulate stage runs
+//! `[run.simulator]` (or, without it, the heavy-ion stand-in as one instance
+//! of a simulator) through `engine::execute`, locally or as a Slurm array.
+//! The calibrations use the config's measurements, or the stand-in's mock
+//! data (`mock_delta_f`), whose truth is known and assessed in study.md.
 //!
 //! | stage       | writes (under OUT/)                                             |
 //! |-------------|-----------------------------------------------------------------|
@@ -13,23 +12,24 @@
 //! | simulate    | design/runs/, validation_design/runs/ (one folder per point, execution.json) |
 //! | ingest      | training.parquet, validation.parquet (+ .report.json)           |
 //! | emulator    | emulator/ (trained, then validated: validation.json)            |
-//! | mock        | mock/runs/, mock/measurements.parquet                           |
+//! | mock        | mock/runs/, mock/measurements.parquet (the stand-in's mock data only) |
 //! | refine      | refine/round_<r>/ (pilots, design with runs, tables, emulator), refine/rounds.json, rounds.md (only with `[run.refine]`; the stages after it use its emulator) |
 //! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json (or calibrate/cases.md, cases.json) |
 //! | report      | report.html                                                     |
-//! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator with validation.json) per `[run] candidates` entry |
+//! | candidates  | candidates/<name>/ (design, runs, training.parquet, emulator with its cross-validation) per candidate |
 //! | diagnose    | diagnose/ (diagnosis.json, report.html and every calibration; refine/<candidate>/ and refine/diagnosis_before.json when variants were refined) |
 //!
-//! The last two run only when `[run] candidates` names physics from the
-//! stand-in's library (`heavy_ion::CANDIDATES`): each gets a variant
-//! emulator trained on runs with that physics switched on, and `diagnose`
-//! weighs the variants against the model on the mock data.
-//! A stage's key hashes its settings and its upstream stages' keys (the
-//! simulate stage's, and so ingest's, also the run folders' contents); a stage
-//! whose stamp (`OUT/stages/<stage>.json`) holds the same key, and whose
-//! outputs exist, is skipped. Within the calibrate stage each case is stamped
-//! too (`OUT/stages/calibrate/<case>.json`), so an interrupted stage resumes
-//! with the cases it had not finished.
+//! The last two run when the study declares candidates: `[[candidates]]`
+//! tables that say how the simulator turns each piece of physics on
+//! (`variants`), or the stand-in's library names in `[run] candidates`.
+//! A stage's key hashes its settings (`settings_of`, below) and its upstream
+//! stages' keys (the simulate stage's, and so ingest's, also the run folders'
+//! contents); a stage whose stamp (`OUT/stages/<stage>.json`) holds the same
+//! key, and whose outputs exist, is skipped. Within the calibrate stage each
+//! case is stamped too (`OUT/stages/calibrate/<case>.json`), so an
+//! interrupted stage resumes with the cases it had not finished. A new stage
+//! is a name in `STAGES`, an entry in `plan`, its settings in `settings_of`
+//! (all in this file) and its body, a `Runner` method.
 
 mod cases;
 mod complete;
@@ -51,9 +51,13 @@ pub use complete::{fill_in_from_study, load, study_out};
 pub use refine_rounds::{RefineConfig, Rounds};
 pub use run_config::RunConfig;
 use stages::*;
-pub use stages::{RunOptions, RunPaths, StageOutcome, STAGES};
+pub use stages::{RunOptions, RunPaths, StageOutcome};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+
+/// Every stage a study may have, in order (`--stage` takes these names).
+pub const STAGES: [&str; 10] =
+    ["design", "simulate", "ingest", "emulator", "mock", "refine", "calibrate", "report", "candidates", "diagnose"];
 
 /// Runs the study (or one stage of it). Returns what ran and what was skipped.
 pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
@@ -167,4 +171,47 @@ fn plan<'a>(r: &Runner<'a>, variants: &[variants::Variant]) -> Result<Vec<Stage<
     let outputs = vec![paths.diagnose().join("diagnosis.json"), paths.diagnose().join("report.html")];
     stages.push(stage("diagnose", &fitted, outputs, Runner::diagnose));
     Ok(stages)
+}
+
+impl Runner<'_> {
+    /// The settings that define a stage's output, beyond its upstream keys.
+    pub(super) fn settings_of(&self, stage: &str) -> Result<serde_json::Value> {
+        let run = self.run;
+        let spec_bytes = std::fs::read(self.config.resolve(&run.design))
+            .with_context(|| format!("reading design spec {}", self.config.resolve(&run.design).display()))?;
+        Ok(match stage {
+            // The design stage also writes the array script, which carries the simulate settings.
+            "design" => {
+                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed,
+                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f})
+            }
+            "simulate" => {
+                serde_json::json!({"simulator": serde_json::to_value(&run.simulator)?, "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed})
+            }
+            "ingest" => {
+                serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()})
+            }
+            "emulator" => {
+                serde_json::json!({"emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed})
+            }
+            "mock" => {
+                serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()})
+            }
+            "calibrate" => {
+                serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed})
+            }
+            "refine" => {
+                serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "refine": serde_json::to_value(&run.refine)?, "simulator": serde_json::to_value(&run.simulator)?,
+                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "set": self.diagnose_observables(), "kernels": run.kernels, "seed": self.opts.seed})
+            }
+            "candidates" => {
+                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "variants": serde_json::to_value(self.variants()?)?, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
+                "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed})
+            }
+            "diagnose" => {
+                serde_json::json!({"config": self.config.hash, "data": self.data_hash()?, "observables": self.diagnose_observables(), "seed": self.opts.seed})
+            }
+            _ => serde_json::json!({"config": self.analysis_hash()?}),
+        })
+    }
 }

@@ -11,9 +11,6 @@ use anyhow::{anyhow, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-pub const STAGES: [&str; 10] =
-    ["design", "simulate", "ingest", "emulator", "mock", "refine", "calibrate", "report", "candidates", "diagnose"];
-
 /// Where and how to run.
 pub struct RunOptions {
     pub out: PathBuf,
@@ -120,47 +117,6 @@ pub(super) struct Runner<'a> {
 }
 
 impl Runner<'_> {
-    /// The settings that define a stage's output, beyond its upstream keys.
-    pub(super) fn settings_of(&self, stage: &str) -> Result<serde_json::Value> {
-        let run = self.run;
-        let spec_bytes = std::fs::read(self.config.resolve(&run.design))
-            .with_context(|| format!("reading design spec {}", self.config.resolve(&run.design).display()))?;
-        Ok(match stage {
-            // The design stage also writes the array script, which carries the simulate settings.
-            "design" => {
-                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "points": run.points, "validation_points": run.validation_points, "seed": self.opts.seed,
-                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f})
-            }
-            "simulate" => {
-                serde_json::json!({"simulator": serde_json::to_value(&run.simulator)?, "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "seed": self.opts.seed})
-            }
-            "ingest" => {
-                serde_json::json!({"runs": [runs_fingerprint(&self.paths.design().join("runs"))?, runs_fingerprint(&self.paths.validation_design().join("runs"))?], "observables": self.all_observables()})
-            }
-            "emulator" => {
-                serde_json::json!({"emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed})
-            }
-            "mock" => {
-                serde_json::json!({"truth": self.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": self.opts.seed, "observables": self.all_observables()})
-            }
-            "calibrate" => {
-                serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "sets": run.observable_sets, "kernels": run.kernels, "seed": self.opts.seed})
-            }
-            "refine" => {
-                serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "refine": serde_json::to_value(&run.refine)?, "simulator": serde_json::to_value(&run.simulator)?,
-                "events": run.events, "oversample": run.oversample, "delta_f": run.model_delta_f, "set": self.diagnose_observables(), "kernels": run.kernels, "seed": self.opts.seed})
-            }
-            "candidates" => {
-                serde_json::json!({"spec": artifacts::sha256_hex(&spec_bytes), "variants": serde_json::to_value(self.variants()?)?, "points": run.candidate_points.unwrap_or(run.points), "events": run.events,
-                "oversample": run.oversample, "delta_f": run.model_delta_f, "observables": self.all_observables(), "emulator": serde_json::to_value(&self.emulator)?, "seed": self.opts.seed})
-            }
-            "diagnose" => {
-                serde_json::json!({"config": self.config.hash, "data": self.data_hash()?, "observables": self.diagnose_observables(), "seed": self.opts.seed})
-            }
-            _ => serde_json::json!({"config": self.analysis_hash()?}),
-        })
-    }
-
     pub(super) fn stage(
         &mut self,
         name: &str,
