@@ -1,6 +1,7 @@
 //! The command line: what each command and flag means (clap). `main.rs`
 //! parses it and hands it to [`super::run`].
 
+use super::commands::CalibrationArgs;
 use super::{bench, commands, demo, simulate};
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -14,21 +15,6 @@ use std::path::PathBuf;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
-}
-
-#[derive(clap::Args, Clone)]
-pub struct CalibrationArgs {
-    /// Analysis config (TOML), e.g. pipeline/ball_drop.toml
-    pub config: PathBuf,
-    /// Measurements file (CSV or Parquet: observable,x,value,error); replaces the config's
-    #[arg(long)]
-    pub data: Option<PathBuf>,
-    /// Random seed
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
-    /// Output directory
-    #[arg(long)]
-    pub out: PathBuf,
 }
 
 #[derive(Subcommand)]

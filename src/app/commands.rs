@@ -1,7 +1,6 @@
 //! The commands of the command line, each reading its inputs, calling the
 //! engine and saying what it wrote.
 
-use super::cli::CalibrationArgs;
 use crate::base::artifacts;
 use crate::base::config::Config;
 use crate::base::progress::Bars;
@@ -11,6 +10,22 @@ use crate::engine::{compare, diagnose, report};
 use crate::systems;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
+
+/// The arguments every calibrating command takes.
+#[derive(clap::Args, Clone)]
+pub struct CalibrationArgs {
+    /// Analysis config (TOML), e.g. pipeline/ball_drop.toml
+    pub config: PathBuf,
+    /// Measurements file (CSV or Parquet: observable,x,value,error); replaces the config's
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Random seed
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output directory
+    #[arg(long)]
+    pub out: PathBuf,
+}
 
 pub fn parse_overrides(
     data: Option<PathBuf>,

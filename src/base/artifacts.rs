@@ -233,25 +233,7 @@ pub fn write_parquet_atomic(path: &Path, df: &mut DataFrame, provenance: Option<
     staged.commit()
 }
 
-pub fn read_parquet(path: &Path) -> Result<DataFrame> {
-    let f = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    let read = without_panics(path, "Parquet", || ParquetReader::new(f).finish())?;
-    read.map_err(|e| anyhow!("reading Parquet file {}: {e}", path.display()))
-}
-
-/// Runs a third-party parser, turning a panic on a corrupt file (polars'
-/// Parquet metadata decoder panics on some damaged footers) into an error
-/// that names the file: no input may panic mdpipe.
-pub fn without_panics<T>(path: &Path, format: &str, parse: impl FnOnce() -> T) -> Result<T> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(parse)).map_err(|p| {
-        let why = p
-            .downcast_ref::<String>()
-            .cloned()
-            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
-            .unwrap_or_default();
-        anyhow!("{}: not a readable {format} file (the decoder failed: {why})", path.display())
-    })
-}
+pub use super::table::{read_parquet, without_panics};
 
 /// Builds a DataFrame from named f64 columns (all the same length).
 pub fn f64_frame(columns: Vec<(String, Vec<f64>)>) -> Result<DataFrame> {

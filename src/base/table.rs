@@ -4,7 +4,7 @@
 //! reads (measurements, a simulator's outputs, training tables) goes through it.
 
 use anyhow::{anyhow, Context, Result};
-use polars::prelude::DataFrame;
+use polars::prelude::{DataFrame, ParquetReader, SerReader};
 use std::path::Path;
 
 /// A table read as text cells (CSV) or typed columns (Parquet), with
@@ -18,7 +18,7 @@ impl RawTable {
     pub fn read(path: &Path) -> Result<RawTable> {
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
         if ext == "parquet" || ext == "pq" {
-            return Ok(RawTable::Parquet(crate::base::artifacts::read_parquet(path)?));
+            return Ok(RawTable::Parquet(read_parquet(path)?));
         }
         let mut reader = csv::ReaderBuilder::new()
             .comment(Some(b'#'))
@@ -106,4 +106,25 @@ impl RawTable {
             RawTable::Parquet(df) => crate::base::columns::str_column(df, path, name),
         }
     }
+}
+
+/// Reads a Parquet file whole.
+pub fn read_parquet(path: &Path) -> Result<DataFrame> {
+    let f = std::fs::File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    let read = without_panics(path, "Parquet", || ParquetReader::new(f).finish())?;
+    read.map_err(|e| anyhow!("reading Parquet file {}: {e}", path.display()))
+}
+
+/// Runs a third-party parser, turning a panic on a corrupt file (polars'
+/// Parquet metadata decoder panics on some damaged footers) into an error
+/// that names the file: no input may panic mdpipe.
+pub fn without_panics<T>(path: &Path, format: &str, parse: impl FnOnce() -> T) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(parse)).map_err(|p| {
+        let why = p
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_default();
+        anyhow!("{}: not a readable {format} file (the decoder failed: {why})", path.display())
+    })
 }

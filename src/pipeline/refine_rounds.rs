@@ -22,39 +22,9 @@ use crate::engine::calibrate::{self, Overrides, Problem};
 use crate::engine::design::DesignSpec;
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::refine::{self, ObservableRatio};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use polars::prelude::*;
 use std::path::{Path, PathBuf};
-
-/// `[run.refine]`.
-#[derive(Clone, Debug, serde::Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct RefineConfig {
-    /// New runs per round.
-    pub points_per_round: usize,
-    /// The most new runs in all rounds together.
-    pub budget: usize,
-    /// Posterior draws weighed per round (candidate points and where the error is measured).
-    #[serde(default = "default_draws")]
-    pub draws: usize,
-    /// New runs the diagnose stage may spend on each variant emulator when
-    /// the verdict rests on it ("emulator_limited"); 0: none (runs cost).
-    #[serde(default)]
-    pub variant_budget: usize,
-}
-
-fn default_draws() -> usize {
-    300
-}
-
-impl RefineConfig {
-    pub(super) fn validate(&self) -> Result<()> {
-        if self.points_per_round == 0 || self.draws < 10 {
-            bail!("[run.refine]: points_per_round must be at least 1 and draws at least 10");
-        }
-        Ok(())
-    }
-}
 
 /// One round as reported.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
