@@ -73,7 +73,10 @@ pub struct SlurmSpec {
 impl Default for SlurmSpec {
     fn default() -> Self {
         SlurmSpec {
-            command: "mdpipe simulate heavy-ion --design design.parquet --only {id} --delta-f none --out runs".into(),
+            // No simulator is assumed: a design spec for `mdpipe design` names its
+            // own; `mdpipe run` writes its `[run.simulator]` command here.
+            command: "echo 'no [slurm] command in the design spec: give the command that runs one point' >&2; exit 1"
+                .into(),
             time: "04:00:00".into(),
             cpus_per_task: 1,
             mem: "4G".into(),

@@ -6,6 +6,7 @@ use super::stages::*;
 use crate::base::artifacts::{self};
 use crate::engine::design::DesignSpec;
 use crate::engine::execute::{self, OutputKind, SimulatorSpec};
+use crate::engine::ingest::{tables::TableRuns, IebeMusicRuns, IngestSettings, RunsReader};
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 
@@ -181,16 +182,8 @@ impl Runner<'_> {
     /// Ingests one design's runs into a training table of the study's observables.
     pub(super) fn ingest_design(&self, dir: &Path, out: &Path) -> Result<()> {
         let keep = self.all_observables();
-        let (mut ingested, design_df) = match self.run.output() {
-            OutputKind::IebeMusic => crate::engine::ingest::ingest_runs(
-                &dir.join("runs"),
-                Some(&dir.join("design.parquet")),
-                &crate::engine::ingest::IngestSettings::default(),
-            )?,
-            OutputKind::Table | OutputKind::Exit => {
-                crate::engine::ingest::tables::ingest_tables(&dir.join("runs"), Some(&dir.join("design.parquet")))?
-            }
-        };
+        let (mut ingested, design_df) =
+            reader(self.run.output()).read(&dir.join("runs"), Some(&dir.join("design.parquet")))?;
         ingested.rows.retain(|r| keep.contains(&r.observable));
         let dropped = drop_incomplete_points(&mut ingested.rows);
         for (id, what) in &dropped {
@@ -245,6 +238,14 @@ impl Runner<'_> {
             crate::engine::emulator::validate::print("held-out design", h);
         }
         Ok(())
+    }
+}
+
+/// The reader of a simulator's output format.
+fn reader(output: OutputKind) -> Box<dyn RunsReader> {
+    match output {
+        OutputKind::IebeMusic => Box::new(IebeMusicRuns(IngestSettings::default())),
+        OutputKind::Table | OutputKind::Exit => Box::new(TableRuns),
     }
 }
 

@@ -22,6 +22,24 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
+/// How one simulator's output format is read into the long table: a folder
+/// of point folders (`RUNS/<design id>/`) in, the rows, each point's report
+/// and the design joined in, out. iEBE-MUSIC's layout ([`IebeMusicRuns`]) and
+/// a table per point ([`tables::TableRuns`]) are two; another simulator's
+/// format is one more implementation.
+pub trait RunsReader {
+    fn read(&self, runs_dir: &Path, design: Option<&Path>) -> Result<(Ingested, Option<DataFrame>)>;
+}
+
+/// iEBE-MUSIC's layout (`spvn_results.h5` or event folders), with its settings.
+pub struct IebeMusicRuns(pub IngestSettings);
+
+impl RunsReader for IebeMusicRuns {
+    fn read(&self, runs_dir: &Path, design: Option<&Path>) -> Result<(Ingested, Option<DataFrame>)> {
+        ingest_runs(runs_dir, design, &self.0)
+    }
+}
+
 /// Which on-disk form to read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RunFormat {

@@ -10,6 +10,15 @@ use anyhow::{anyhow, bail, Result};
 use polars::prelude::*;
 use std::path::Path;
 
+/// A simulator that writes `outputs.csv` or `outputs.parquet` per point.
+pub struct TableRuns;
+
+impl super::RunsReader for TableRuns {
+    fn read(&self, runs_dir: &Path, design: Option<&Path>) -> Result<(Ingested, Option<DataFrame>)> {
+        ingest_tables(runs_dir, design)
+    }
+}
+
 /// Reads every point's table; like `ingest_runs`, with `design` (default
 /// `runs_dir/design.parquet`) naming the points expected.
 pub fn ingest_tables(runs_dir: &Path, design: Option<&Path>) -> Result<(Ingested, Option<DataFrame>)> {
