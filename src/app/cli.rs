@@ -161,10 +161,12 @@ pub enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
-    /// The whole heavy-ion study from a config's [run] table: design, simulate, ingest, emulator,
-    /// mock data, the calibration grid and the report; stages whose inputs are unchanged are skipped
+    /// A whole study from a config's [run] table, for any simulator: design, simulate (locally or as
+    /// a Slurm array), ingest, emulator, the calibrations and the report, then each declared
+    /// candidate as a variant of the simulator and diagnose; stages whose inputs are unchanged are
+    /// skipped
     Run {
-        /// Analysis config with a [run] table, e.g. pipeline/heavy_ion_2param.toml
+        /// Analysis config with a [run] table, e.g. examples/decay_counter/study.toml
         config: PathBuf,
         /// Run only this stage: design, simulate, ingest, emulator, mock, refine, calibrate,
         /// report, candidates or diagnose
@@ -175,7 +177,7 @@ pub enum Command {
         force: bool,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Output folder (default: outputs/<config name>)
+        /// Output folder (default: [run] out, or outputs/<config name>)
         #[arg(long)]
         out: Option<PathBuf>,
         /// Where the simulate stage runs the design points: local (parallel processes) or
