@@ -40,7 +40,11 @@ impl Runner<'_> {
     /// The analysis config pointed at `emulator` and this run's mock data.
     pub(super) fn study_config_with(&self, emulator: &Path) -> Config {
         let mut c = self.config.clone();
-        c.model = EmulatorFamily::model_table(&absolute(emulator));
+        // The config's own [model] keys (its units) stay; the study's emulator is the artifact.
+        let emulator_kind = c.model.get("kind").and_then(|k| k.as_str()) == Some("emulator");
+        let mut model = if emulator_kind { c.model.clone() } else { toml::Table::new() };
+        model.extend(EmulatorFamily::model_table(&absolute(emulator)));
+        c.model = model;
         if self.run.stand_in_study() {
             c.data.measurements = absolute(&self.paths.measurements());
             // The mock's bins are counted from the same events (correlated by

@@ -18,6 +18,19 @@ pub struct EmulatorFamily;
 struct EmulatorModelTable {
     /// Folder written by `mdpipe train-emulator`, relative to the config.
     artifact: PathBuf,
+    /// Units of x and of each observable, for tables and figures (an emulator
+    /// knows only names): `units = { x = "s", observables = { rate = "1/s" } }`.
+    #[serde(default)]
+    units: EmulatorUnits,
+}
+
+#[derive(Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EmulatorUnits {
+    #[serde(default)]
+    x: String,
+    #[serde(default)]
+    observables: BTreeMap<String, String>,
 }
 
 /// A model variant declared as a diagnose candidate: an emulator (folder
@@ -104,6 +117,17 @@ impl ModelFamily for EmulatorFamily {
             &format!("{}: the emulator {}", config.path.display(), dir.display()),
         )?;
         Ok(Arc::new(model))
+    }
+
+    fn units(&self, config: &Config) -> crate::engine::model::Units {
+        match config.decode_family_table::<EmulatorModelTable>(&config.model, "model") {
+            Ok(t) => crate::engine::model::Units {
+                x: t.units.x,
+                observables: t.units.observables,
+                parameters: Default::default(),
+            },
+            Err(_) => Default::default(),
+        }
     }
 
     fn candidates(&self, config: &Config) -> Result<Vec<CandidateModel>> {

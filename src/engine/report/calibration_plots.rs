@@ -178,12 +178,12 @@ pub fn prediction_plot(
     y_units: &str,
     title: &str,
 ) -> Result<String> {
-    let x = run.pred_col(observable, "grid", "x");
-    let cols = |p: &str| {
-        ["q025", "q16", "median", "q84", "q975"].map(|q| run.pred_col(observable, "grid", &format!("{p}_{q}")))
-    };
+    let kind = run.curve_kind(observable);
+    let x = run.pred_col(observable, kind, "x");
+    let cols =
+        |p: &str| ["q025", "q16", "median", "q84", "q975"].map(|q| run.pred_col(observable, kind, &format!("{p}_{q}")));
     let (model, md) = (cols("model"), cols("model_md"));
-    let truth = run.pred_col(observable, "grid", "truth");
+    let truth = run.pred_col(observable, kind, "truth");
     let data: Vec<&Measurement> = run.data.iter().filter(|m| m.observable == observable).collect();
     let yr = range_of(
         model[0]
@@ -204,7 +204,7 @@ pub fn prediction_plot(
                 .caption(title, ("sans-serif", 16))
                 .margin(8)
                 .x_label_area_size(40)
-                .y_label_area_size(56)
+                .y_label_area_size(76)
                 .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
             let (xd, yd) = (axis("x", x_units), axis(observable, y_units));
             p!(chart.configure_mesh().x_desc(xd.as_str()).y_desc(yd.as_str()).draw());
@@ -259,8 +259,9 @@ pub fn prediction_plot(
 
 /// δ(x) posterior band for one observable, with the zero line.
 pub fn delta_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: &str) -> Result<String> {
-    let x = run.pred_col(observable, "grid", "x");
-    let q = ["q025", "median", "q975"].map(|c| run.pred_col(observable, "grid", &format!("delta_{c}")));
+    let kind = run.curve_kind(observable);
+    let x = run.pred_col(observable, kind, "x");
+    let q = ["q025", "median", "q975"].map(|c| run.pred_col(observable, kind, &format!("delta_{c}")));
     let yr = room_for_legend(range_of(q[0].iter().chain(&q[2]).cloned().chain([0.0])), 3);
     let xr = range_of(x.iter().cloned());
     let colour = kernel_colour(&run.summary.kernel);
@@ -271,7 +272,7 @@ pub fn delta_plot(run: &RunArtifacts, observable: &str, x_units: &str, y_units: 
                 .caption(title.as_str(), ("sans-serif", 16))
                 .margin(8)
                 .x_label_area_size(40)
-                .y_label_area_size(56)
+                .y_label_area_size(76)
                 .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1));
             let yd = axis("δ", y_units);
             let xd = axis("x", x_units);

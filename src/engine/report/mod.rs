@@ -60,6 +60,17 @@ impl RunArtifacts {
         self.names.iter().position(|n| n == name).map(|i| self.draws[i].as_slice())
     }
 
+    /// Where a run's bands are drawn: on the grid past the data when the
+    /// model could be evaluated there, else at the data (an emulator knows
+    /// only the outputs it was trained on).
+    pub fn curve_kind(&self, observable: &str) -> &'static str {
+        if self.pred_col(observable, "grid", "x").is_empty() {
+            "data"
+        } else {
+            "grid"
+        }
+    }
+
     pub fn pred_col(&self, observable: &str, kind: &str, col: &str) -> Vec<f64> {
         let obs = self.predictions.column("observable").unwrap().str().unwrap();
         let kinds = self.predictions.column("kind").unwrap().str().unwrap();
