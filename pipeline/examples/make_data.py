@@ -67,3 +67,15 @@ for x2, name in [(0.25, "y_x2_025"), (0.5, "y_x2_050"), (0.75, "y_x2_075")]:
     rows += noisy(rng, truth, [0.1 * i for i in range(1, 11)], 0.02, name)
 write("goh_bias_data.csv", rows,
       "M(x1, x2; 0.2, 0.1) + b(x1, x2) + N(0, 0.02^2), x1 = 0.1..1.0, x2 = 0.25, 0.5, 0.75 (make_data.py, seed 2013)")
+
+# oscillator: a harmonic oscillator x'' = -w^2 x from x(0) = x0 at rest,
+# observed at 40 times over 10 s; the reality is lightly damped,
+# x'' = -w^2 x - 2 g x', in closed form (underdamped, w = 2, g = 0.1, x0 = 1).
+def damped(t, w=2.0, g=0.1, x0=1.0):
+    wd = math.sqrt(w * w - g * g)
+    return x0 * math.exp(-g * t) * (math.cos(wd * t) + g / wd * math.sin(wd * t))
+
+
+rng = random.Random(2026)
+write("oscillator_data.csv", noisy(rng, damped, [0.25 * i for i in range(1, 41)], 0.02, "position"),
+      "x(t) = exp(-0.1 t)(cos(wd t) + 0.1/wd sin(wd t)), wd = sqrt(4 - 0.01), + N(0, 0.02^2), t = 0.25..10 (make_data.py, seed 2026)")
