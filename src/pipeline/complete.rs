@@ -47,6 +47,14 @@ pub fn fill_in_from_study(config: &mut Config) -> Result<()> {
             }
             _ => paths.emulator(),
         };
+        if !emulator.join("emulator.json").exists() {
+            anyhow::bail!(
+                "{}: [model] gives no `artifact` and the study's emulator is not in {}: run `mdpipe run {}` first (it writes there), or set [run] out to where it ran",
+                config.path.display(),
+                emulator.display(),
+                config.path.display()
+            );
+        }
         config.model.insert("artifact".into(), absolute(&emulator).display().to_string().into());
     }
     for c in config.candidates.iter_mut() {
