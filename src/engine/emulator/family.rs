@@ -225,3 +225,33 @@ fn check_priors_inside_box(model: &EmulatedModel, priors: &[(String, &str, &Para
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(extra: &str) -> Config {
+        let text = format!(
+            "name = \"t\"\n[model]\nkind = \"emulator\"\nartifact = \"e\"\n[data]\nmeasurements = \"d.csv\"\n[parameters.a]\nmin = 0.0\nmax = 1.0\n{extra}"
+        );
+        let mut c: Config = toml::from_str(&text).unwrap();
+        c.path = "study.toml".into();
+        c
+    }
+
+    /// A field that tells `mdpipe run` how to switch a candidate on means
+    /// nothing without a [run] table: refused, not ignored.
+    #[test]
+    fn run_switches_without_a_run_table_are_refused() {
+        let c = config("[[candidates]]\nname = \"x\"\ncommand = \"sim {point}\"\nemulator = \"v\"\n");
+        let refusal = |c: &Config| match EmulatorFamily.candidates(c) {
+            Ok(_) => panic!("accepted"),
+            Err(e) => format!("{e:#}"),
+        };
+        let msg = refusal(&c);
+        assert!(msg.contains("study.toml") && msg.contains("no [run] table"), "{msg}");
+        let c = config("[[candidates]]\nname = \"x\"\n");
+        let msg = refusal(&c);
+        assert!(msg.contains("no `emulator`") && msg.contains("mdpipe run"), "{msg}");
+    }
+}
