@@ -343,16 +343,16 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     assert!(!dir.join("bad").exists(), "nothing may be written for a refused config");
 }
 
-/// Runs a design folder's SLURM array by hand: each task's command, from the
-/// folder, with its task id.
+/// Runs a design folder's SLURM array script by hand, as Slurm would: the
+/// whole script under bash, once per task, with the task's id and the
+/// folder as the submit directory.
 fn run_slurm_array(design_dir: &Path, n: usize) {
-    let script = std::fs::read_to_string(design_dir.join("submit.slurm")).unwrap();
-    let command = script.lines().rev().find(|l| l.starts_with("mdpipe ")).expect("a task command in submit.slurm");
+    let script = design_dir.join("submit.slurm");
     for id in 0..n {
-        let line = command.replace("$SLURM_ARRAY_TASK_ID", &id.to_string());
-        let args: Vec<&str> = line.split_whitespace().skip(1).collect();
-        let status = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
-            .args(&args)
+        let status = std::process::Command::new("bash")
+            .arg(&script)
+            .env("SLURM_ARRAY_TASK_ID", id.to_string())
+            .env("SLURM_SUBMIT_DIR", design_dir)
             .current_dir(design_dir)
             .output()
             .unwrap();
