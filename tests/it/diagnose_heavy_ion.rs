@@ -150,6 +150,7 @@ fn emulated_stand_in_with(
 /// variant emulators. Diagnose must locate the mismatch at high pT in the
 /// spectra and v2, name the shear δf and recover η/s and ε_sw.
 #[test]
+#[ignore = "second tier (the first names the Grad δf in one_data_set_per_verdict_class); cargo test --release -- --ignored"]
 fn heavy_ion_grad_delta_f_is_located_and_named() {
     let dir = std::env::temp_dir().join(format!("mdpipe-diagnose-hi-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -492,8 +493,13 @@ fn heavy_ion_blind_test_confusion_matrix() {
 /// First tier: one heavy-ion data set of each verdict class from the same campaign.
 #[test]
 fn heavy_ion_blind_test_one_data_set_per_verdict_class() {
-    let rows = heavy_ion_blind("classes", &mut first_of_each_class(3.0));
-    assert_eq!(rows.len(), 5, "one per class: {rows:?}");
+    // One of each verdict: a null, a named candidate (the Grad δf, the
+    // paper's), an out-of-library tail; the other candidates in the second tier.
+    let mut first = first_of_each_class(3.0);
+    let mut pick =
+        |label: &str, size: f64| matches!(label, "none" | "grad_shear_delta_f" | "unexplained") && first(label, size);
+    let rows = heavy_ion_blind("classes", &mut pick);
+    assert_eq!(rows.len(), 3, "one per class: {rows:?}");
     each_verdict_is_right("heavy ion", &rows);
 }
 
