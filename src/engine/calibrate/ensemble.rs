@@ -3,7 +3,7 @@
 //! each half's walkers move in parallel.
 
 use super::checkpoint::{f64_bit, f64_bits, Checkpointing, Stopped};
-use super::kernel::{drive, End, SamplerKernel};
+use super::kernel::{drive, SamplerKernel};
 use super::prior::UniformPrior;
 use super::{Chains, LogLikelihood};
 use crate::base::progress::Observer;
@@ -222,15 +222,6 @@ impl Ensemble {
     ) -> Result<EnsembleOutput, Stopped> {
         let kernel = Stretch { settings: &self.settings, prior, likelihood, dim: prior.dim() };
         let started = std::time::Instant::now();
-        let stopped = |reason| Stopped {
-            dir: ck.map(|c| c.dir.clone()).unwrap_or_default(),
-            seconds: started.elapsed().as_secs_f64(),
-            reason,
-        };
-        match drive(&kernel, seed, observer, ck.map(|c| (c, "ensemble"))) {
-            End::Done(out) => Ok(out),
-            End::OutOfTime => Err(stopped(None)),
-            End::Stuck(why) => Err(stopped(Some(why))),
-        }
+        drive(&kernel, seed, observer, ck.map(|c| (c, "ensemble"))).into_result(ck, started, "")
     }
 }

@@ -5,7 +5,7 @@
 //! the same for every sampler. A state is one serializable value: saved
 //! whole, it resumes to exactly the draws of an uninterrupted run.
 
-use super::checkpoint::Checkpointing;
+use super::checkpoint::{Checkpointing, Stopped};
 use crate::base::progress::Observer;
 
 pub trait SamplerKernel {
@@ -31,6 +31,28 @@ pub enum End<O> {
     OutOfTime,
     /// Could not go on (the reason); the last state is saved when checkpointing.
     Stuck(String),
+}
+
+impl<O> End<O> {
+    /// The output, or why the run stopped: at the time limit, or stuck
+    /// (`chain` names the chain in the reason, e.g. "replicate 2: ").
+    pub fn into_result(
+        self,
+        ck: Option<&Checkpointing>,
+        started: std::time::Instant,
+        chain: &str,
+    ) -> Result<O, Stopped> {
+        let stopped = |reason| Stopped {
+            dir: ck.map(|c| c.dir.clone()).unwrap_or_default(),
+            seconds: started.elapsed().as_secs_f64(),
+            reason,
+        };
+        match self {
+            End::Done(out) => Ok(out),
+            End::OutOfTime => Err(stopped(None)),
+            End::Stuck(why) => Err(stopped(Some(format!("{chain}{why}")))),
+        }
+    }
 }
 
 /// Runs `kernel` from its saved state under `name` in `ck` (or from `init`)

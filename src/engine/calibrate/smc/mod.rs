@@ -169,18 +169,9 @@ impl Smc {
                 drive(&kernel, rseed, observer, ck.map(|c| (c, name.as_str())))
             })
             .collect();
-        let stopped = |reason| Stopped {
-            dir: ck.map(|c| c.dir.clone()).unwrap_or_default(),
-            seconds: started.elapsed().as_secs_f64(),
-            reason,
-        };
         let mut replicates = Vec::with_capacity(k);
         for (r, end) in results.into_iter().enumerate() {
-            match end {
-                End::Done(out) => replicates.push(out),
-                End::Stuck(why) => return Err(stopped(Some(format!("replicate {r}: {why}")))),
-                End::OutOfTime => return Err(stopped(None)),
-            }
+            replicates.push(end.into_result(ck, started, &format!("replicate {r}: "))?);
         }
         // Pooled estimate Ẑ = mean_k Ẑ_k; its relative variance is Σ_k v_k / K²
         // (replicates are independent and each Ẑ_k ≈ Z).
