@@ -394,3 +394,40 @@ fn slurm_array_runs_are_the_simulate_stage_runs() {
         }
     }
 }
+
+/// The stand-in run point by point through the executor's command (`--only
+/// ID --point-folder`, how `mdpipe run` now builds the model and each library
+/// candidate's variant) writes byte for byte the runs of the in-process run
+/// over the whole design that the candidates stage used before: the study's
+/// tables, emulators and verdict are unchanged by the move.
+#[test]
+fn the_stand_in_point_by_point_equals_the_whole_design_in_process() {
+    let dir = tmpdir("stand-in-points");
+    let mdpipe = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe")).args(args).output().unwrap();
+        assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+    };
+    let spec = Path::new(env!("CARGO_MANIFEST_DIR")).join("design/heavy_ion_2param.toml");
+    let d = dir.join("d");
+    mdpipe(&["design", spec.to_str().unwrap(), "--points", "3", "--out", d.to_str().unwrap()]);
+    let design = d.join("design.parquet");
+    let common = ["--delta-f", "grad", "--events", "20", "--oversample", "5", "--layout", "hdf5", "--seed", "1001"];
+    let whole = dir.join("whole");
+    let mut args =
+        vec!["simulate", "heavy-ion", "--design", design.to_str().unwrap(), "--out", whole.to_str().unwrap()];
+    args.extend(common);
+    mdpipe(&args);
+    for id in ["0", "1", "2"] {
+        let point = dir.join("points").join(format!("000{id}"));
+        let mut args =
+            vec!["simulate", "heavy-ion", "--design", design.to_str().unwrap(), "--only", id, "--point-folder"];
+        args.extend(common);
+        args.extend(["--out", point.to_str().unwrap()]);
+        mdpipe(&args);
+        let (a, b) = (
+            std::fs::read(whole.join(format!("000{id}/spvn_results.h5"))).unwrap(),
+            std::fs::read(point.join("spvn_results.h5")).unwrap(),
+        );
+        assert!(a == b, "point {id}: the runs differ");
+    }
+}
