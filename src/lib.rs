@@ -16,5 +16,5 @@ pub mod pipeline;
 pub mod systems;
 
 // Short paths for the library's users (and the tests).
-pub use base::{artifacts, config, progress};
+pub use base::{artifacts, config, paper_table, progress};
 pub use engine::{calibrate, compare, design, diagnose, emulator, execute, gp, ingest, model, refine, report};

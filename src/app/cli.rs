@@ -217,47 +217,7 @@ pub enum SimulateSystem {
     /// layout (OUT/<design id>/: per-event text files and spvn_results.h5) for `mdpipe ingest`;
     /// with an --out ending in .csv or .parquet and no --events, writes smooth expectation values
     /// instead (a measurements file for --point, a training table for --design)
-    HeavyIon {
-        /// Parameter point, e.g. eta_s=0.1,e_sw=0.2 or T_kink=0.18,a_low=-1,a_high=1,eta_s_kink=0.1,e_sw=0.2
-        #[arg(long, conflicts_with = "design", required_unless_present = "design")]
-        point: Option<String>,
-        /// Run every point of a design.parquet
-        #[arg(long)]
-        design: Option<PathBuf>,
-        /// With --design: run only this design id (one SLURM array task)
-        #[arg(long, requires = "design")]
-        only: Option<i64>,
-        /// With --only: --out is the point's own folder (what `mdpipe run` gives each attempt),
-        /// written directly, without a copy of the design
-        #[arg(long, requires = "only")]
-        point_folder: bool,
-        /// Particlization: none (f_eq), grad (Grad 14-moment shear δf, Bjorken shear) or grad-transverse
-        /// (adds the blast wave's transverse expansion rates)
-        #[arg(long, default_value = "grad")]
-        delta_f: String,
-        /// Events per design point (default 100 when writing runs)
-        #[arg(long)]
-        events: Option<usize>,
-        /// Cooper–Frye samples per event (the count and v_n columns sum them; yields are per sample)
-        #[arg(long, default_value_t = crate::systems::heavy_ion::events::DEFAULT_OVERSAMPLE)]
-        oversample: usize,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Run layout: text, hdf5 or both
-        #[arg(long, default_value = "both")]
-        layout: String,
-        /// Smooth --point output only: relative 1σ error attached to every value
-        #[arg(long, default_value_t = 0.01)]
-        relative_error: f64,
-        /// Smooth --point output only: take each value's 1σ error from this measurements file
-        /// (matched by observable and x), e.g. a study's mock/measurements.parquet. The result is
-        /// the Asimov data set: the expected data, no fluctuation, with the real errors
-        #[arg(long, conflicts_with_all = ["design", "events", "relative_error"])]
-        errors_from: Option<PathBuf>,
-        /// Runs folder, or a .csv/.parquet file for smooth values
-        #[arg(long)]
-        out: PathBuf,
-    },
+    HeavyIon(simulate::HeavyIonArgs),
     /// Ball drop with quadratic drag: dv/dt = g - k v|v|, dh/dt = -v
     BallDrop {
         #[arg(long, default_value_t = 1)]
@@ -335,36 +295,7 @@ impl Command {
             Command::Ingest { runs, pt_bins, design, min_events, format, out } => {
                 commands::ingest(&runs, pt_bins, design.as_deref(), min_events, &format, &out)
             }
-            Command::Simulate {
-                system:
-                    SimulateSystem::HeavyIon {
-                        point,
-                        design,
-                        only,
-                        point_folder,
-                        delta_f,
-                        events,
-                        oversample,
-                        seed,
-                        layout,
-                        relative_error,
-                        errors_from,
-                        out,
-                    },
-            } => simulate::heavy_ion(simulate::HeavyIonArgs {
-                point,
-                design,
-                only,
-                point_folder,
-                delta_f,
-                events,
-                oversample,
-                seed,
-                layout,
-                relative_error,
-                errors_from,
-                out,
-            }),
+            Command::Simulate { system: SimulateSystem::HeavyIon(args) } => simulate::heavy_ion(args),
             Command::Simulate {
                 system: SimulateSystem::BallDrop { seed, out, k, g, v0, h0, points, t_max, sigma },
             } => simulate::ball_drop(seed, &out, k, g, v0, h0, points, t_max, &sigma),

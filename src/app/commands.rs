@@ -229,7 +229,7 @@ pub fn ingest(
 ) -> Result<()> {
     use crate::engine::ingest;
     if runs.is_file() && runs.extension().is_some_and(|e| e == "dat") {
-        let data = artifacts::read_paper_table(runs)?;
+        let data = crate::base::paper_table::read(runs)?;
         let prov = artifacts::Provenance::new(
             String::new(),
             artifacts::measurements_hash(&data),

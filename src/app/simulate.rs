@@ -8,18 +8,46 @@ use rand::SeedableRng;
 use std::path::{Path, PathBuf};
 
 /// The arguments of `simulate heavy-ion` (see `cli::SimulateSystem`).
+#[derive(clap::Args)]
 pub struct HeavyIonArgs {
+    /// Parameter point, e.g. eta_s=0.1,e_sw=0.2 or T_kink=0.18,a_low=-1,a_high=1,eta_s_kink=0.1,e_sw=0.2
+    #[arg(long, conflicts_with = "design", required_unless_present = "design")]
     pub point: Option<String>,
+    /// Run every point of a design.parquet
+    #[arg(long)]
     pub design: Option<PathBuf>,
+    /// With --design: run only this design id (one SLURM array task)
+    #[arg(long, requires = "design")]
     pub only: Option<i64>,
+    /// With --only: --out is the point's own folder (what `mdpipe run` gives each attempt),
+    /// written directly, without a copy of the design
+    #[arg(long, requires = "only")]
     pub point_folder: bool,
+    /// Particlization: none (f_eq), grad (Grad 14-moment shear δf, Bjorken shear) or grad-transverse
+    /// (adds the blast wave's transverse expansion rates)
+    #[arg(long, default_value = "grad")]
     pub delta_f: String,
+    /// Events per design point (default 100 when writing runs)
+    #[arg(long)]
     pub events: Option<usize>,
+    /// Cooper–Frye samples per event (the count and v_n columns sum them; yields are per sample)
+    #[arg(long, default_value_t = crate::systems::heavy_ion::events::DEFAULT_OVERSAMPLE)]
     pub oversample: usize,
+    #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Run layout: text, hdf5 or both
+    #[arg(long, default_value = "both")]
     pub layout: String,
+    /// Smooth --point output only: relative 1σ error attached to every value
+    #[arg(long, default_value_t = 0.01)]
     pub relative_error: f64,
+    /// Smooth --point output only: take each value's 1σ error from this measurements file
+    /// (matched by observable and x), e.g. a study's mock/measurements.parquet. The result is
+    /// the Asimov data set: the expected data, no fluctuation, with the real errors
+    #[arg(long, conflicts_with_all = ["design", "events", "relative_error"])]
     pub errors_from: Option<PathBuf>,
+    /// Runs folder, or a .csv/.parquet file for smooth values
+    #[arg(long)]
     pub out: PathBuf,
 }
 

@@ -3,7 +3,8 @@
 //!
 //! Measurements schema (CSV or Parquet): `observable: str, x: f64, value: f64,
 //! error: f64` with `error` the 1σ measurement uncertainty. The paper's
-//! 15-column heavy-ion tables (`.dat`) are read as measurements too.
+//! 15-column heavy-ion tables (`.dat`, `base::paper_table`) are read as
+//! measurements too.
 
 use anyhow::{anyhow, bail, Context, Result};
 use polars::prelude::*;
@@ -246,7 +247,7 @@ pub fn f64_frame(columns: Vec<(String, Vec<f64>)>) -> Result<DataFrame> {
 pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     let rows = match ext.as_str() {
-        "dat" => read_paper_table(path)?,
+        "dat" => super::paper_table::read(path)?,
         _ => read_measurements_table(path)?,
     };
     if rows.is_empty() {
@@ -255,7 +256,7 @@ pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
     Ok(rows)
 }
 
-fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
+pub(super) fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
     let file = path.display();
     if m.observable.trim().is_empty() {
         bail!("{file}: {where_}, field 'observable': empty observable name");
@@ -289,60 +290,6 @@ fn read_measurements_table(path: &Path) -> Result<Vec<Measurement>> {
         };
         validate_row(path, &raw.location(i), &m)?;
         out.push(m);
-    }
-    Ok(out)
-}
-
-/// Observable names of the paper's heavy-ion measurement tables, in column
-/// order: `pT`, then (value, error) for each.
-pub const PAPER_TABLE_OBSERVABLES: [(&str, &str); 7] = [
-    ("CH:dN/d2pT", "ch_spectrum"),
-    ("CH:v2", "ch_v2"),
-    ("CH:v3", "ch_v3"),
-    ("pi+:dN/d2pT", "pi_spectrum"),
-    ("pi+:v2", "pi_v2"),
-    ("p:dN/d2pT", "p_spectrum"),
-    ("p:v2", "p_v2"),
-];
-
-/// Reads the 15-column tables of Jaiswal et al. (whitespace-separated, `#`
-/// header): `pT` (GeV) then value/error pairs in the order of
-/// [`PAPER_TABLE_OBSERVABLES`]. x = pT/(1 GeV).
-pub fn read_paper_table(path: &Path) -> Result<Vec<Measurement>> {
-    let file = path.display();
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {file}"))?;
-    let mut out = Vec::new();
-    for (k, line) in text.lines().enumerate() {
-        let line_no = k + 1;
-        let t = line.trim();
-        if t.is_empty() || t.starts_with('#') {
-            continue;
-        }
-        let cells: Vec<&str> = t.split_whitespace().collect();
-        if cells.len() != 15 {
-            bail!(
-                "{file}: line {line_no}: expected 15 columns (pT, then value and error for {}), found {}",
-                PAPER_TABLE_OBSERVABLES.map(|o| o.0).join(", "),
-                cells.len()
-            );
-        }
-        let num = |c: usize, field: String| -> Result<f64> {
-            cells[c].parse::<f64>().map_err(|_| {
-                anyhow!("{file}: line {line_no}, field '{field}': cannot parse {:?} as a number", cells[c])
-            })
-        };
-        let pt = num(0, "pT".into())?;
-        for (j, (column, name)) in PAPER_TABLE_OBSERVABLES.iter().enumerate() {
-            let m = Measurement {
-                observable: name.to_string(),
-                x: pt,
-                value: num(1 + 2 * j, column.to_string())?,
-                error: num(2 + 2 * j, format!("{column}_err"))?,
-                line: line_no,
-            };
-            validate_row(path, &format!("line {line_no}"), &m).with_context(|| format!("column {column}"))?;
-            out.push(m);
-        }
     }
     Ok(out)
 }

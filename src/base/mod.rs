@@ -5,5 +5,6 @@ pub mod artifacts;
 pub mod columns;
 pub mod config;
 pub mod covariance;
+pub mod paper_table;
 pub mod progress;
 pub mod table;

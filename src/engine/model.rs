@@ -1,7 +1,8 @@
 //! How a model reaches the engine: a [`Simulator`] computes η(x, θ), and a
-//! [`ModelFamily`] (registered by name in a [`Registry`]) builds simulators
-//! from a config and says what else the engine needs to know of the system:
-//! units, candidate corrections for `diagnose`, the true process of mock data.
+//! [`ModelFamily`] (registered by name in a [`Registry`]) reads a config's
+//! `[model]` table once into a [`ModelSetup`]: the simulator, units and
+//! candidate corrections for `diagnose` (and a `[truth]` table into the true
+//! process of mock data).
 //!
 //! The engine calls only these traits; the families live in `crate::systems`.
 
@@ -115,31 +116,63 @@ pub struct CandidateModel {
     pub simulator: Arc<dyn Simulator>,
 }
 
+/// What a family read from a config's `[model]` (or `[truth]`) table, once:
+/// the simulator, its units and the candidate corrections `diagnose` weighs.
+pub trait ModelSetup: Send + Sync {
+    fn simulator(&self) -> Arc<dyn Simulator>;
+
+    /// Units of x, of the observables and of the parameters.
+    fn units(&self) -> Units {
+        Units::default()
+    }
+
+    /// The candidate corrections `diagnose` weighs: the family's own library,
+    /// or what the config declares in `[[candidates]]`.
+    fn candidates(&self) -> Result<Vec<CandidateModel>> {
+        Ok(Vec::new())
+    }
+}
+
+/// A setup with nothing left to read: a simulator, its units and candidates.
+#[derive(Clone)]
+pub struct PlainSetup {
+    pub simulator: Arc<dyn Simulator>,
+    pub units: Units,
+    pub candidates: Vec<CandidateModel>,
+}
+
+impl PlainSetup {
+    pub fn new(simulator: Arc<dyn Simulator>, units: Units) -> Arc<dyn ModelSetup> {
+        Arc::new(PlainSetup { simulator, units, candidates: Vec::new() })
+    }
+}
+
+impl ModelSetup for PlainSetup {
+    fn simulator(&self) -> Arc<dyn Simulator> {
+        self.simulator.clone()
+    }
+    fn units(&self) -> Units {
+        self.units.clone()
+    }
+    fn candidates(&self) -> Result<Vec<CandidateModel>> {
+        Ok(self.candidates.clone())
+    }
+}
+
 /// A kind of model, named by `kind` in a config's `[model]` (and `[truth]`)
-/// table. Families hold no state: every method reads what it needs from the
-/// config, so one registered value serves every analysis.
+/// table. A family holds no state: it reads its table once into a
+/// [`ModelSetup`], so one registered value serves every analysis.
 pub trait ModelFamily: Send + Sync {
     /// The name configs use: `[model] kind = "<kind>"`.
     fn kind(&self) -> &'static str;
 
     /// The model to calibrate, from the config's `[model]` table. Its
     /// parameters must be the config's `[parameters]`.
-    fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>>;
-
-    /// Units of x, of the observables and of the parameters.
-    fn units(&self, _config: &Config) -> Units {
-        Units::default()
-    }
-
-    /// The candidate corrections `diagnose` weighs: the family's own library,
-    /// or what the config declares in `[[candidates]]`.
-    fn candidates(&self, _config: &Config) -> Result<Vec<CandidateModel>> {
-        Ok(Vec::new())
-    }
+    fn open(&self, config: &Config) -> Result<Arc<dyn ModelSetup>>;
 
     /// The process that made mock data, from a `[truth]` table of this kind: a
     /// simulator over the config's θ names, evaluated at their `truth` values.
-    fn true_process(&self, config: &Config, _truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
+    fn open_truth(&self, config: &Config, _truth: &toml::Table) -> Result<Arc<dyn ModelSetup>> {
         bail!(
             "{}: [truth]: model family '{}' has no true process to draw mock data from",
             config.path.display(),

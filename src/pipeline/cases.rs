@@ -10,7 +10,7 @@ use crate::engine::compare;
 use crate::engine::emulator::EmulatorFamily;
 use crate::engine::execute::{self, Executor, OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
-use crate::engine::model::{ModelFamily, Registry};
+use crate::engine::model::Registry;
 use crate::systems::heavy_ion::family::HeavyIonFamily;
 use crate::systems::heavy_ion::figures::HeavyIonFigures;
 use anyhow::{anyhow, Context, Result};
@@ -30,7 +30,7 @@ pub(super) struct Case {
     stamp: PathBuf,
 }
 
-impl Runner<'_> {
+impl Study<'_> {
     /// The analysis config pointed at the study's emulator (refined, with
     /// `[run.refine]`) and mock data.
     pub(super) fn study_config(&self) -> Result<Config> {
@@ -64,13 +64,13 @@ impl Runner<'_> {
         let mut analysis = Analysis::resolve(config, &families)?;
         // The emulator knows no units; the stand-in's come first, as in its figures.
         if self.run.stand_in_study() {
-            analysis.units = HeavyIonFamily.units(config).or(&analysis.units);
+            analysis.units = HeavyIonFamily::units().or(&analysis.units);
         }
         Ok(analysis)
     }
 
     /// The calibration cases: every observable set × kernel, with its seed and key.
-    pub(super) fn cases(&self) -> Result<Vec<Case>> {
+    pub(super) fn cases(&self, keys: &Keys) -> Result<Vec<Case>> {
         let mut cases = Vec::new();
         for (i, set) in self.run.observable_sets.iter().enumerate() {
             for (j, k) in self.run.kernels.iter().enumerate() {
@@ -78,7 +78,7 @@ impl Runner<'_> {
                     .ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
                 let name = compare::case_dir_name(set, kernel);
                 let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
-                let material = serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": self.keys.get("emulator"), "mock": self.keys.get("mock"), "refine": self.keys.get("refine")});
+                let material = serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": keys.upstream.get("emulator"), "mock": keys.upstream.get("mock"), "refine": keys.upstream.get("refine")});
                 let key = artifacts::sha256_hex(material.to_string().as_bytes());
                 cases.push(Case {
                     index: cases.len(),
@@ -186,10 +186,10 @@ impl Runner<'_> {
         Ok(())
     }
 
-    pub(super) fn calibrate(&mut self) -> Result<()> {
+    pub(super) fn calibrate(&self, keys: &Keys) -> Result<()> {
         let config = self.study_config()?;
         let analysis = self.analysis(&config)?;
-        let cases = self.cases()?;
+        let cases = self.cases(keys)?;
         if let Some(index) = self.opts.case {
             // One array task: this case only; the stage is assessed and stamped by the mdpipe that submitted it.
             let c = cases
@@ -282,7 +282,7 @@ impl Runner<'_> {
         ))
     }
 
-    pub(super) fn report(&mut self) -> Result<()> {
+    pub(super) fn report(&self, _keys: &Keys) -> Result<()> {
         if !self.run.stand_in_study() {
             let html = crate::engine::report::build(
                 &[self.paths.calibrate(), self.study_emulator()?],

@@ -29,7 +29,8 @@
 //! case is stamped too (`OUT/stages/calibrate/<case>.json`), so an
 //! interrupted stage resumes with the cases it had not finished. A new stage
 //! is a name in `STAGES`, an entry in `plan`, its settings in `settings_of`
-//! (all in this file) and its body, a `Runner` method.
+//! (all in this file) and its body, a `Study` method that reads the study
+//! and writes only its outputs; `stages::StageLoop` owns the keys and stamps.
 
 mod cases;
 mod complete;
@@ -52,7 +53,6 @@ pub use refine_rounds::Rounds;
 pub use run_config::{RefineConfig, RunConfig};
 use stages::*;
 pub use stages::{RunOptions, RunPaths, StageOutcome};
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 /// Every stage a study may have, in order (`--stage` takes these names).
@@ -84,38 +84,22 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
-    let mut r = Runner {
-        config,
-        run,
-        emulator,
-        paths: RunPaths { out: opts.out.clone() },
-        opts,
-        keys: BTreeMap::new(),
-        running_key: String::new(),
-        outcomes: Vec::new(),
-    };
+    let study = Study { config, run, emulator, paths: RunPaths { out: opts.out.clone() }, opts };
     // Every candidate's declaration is checked before anything runs.
-    let variants = r.variants()?;
-    for stage in plan(&r, &variants)? {
-        r.stage(stage.name, &stage.upstream, &stage.outputs, stage.body)?;
+    let variants = study.variants()?;
+    let mut stages = StageLoop::default();
+    for stage in plan(&study, &variants)? {
+        stages.run(&study, &stage)?;
     }
-    Ok(r.outcomes)
-}
-
-/// One stage of a study: what it needs, what it leaves, what it does.
-struct Stage<'a> {
-    name: &'static str,
-    upstream: Vec<&'static str>,
-    outputs: Vec<PathBuf>,
-    body: fn(&mut Runner<'a>) -> Result<()>,
+    Ok(stages.outcomes)
 }
 
 /// The study's stages in order, from its config: the mock stage for the
 /// stand-in's mock data, refine with `[run.refine]`, candidates and diagnose
 /// when the study declares candidates.
-fn plan<'a>(r: &Runner<'a>, variants: &[variants::Variant]) -> Result<Vec<Stage<'a>>> {
+fn plan<'a>(r: &Study<'a>, variants: &[variants::Variant]) -> Result<Vec<Stage<'a>>> {
     let (run, paths) = (r.run, &r.paths);
-    let stage = |name, upstream: &[&'static str], outputs: Vec<PathBuf>, body: fn(&mut Runner<'a>) -> Result<()>| {
+    let stage = |name, upstream: &[&'static str], outputs: Vec<PathBuf>, body: fn(&Study<'a>, &Keys) -> Result<()>| {
         Stage { name, upstream: upstream.to_vec(), outputs, body }
     };
     let mut stages = vec![
@@ -123,39 +107,39 @@ fn plan<'a>(r: &Runner<'a>, variants: &[variants::Variant]) -> Result<Vec<Stage<
             "design",
             &[],
             vec![paths.design().join("design.parquet"), paths.validation_design().join("design.parquet")],
-            Runner::design,
+            Study::design,
         ),
         stage(
             "simulate",
             &["design"],
             vec![paths.design().join("runs"), paths.validation_design().join("runs")],
-            Runner::simulate,
+            Study::simulate,
         ),
-        stage("ingest", &["simulate"], vec![paths.training(), paths.validation()], Runner::ingest),
+        stage("ingest", &["simulate"], vec![paths.training(), paths.validation()], Study::ingest),
         stage(
             "emulator",
             &["ingest"],
             vec![paths.emulator().join("emulator.json"), paths.emulator().join("validation.json")],
-            Runner::emulator,
+            Study::emulator,
         ),
     ];
     let mut data: Vec<&'static str> = vec!["emulator"];
     if run.stand_in_study() {
-        stages.push(stage("mock", &[], vec![paths.measurements()], Runner::mock));
+        stages.push(stage("mock", &[], vec![paths.measurements()], Study::mock));
         data.push("mock");
     }
     let mut fitted = data.clone();
     let only = r.opts.stage.as_deref();
     if run.refine.is_some() {
-        stages.push(stage("refine", &data, vec![r.refine_dir().join("rounds.json")], Runner::refine));
+        stages.push(stage("refine", &data, vec![r.refine_dir().join("rounds.json")], Study::refine));
         fitted.push("refine");
     } else if only == Some("refine") {
         bail!("--stage refine: {} has no [run.refine] table", r.config.path.display());
     }
     let assessed =
         if run.stand_in_study() { paths.out.join("study.json") } else { paths.calibrate().join("cases.json") };
-    stages.push(stage("calibrate", &fitted, vec![assessed], Runner::calibrate));
-    stages.push(stage("report", &["calibrate"], vec![paths.out.join("report.html")], Runner::report));
+    stages.push(stage("calibrate", &fitted, vec![assessed], Study::calibrate));
+    stages.push(stage("report", &["calibrate"], vec![paths.out.join("report.html")], Study::report));
     if variants.is_empty() {
         if let Some(s) = only.filter(|s| *s == "candidates" || *s == "diagnose") {
             bail!(
@@ -166,14 +150,14 @@ fn plan<'a>(r: &Runner<'a>, variants: &[variants::Variant]) -> Result<Vec<Stage<
         return Ok(stages);
     }
     let emulators = variants.iter().map(|v| paths.candidate(&v.name).join("emulator").join("emulator.json")).collect();
-    stages.push(stage("candidates", &["design"], emulators, Runner::candidates));
+    stages.push(stage("candidates", &["design"], emulators, Study::candidates));
     fitted.push("candidates");
     let outputs = vec![paths.diagnose().join("diagnosis.json"), paths.diagnose().join("report.html")];
-    stages.push(stage("diagnose", &fitted, outputs, Runner::diagnose));
+    stages.push(stage("diagnose", &fitted, outputs, Study::diagnose));
     Ok(stages)
 }
 
-impl Runner<'_> {
+impl Study<'_> {
     /// The settings that define a stage's output, beyond its upstream keys.
     pub(super) fn settings_of(&self, stage: &str) -> Result<serde_json::Value> {
         let run = self.run;

@@ -15,7 +15,7 @@
 //! emulator) and `OUT/refine/rounds.json` / `rounds.md`; `rounds.json` names
 //! the emulator the calibrations use.
 
-use super::stages::{absolute, Runner};
+use super::stages::{absolute, Keys, Study};
 use crate::base::artifacts::{self, Provenance};
 use crate::base::progress::observer;
 use crate::engine::calibrate::{self, Overrides, Problem};
@@ -104,7 +104,7 @@ impl Rounds {
     }
 }
 
-impl Runner<'_> {
+impl Study<'_> {
     /// The refine stage's report, when `[run.refine]` is set.
     pub(super) fn rounds(&self) -> Result<Option<Rounds>> {
         if self.run.refine.is_none() {
@@ -129,7 +129,7 @@ impl Runner<'_> {
         })
     }
 
-    pub(super) fn refine(&mut self) -> Result<()> {
+    pub(super) fn refine(&self, _keys: &Keys) -> Result<()> {
         let settings =
             self.run.refine.clone().ok_or_else(|| {
                 anyhow!("{}: the refine stage needs a [run.refine] table", self.config.path.display())

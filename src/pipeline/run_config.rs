@@ -1,6 +1,5 @@
 //! The `[run]` table of an analysis config, checked before any stage runs.
 
-use crate::base::artifacts::{self};
 use crate::base::config::Config;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
@@ -115,7 +114,8 @@ impl RunConfig {
         if self.observable_sets.is_empty() || self.observable_sets.iter().any(|s| s.is_empty()) {
             bail!("observable_sets: give one or more non-empty sets");
         }
-        let known: Vec<String> = artifacts::PAPER_TABLE_OBSERVABLES.iter().map(|(_, name)| name.to_string()).collect();
+        let known: Vec<String> =
+            crate::base::paper_table::PAPER_TABLE_OBSERVABLES.iter().map(|(_, name)| name.to_string()).collect();
         for o in self.observable_sets.iter().flatten() {
             if self.simulator.is_none() && !known.contains(o) {
                 bail!("observable_sets: unknown observable '{o}' (the stand-in gives {})", known.join(", "));

@@ -10,8 +10,8 @@ use crate::engine::ingest::{tables::TableRuns, IebeMusicRuns, IngestSettings, Ru
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 
-impl Runner<'_> {
-    pub(super) fn design(&mut self) -> Result<()> {
+impl Study<'_> {
+    pub(super) fn design(&self, _keys: &Keys) -> Result<()> {
         let spec_path = self.config.resolve(&self.run.design);
         let bytes = std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?;
         let spec = DesignSpec::load(&spec_path)?;
@@ -59,12 +59,12 @@ impl Runner<'_> {
         Ok(())
     }
 
-    pub(super) fn simulate(&mut self) -> Result<()> {
+    pub(super) fn simulate(&self, keys: &Keys) -> Result<()> {
         // Settings changed since the last run: its runs are not these. Forced
         // with the same settings, finished points are kept and only the
         // failed ones run again, with fresh attempts.
         let previous = read_stamp(&self.paths.stamp("simulate"));
-        let stale = previous.as_ref().is_some_and(|s| s.key != self.running_key);
+        let stale = previous.as_ref().is_some_and(|s| s.key != keys.this);
         let forced = previous.is_some() && !stale;
         for (dir, label) in [(self.paths.design(), "design"), (self.paths.validation_design(), "validation design")] {
             let runs = dir.join("runs");
@@ -170,7 +170,7 @@ impl Runner<'_> {
         self.stand_in_simulator(&self.run.model_delta_f, self.runs_seed(validation))
     }
 
-    pub(super) fn ingest(&mut self) -> Result<()> {
+    pub(super) fn ingest(&self, _keys: &Keys) -> Result<()> {
         for (dir, out) in
             [(self.paths.design(), self.paths.training()), (self.paths.validation_design(), self.paths.validation())]
         {
@@ -213,7 +213,7 @@ impl Runner<'_> {
         Ok(())
     }
 
-    pub(super) fn emulator(&mut self) -> Result<()> {
+    pub(super) fn emulator(&self, _keys: &Keys) -> Result<()> {
         if self.config.emulator.is_none() {
             bail!("{}: the emulator stage needs an [emulator] table", self.config.path.display());
         }

@@ -103,52 +103,63 @@ pub struct StageOutcome {
     pub seconds: f64,
 }
 
-pub(super) struct Runner<'a> {
+/// What every stage reads: the config, its `[run]` table, where the run
+/// writes and how. Stage bodies are its methods; they change nothing in it.
+pub(super) struct Study<'a> {
     pub(super) config: &'a Config,
     pub(super) run: &'a RunConfig,
     /// `[emulator]`, decoded once.
     pub(super) emulator: Option<EmulatorSettings>,
     pub(super) paths: RunPaths,
     pub(super) opts: &'a RunOptions,
-    pub(super) keys: BTreeMap<String, String>,
-    /// Key of the stage running now.
-    pub(super) running_key: String,
+}
+
+/// What a stage body may know of the loop: the keys of the stages before it
+/// (what their outputs were) and its own key.
+pub(super) struct Keys<'k> {
+    pub(super) upstream: &'k BTreeMap<String, String>,
+    pub(super) this: &'k str,
+}
+
+/// One stage of a study: what it needs, what it leaves, what it does.
+pub(super) struct Stage<'a> {
+    pub(super) name: &'static str,
+    pub(super) upstream: Vec<&'static str>,
+    pub(super) outputs: Vec<PathBuf>,
+    pub(super) body: fn(&Study<'a>, &Keys) -> Result<()>,
+}
+
+/// The loop over a study's stages: it owns the keys, skips a stage whose
+/// stamp holds its key, runs the rest and stamps them.
+#[derive(Default)]
+pub(super) struct StageLoop {
+    keys: BTreeMap<String, String>,
     pub(super) outcomes: Vec<StageOutcome>,
 }
 
-impl Runner<'_> {
-    pub(super) fn stage(
-        &mut self,
-        name: &str,
-        upstream: &[&str],
-        outputs: &[PathBuf],
-        body: impl FnOnce(&mut Self) -> Result<()>,
-    ) -> Result<()> {
-        if self.opts.stage.as_deref().is_some_and(|s| s != name) {
+impl StageLoop {
+    pub(super) fn run<'a>(&mut self, study: &Study<'a>, stage: &Stage<'a>) -> Result<()> {
+        let (name, paths, opts) = (stage.name, &study.paths, study.opts);
+        if opts.stage.as_deref().is_some_and(|s| s != name) {
             // Not this stage: later stages key on what it left on disk.
-            if let Some(s) = read_stamp(&self.paths.stamp(name)) {
+            if let Some(s) = read_stamp(&paths.stamp(name)) {
                 self.keys.insert(name.into(), s.downstream_key());
             }
             return Ok(());
         }
-        let mut material = serde_json::json!({"stage": name, "version": env!("CARGO_PKG_VERSION"), "settings": self.settings_of(name)?});
-        for u in upstream {
-            let key = self.keys.get(*u).cloned().ok_or_else(|| anyhow!("stage {name} needs the outputs of stage {u}, which has not run in {}; run `mdpipe run CONFIG --stage {u}` (or without --stage) first", self.paths.out.display()))?;
-            material[format!("upstream_{u}")] = serde_json::Value::String(key);
-        }
-        let key = artifacts::sha256_hex(material.to_string().as_bytes());
-        let done = read_stamp(&self.paths.stamp(name)).filter(|s| s.key == key && outputs.iter().all(|p| p.exists()));
-        if let Some(done) = done.filter(|_| !self.opts.force) {
+        let key = self.key_of(study, stage)?;
+        let done = read_stamp(&paths.stamp(name)).filter(|s| s.key == key && stage.outputs.iter().all(|p| p.exists()));
+        if let Some(done) = done.filter(|_| !opts.force) {
             println!("[{name}] up to date, skipped");
             self.outcomes.push(StageOutcome { stage: name.into(), ran: false, seconds: 0.0 });
             self.keys.insert(name.into(), done.downstream_key());
             return Ok(());
         }
         println!("[{name}] running");
-        self.running_key = key.clone();
         let start = std::time::Instant::now();
-        body(self).with_context(|| format!("{}: stage {name}", self.config.path.display()))?;
-        if self.opts.case.is_some() {
+        (stage.body)(study, &Keys { upstream: &self.keys, this: &key })
+            .with_context(|| format!("{}: stage {name}", study.config.path.display()))?;
+        if opts.case.is_some() {
             return Ok(());
         }
         let seconds = start.elapsed().as_secs_f64();
@@ -161,19 +172,32 @@ impl Runner<'_> {
             output_key: output_key.clone(),
             seconds,
             provenance: Provenance::new(
-                self.config.hash.clone(),
+                study.config.hash.clone(),
                 String::new(),
-                self.opts.seed,
-                &format!("run {} --stage {name}", self.config.path.display()),
+                opts.seed,
+                &format!("run {} --stage {name}", study.config.path.display()),
             ),
         };
-        artifacts::write_json_atomic(&self.paths.stamp(name), &stamp)?;
+        artifacts::write_json_atomic(&paths.stamp(name), &stamp)?;
         println!("[{name}] done in {seconds:.1} s");
         self.keys.insert(name.into(), output_key);
         self.outcomes.push(StageOutcome { stage: name.into(), ran: true, seconds });
         Ok(())
     }
 
+    /// The stage's key: its settings and its upstream stages' keys.
+    fn key_of(&self, study: &Study<'_>, stage: &Stage<'_>) -> Result<String> {
+        let name = stage.name;
+        let mut material = serde_json::json!({"stage": name, "version": env!("CARGO_PKG_VERSION"), "settings": study.settings_of(name)?});
+        for u in &stage.upstream {
+            let key = self.keys.get(*u).cloned().ok_or_else(|| anyhow!("stage {name} needs the outputs of stage {u}, which has not run in {}; run `mdpipe run CONFIG --stage {u}` (or without --stage) first", study.paths.out.display()))?;
+            material[format!("upstream_{u}")] = serde_json::Value::String(key);
+        }
+        Ok(artifacts::sha256_hex(material.to_string().as_bytes()))
+    }
+}
+
+impl Study<'_> {
     /// SHA-256 of the config without its `[run]` table: what the calibrations
     /// depend on beyond their stage settings and upstream keys (so declaring a
     /// diagnose candidate does not redo them).

@@ -9,7 +9,7 @@ use crate::engine::execute::{OutputKind, SimulatorSpec};
 use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
 use anyhow::{anyhow, Result};
 
-impl Runner<'_> {
+impl Study<'_> {
     /// Seed of the stand-in's events, distinct for the training and validation designs.
     pub(super) fn runs_seed(&self, validation: bool) -> u64 {
         self.opts.seed.wrapping_mul(31).wrapping_add(if validation { 104_729 } else { 11 })
@@ -81,7 +81,7 @@ impl Runner<'_> {
             .collect()
     }
 
-    pub(super) fn mock(&mut self) -> Result<()> {
+    pub(super) fn mock(&self, _keys: &Keys) -> Result<()> {
         let params = HeavyIonParams::from_named(&self.truth_named()?)?;
         let mock_delta_f = self.run.mock_delta_f.clone().unwrap_or_default();
         let mock_events = self.run.mock_events.unwrap_or_default();

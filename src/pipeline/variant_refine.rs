@@ -8,7 +8,7 @@
 //! emulators) and `diagnose/refine/diagnosis_before.json`; the diagnosis in
 //! `diagnose/` is the one after refinement.
 
-use super::stages::{absolute, Runner};
+use super::stages::{absolute, Study};
 use super::variants::Variant;
 use crate::base::artifacts::Provenance;
 use crate::base::config::Config;
@@ -24,7 +24,7 @@ use std::path::Path;
 /// New runs of one variant at the points refinement chose, through the
 /// executor as the candidates stage ran its design, then ingested.
 struct VariantRuns<'r, 'a> {
-    runner: &'r Runner<'a>,
+    runner: &'r Study<'a>,
     variant: Variant,
     seed: u64,
 }
@@ -52,7 +52,7 @@ impl PointRunner for VariantRuns<'_, '_> {
     }
 }
 
-impl Runner<'_> {
+impl Study<'_> {
     /// Refines the variant emulators an "emulator_limited" verdict lists and
     /// points `config`'s declarations at the refined ones. Returns whether
     /// any was refined (and the diagnosis must be made again).

@@ -137,7 +137,7 @@ fn design_parameter(name: &str, prior: &ParamSpec) -> DesignParameter {
     }
 }
 
-impl Runner<'_> {
+impl Study<'_> {
     /// Diagnose works on the last (largest) observable set.
     pub(super) fn diagnose_observables(&self) -> Vec<String> {
         self.run.observable_sets.last().cloned().unwrap_or_default()
@@ -177,7 +177,7 @@ impl Runner<'_> {
 
     /// One variant emulator per candidate: its design, its runs through the
     /// executor, ingest, training and 5-fold cross-validation.
-    pub(super) fn candidates(&mut self) -> Result<()> {
+    pub(super) fn candidates(&self, _keys: &Keys) -> Result<()> {
         let spec_path = self.config.resolve(&self.run.design);
         let spec_hash = artifacts::sha256_hex(
             &std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?,

@@ -56,8 +56,7 @@ fn data_error(obs: &str, x: f64, value: f64) -> f64 {
     static REFERENCE: std::sync::OnceLock<Vec<mdpipe::artifacts::Measurement>> = std::sync::OnceLock::new();
     let reference = REFERENCE.get_or_init(|| {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        mdpipe::artifacts::read_paper_table(&root.join("pipeline/reference/iebe_music_grad_shear0p1_esw0p2.dat"))
-            .unwrap()
+        mdpipe::paper_table::read(&root.join("pipeline/reference/iebe_music_grad_shear0p1_esw0p2.dat")).unwrap()
     });
     let r = reference.iter().find(|m| m.observable == obs && (m.x - x).abs() < 1e-6).unwrap();
     if obs.ends_with("spectrum") {

@@ -5,7 +5,7 @@
 use mdpipe::calibrate::{self, Analysis, Overrides, Problem};
 use mdpipe::config::{Config, ParamSpec};
 use mdpipe::diagnose::{self, DiagnoseSettings};
-use mdpipe::model::{CandidateModel, ModelFamily, Simulator, Units};
+use mdpipe::model::{CandidateModel, ModelFamily, ModelSetup, PlainSetup, Simulator, Units};
 use mdpipe::progress::Silent;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -44,18 +44,8 @@ impl ModelFamily for LineFamily {
     fn kind(&self) -> &'static str {
         "line"
     }
-    fn simulator(&self, _config: &Config) -> anyhow::Result<Arc<dyn Simulator>> {
-        Ok(Arc::new(Line { curvature: Some(0.0) }))
-    }
-    fn units(&self, _config: &Config) -> Units {
-        Units {
-            x: "m".into(),
-            observables: [("y".to_string(), "V".to_string())].into(),
-            parameters: Default::default(),
-        }
-    }
-    fn candidates(&self, _config: &Config) -> anyhow::Result<Vec<CandidateModel>> {
-        Ok(vec![CandidateModel {
+    fn open(&self, _config: &Config) -> anyhow::Result<Arc<dyn ModelSetup>> {
+        let curvature = CandidateModel {
             name: "curvature".into(),
             description: "a quadratic term c x²".into(),
             extra_parameters: vec![(
@@ -63,11 +53,21 @@ impl ModelFamily for LineFamily {
                 ParamSpec { min: -2.0, max: 2.0, truth: Some(CURVATURE), units: "V/m²".into() },
             )],
             simulator: Arc::new(Line { curvature: None }),
-        }])
+        };
+        Ok(Arc::new(PlainSetup {
+            simulator: Arc::new(Line { curvature: Some(0.0) }),
+            units: line_units(),
+            candidates: vec![curvature],
+        }))
     }
-    fn true_process(&self, _config: &Config, truth: &toml::Table) -> anyhow::Result<Arc<dyn Simulator>> {
-        Ok(Arc::new(Line { curvature: Some(truth["curvature"].as_float().unwrap_or(0.0)) }))
+    fn open_truth(&self, _config: &Config, truth: &toml::Table) -> anyhow::Result<Arc<dyn ModelSetup>> {
+        let curvature = truth["curvature"].as_float().unwrap_or(0.0);
+        Ok(PlainSetup::new(Arc::new(Line { curvature: Some(curvature) }), line_units()))
     }
+}
+
+fn line_units() -> Units {
+    Units { x: "m".into(), observables: [("y".to_string(), "V".to_string())].into(), parameters: Default::default() }
 }
 
 const CURVATURE: f64 = 0.5;

@@ -1,7 +1,7 @@
 //! The heavy-ion stand-in against real iEBE-MUSIC output, the direction of
 //! the Grad shear δf, and the parameter dependence physics requires.
 
-use mdpipe::artifacts::read_paper_table;
+use mdpipe::paper_table::read as read_paper_table;
 use mdpipe::systems::heavy_ion::{analysis_pt, mean_pt, observables, DeltaF, HeavyIonParams, PROTON};
 use std::path::Path;
 

@@ -116,7 +116,7 @@ fn readers() -> Vec<Reader> {
             ext: "parquet",
             read: |p| mdpipe::artifacts::read_measurements(p).map(drop),
         },
-        Reader { name: "paper_table", ext: "dat", read: |p| mdpipe::artifacts::read_paper_table(p).map(drop) },
+        Reader { name: "paper_table", ext: "dat", read: |p| mdpipe::paper_table::read(p).map(drop) },
         Reader {
             name: "training_table",
             ext: "csv",

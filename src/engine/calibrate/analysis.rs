@@ -5,7 +5,7 @@
 use super::settings::SamplerConfig;
 use crate::base::config::{BetweenObservables, Config, KernelInput, ParamSpec, PredictionConfig};
 use crate::engine::gp::DiscrepancyKernel;
-use crate::engine::model::{CandidateModel, ModelFamily, Registry, Simulator, Units};
+use crate::engine::model::{CandidateModel, ModelSetup, Registry, Simulator, Units};
 use anyhow::{anyhow, bail, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -17,7 +17,8 @@ pub struct Analysis {
     /// SHA-256 of the config file, for provenance.
     pub config_hash: String,
     pub config_path: PathBuf,
-    pub family: Arc<dyn ModelFamily>,
+    /// What the model's family read from `[model]`.
+    pub setup: Arc<dyn ModelSetup>,
     pub simulator: Arc<dyn Simulator>,
     pub units: Units,
     /// The process that made the data, when the config names one (`[truth]`).
@@ -39,28 +40,25 @@ pub struct Analysis {
     pub between_observables: BetweenObservables,
     /// Observables to calibrate on; all of the model's by default.
     pub observables: Option<Vec<String>>,
-    /// The config, read-only, for what the family decodes only when asked
-    /// (`[[candidates]]`).
-    source: Arc<Config>,
 }
 
 impl Analysis {
     pub fn resolve(config: &Config, registry: &Registry) -> Result<Analysis> {
         let file = config.path.display();
-        let family = registry.get(config.model_kind()?, config, "model")?;
-        let simulator = family.simulator(config)?;
-        let truth_family = match &config.truth {
-            Some(t) => Some((registry.get(config.kind_of(t, "truth")?, config, "truth")?, t)),
+        let setup = registry.get(config.model_kind()?, config, "model")?.open(config)?;
+        let simulator = setup.simulator();
+        let truth_setup = match &config.truth {
+            Some(t) => Some(registry.get(config.kind_of(t, "truth")?, config, "truth")?.open_truth(config, t)?),
             None => None,
         };
-        let truth = truth_family.as_ref().map(|(f, t)| f.true_process(config, t)).transpose()?;
+        let truth = truth_setup.as_ref().map(|t| t.simulator());
         let config_units = Units {
             parameters: config.parameters.iter().map(|(n, p)| (n.clone(), p.units.clone())).collect(),
             ..Units::default()
         };
-        let mut units = family.units(config);
-        if let Some((f, _)) = &truth_family {
-            units = units.or(&f.units(config));
+        let mut units = setup.units();
+        if let Some(t) = &truth_setup {
+            units = units.or(&t.units());
         }
         let kernel = DiscrepancyKernel::parse(&config.discrepancy.kernel).ok_or_else(|| {
             anyhow!("{file}: discrepancy.kernel: unknown kernel {:?} (use none, I or II)", config.discrepancy.kernel)
@@ -78,7 +76,7 @@ impl Analysis {
             name: config.name.clone(),
             config_hash: config.hash.clone(),
             config_path: config.path.clone(),
-            family,
+            setup,
             simulator,
             units: units.or(&config_units),
             truth,
@@ -92,14 +90,13 @@ impl Analysis {
             covariance: config.data.covariance.as_ref().map(|c| config.resolve(c)),
             between_observables: config.data.between_observables,
             observables: config.data.observables.clone(),
-            source: Arc::new(config.clone()),
         })
     }
 
-    /// The family's candidate corrections (read from the config on demand:
-    /// variant emulators are loaded only by `diagnose`).
+    /// The family's candidate corrections (variant emulators are loaded
+    /// only when `diagnose` asks).
     pub fn candidates(&self) -> Result<Vec<CandidateModel>> {
-        self.family.candidates(&self.source)
+        self.setup.candidates()
     }
 
     /// This analysis with the base model replaced by a candidate's, whose own

@@ -4,7 +4,7 @@
 
 use super::EmulatedModel;
 use crate::base::config::{Config, ParamSpec};
-use crate::engine::model::{CandidateModel, ModelFamily, Simulator};
+use crate::engine::model::{CandidateModel, ModelFamily, ModelSetup, Simulator, Units};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -104,7 +104,7 @@ impl ModelFamily for EmulatorFamily {
         "emulator"
     }
 
-    fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>> {
+    fn open(&self, config: &Config) -> Result<Arc<dyn ModelSetup>> {
         let table: EmulatorModelTable = config.decode_family_table(&config.model, "model")?;
         let dir = config.resolve(&table.artifact);
         let model =
@@ -116,30 +116,43 @@ impl ModelFamily for EmulatorFamily {
             &priors,
             &format!("{}: the emulator {}", config.path.display(), dir.display()),
         )?;
-        Ok(Arc::new(model))
+        let units = Units { x: table.units.x, observables: table.units.observables, parameters: Default::default() };
+        Ok(Arc::new(EmulatorSetup { model: Arc::new(model), units, config: config.clone() }))
+    }
+}
+
+/// An emulator read from `[model] artifact`; its variants' emulators are
+/// loaded only when `diagnose` asks for the candidates.
+struct EmulatorSetup {
+    model: Arc<EmulatedModel>,
+    units: Units,
+    config: Config,
+}
+
+impl ModelSetup for EmulatorSetup {
+    fn simulator(&self) -> Arc<dyn Simulator> {
+        self.model.clone()
     }
 
-    fn units(&self, config: &Config) -> crate::engine::model::Units {
-        match config.decode_family_table::<EmulatorModelTable>(&config.model, "model") {
-            Ok(t) => crate::engine::model::Units {
-                x: t.units.x,
-                observables: t.units.observables,
-                parameters: Default::default(),
-            },
-            Err(_) => Default::default(),
-        }
+    fn units(&self) -> Units {
+        self.units.clone()
     }
 
-    fn candidates(&self, config: &Config) -> Result<Vec<CandidateModel>> {
-        config
-            .candidates
-            .iter()
-            .map(|t| {
-                let c: CandidateDeclaration = config.decode(t, "[candidates]")?;
-                declared_candidate(config, &c)
-            })
-            .collect()
+    fn candidates(&self) -> Result<Vec<CandidateModel>> {
+        declared_candidates(&self.config)
     }
+}
+
+/// Every `[[candidates]]` table, a variant with its own emulator.
+fn declared_candidates(config: &Config) -> Result<Vec<CandidateModel>> {
+    config
+        .candidates
+        .iter()
+        .map(|t| {
+            let c: CandidateDeclaration = config.decode(t, "[candidates]")?;
+            declared_candidate(config, &c)
+        })
+        .collect()
 }
 
 /// A declared variant: its parameters must be the base θ plus the variant's
@@ -244,7 +257,7 @@ mod tests {
     #[test]
     fn run_switches_without_a_run_table_are_refused() {
         let c = config("[[candidates]]\nname = \"x\"\ncommand = \"sim {point}\"\nemulator = \"v\"\n");
-        let refusal = |c: &Config| match EmulatorFamily.candidates(c) {
+        let refusal = |c: &Config| match declared_candidates(c) {
             Ok(_) => panic!("accepted"),
             Err(e) => format!("{e:#}"),
         };

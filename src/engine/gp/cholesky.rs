@@ -140,20 +140,7 @@ impl CholeskyWorkspace {
                     self.factor[i * n + i] += rel * mean_diag.abs().max(f64::MIN_POSITIVE);
                 }
             }
-            let ok = if n <= SMALL_N {
-                cholesky_small(&mut self.factor, n)
-            } else {
-                let a = MatMut::from_column_major_slice_mut(&mut self.factor, n, n);
-                cholesky_in_place(
-                    a,
-                    Default::default(),
-                    Par::Seq,
-                    MemStack::new(&mut self.stack),
-                    Spec::<LltParams, f64>::default(),
-                )
-                .is_ok()
-            };
-            if ok && (0..n).all(|i| self.factor[i * n + i].is_finite()) {
+            if self.factorize_exact() && (0..n).all(|i| self.factor[i * n + i].is_finite()) {
                 return Ok(rel * mean_diag.abs().max(f64::MIN_POSITIVE));
             }
         }

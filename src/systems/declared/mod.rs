@@ -23,7 +23,7 @@ pub mod ode;
 mod tape;
 
 use crate::base::config::Config;
-use crate::engine::model::{CandidateModel, ModelFamily, Simulator, Units};
+use crate::engine::model::{CandidateModel, ModelFamily, ModelSetup, PlainSetup, Simulator, Units};
 use anyhow::Result;
 use declaration::{CandidateTable, Declared, ModelTable, TruthTable};
 use std::sync::Arc;
@@ -38,20 +38,11 @@ impl DeclaredFamily {
     pub const EXPRESSION: DeclaredFamily = DeclaredFamily { ode: false };
     pub const ODE: DeclaredFamily = DeclaredFamily { ode: true };
 
-    fn table(&self, config: &Config) -> Result<ModelTable> {
-        config.decode_family_table(&config.model, "model")
-    }
-
-    fn base(&self, config: &Config) -> Result<Declared> {
-        Declared::base(config, &self.table(config)?, self.ode)
-    }
-
-    fn compile(&self, config: &Config, declared: &Declared) -> Result<Arc<dyn Simulator>> {
-        let file = config.path.display().to_string();
+    fn compile(&self, file: &str, declared: &Declared) -> Result<Arc<dyn Simulator>> {
         Ok(if self.ode {
-            Arc::new(ode::OdeModel::compile(&file, declared)?)
+            Arc::new(ode::OdeModel::compile(file, declared)?)
         } else {
-            Arc::new(expression::ExpressionModel::compile(&file, declared)?)
+            Arc::new(expression::ExpressionModel::compile(file, declared)?)
         })
     }
 
@@ -71,12 +62,27 @@ impl DeclaredFamily {
         }
         Ok(library)
     }
+}
 
-    fn candidate(&self, config: &Config, base: &Declared, chosen: &[&CandidateTable]) -> Result<CandidateModel> {
-        let file = config.path.display().to_string();
-        let mut declared = base.clone();
+/// A declaration read once: the compiled model, and each single candidate
+/// compiled (so a bad one fails before any sampling); pairs are compiled
+/// when `diagnose` asks for them.
+struct DeclaredSetup {
+    family: DeclaredFamily,
+    file: String,
+    base: Declared,
+    library: Vec<CandidateTable>,
+    pairs: bool,
+    units: Units,
+    model: Arc<dyn Simulator>,
+    singles: Vec<CandidateModel>,
+}
+
+impl DeclaredSetup {
+    fn candidate(&self, chosen: &[&CandidateTable]) -> Result<CandidateModel> {
+        let mut declared = self.base.clone();
         for c in chosen {
-            declared = declared.with_candidate(&file, c)?;
+            declared = declared.with_candidate(&self.file, c)?;
         }
         let extra_parameters =
             chosen.iter().flat_map(|c| c.parameters.iter().map(|(n, s)| (n.clone(), s.clone()))).collect();
@@ -84,8 +90,32 @@ impl DeclaredFamily {
             name: chosen.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join("+"),
             description: chosen.iter().map(|c| c.description.as_str()).collect::<Vec<_>>().join("; and "),
             extra_parameters,
-            simulator: self.compile(config, &declared)?,
+            simulator: self.family.compile(&self.file, &declared)?,
         })
+    }
+}
+
+impl ModelSetup for DeclaredSetup {
+    fn simulator(&self) -> Arc<dyn Simulator> {
+        self.model.clone()
+    }
+
+    fn units(&self) -> Units {
+        self.units.clone()
+    }
+
+    /// Each declared candidate, then (unless `candidate_pairs = false`) each
+    /// pair of them, whose evidence pays for both sets of parameters.
+    fn candidates(&self) -> Result<Vec<CandidateModel>> {
+        let mut out = self.singles.clone();
+        if self.pairs {
+            for (i, a) in self.library.iter().enumerate() {
+                for b in &self.library[i + 1..] {
+                    out.push(self.candidate(&[a, b])?);
+                }
+            }
+        }
+        Ok(out)
     }
 }
 
@@ -98,46 +128,31 @@ impl ModelFamily for DeclaredFamily {
         }
     }
 
-    fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>> {
-        let base = self.base(config)?;
-        let model = self.compile(config, &base)?;
-        // Candidates are compiled here too, so a bad one fails before any sampling.
-        for c in self.library(config)? {
-            self.candidate(config, &base, &[&c])?;
-        }
-        Ok(model)
+    fn open(&self, config: &Config) -> Result<Arc<dyn ModelSetup>> {
+        let table: ModelTable = config.decode_family_table(&config.model, "model")?;
+        let file = config.path.display().to_string();
+        let base = Declared::base(config, &table, self.ode)?;
+        let mut setup = DeclaredSetup {
+            family: DeclaredFamily { ode: self.ode },
+            model: self.compile(&file, &base)?,
+            file,
+            base,
+            library: self.library(config)?,
+            pairs: table.candidate_pairs,
+            units: Units { x: table.units.x, observables: table.units.observables, parameters: Default::default() },
+            singles: Vec::new(),
+        };
+        setup.singles = setup.library.iter().map(|c| setup.candidate(&[c])).collect::<Result<_>>()?;
+        Ok(Arc::new(setup))
     }
 
-    fn units(&self, config: &Config) -> Units {
-        match self.table(config) {
-            Ok(t) => Units { x: t.units.x, observables: t.units.observables, parameters: Default::default() },
-            Err(_) => Units::default(),
-        }
-    }
-
-    /// Each declared candidate, then (unless `candidate_pairs = false`) each
-    /// pair of them, whose evidence pays for both sets of parameters.
-    fn candidates(&self, config: &Config) -> Result<Vec<CandidateModel>> {
-        let base = self.base(config)?;
-        let library = self.library(config)?;
-        let mut out = Vec::new();
-        for c in &library {
-            out.push(self.candidate(config, &base, &[c])?);
-        }
-        if self.table(config)?.candidate_pairs {
-            for (i, a) in library.iter().enumerate() {
-                for b in &library[i + 1..] {
-                    out.push(self.candidate(config, &base, &[a, b])?);
-                }
-            }
-        }
-        Ok(out)
-    }
-
-    fn true_process(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
-        let table: TruthTable = config.decode_family_table(truth, "truth")?;
+    fn open_truth(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn ModelSetup>> {
+        let table: ModelTable = config.decode_family_table(&config.model, "model")?;
+        let truth_table: TruthTable = config.decode_family_table(truth, "truth")?;
+        let file = config.path.display().to_string();
         let declared =
-            self.base(config)?.with_truth(&config.path.display().to_string(), &table, &self.library(config)?)?;
-        self.compile(config, &declared)
+            Declared::base(config, &table, self.ode)?.with_truth(&file, &truth_table, &self.library(config)?)?;
+        let units = Units { x: table.units.x, observables: table.units.observables, parameters: Default::default() };
+        Ok(PlainSetup::new(self.compile(&file, &declared)?, units))
     }
 }

@@ -11,7 +11,7 @@
 
 use super::{observables, DeltaF, HeavyIonParams};
 use crate::base::config::Config;
-use crate::engine::model::{ModelFamily, Simulator, Units};
+use crate::engine::model::{ModelFamily, ModelSetup, PlainSetup, Simulator, Units};
 use anyhow::{anyhow, Context, Result};
 use std::sync::Arc;
 
@@ -43,16 +43,9 @@ fn stand_in(config: &Config, table: &toml::Table, name: &str) -> Result<Arc<dyn 
     Ok(Arc::new(StandIn { names, delta_f }))
 }
 
-impl ModelFamily for HeavyIonFamily {
-    fn kind(&self) -> &'static str {
-        "heavy_ion"
-    }
-
-    fn simulator(&self, config: &Config) -> Result<Arc<dyn Simulator>> {
-        stand_in(config, &config.model, "model")
-    }
-
-    fn units(&self, _config: &Config) -> Units {
+impl HeavyIonFamily {
+    /// The stand-in's units: pT in GeV, the switching density in GeV/fm³.
+    pub fn units() -> Units {
         let pairs = |v: &[(&str, &str)]| v.iter().map(|(k, u)| (k.to_string(), u.to_string())).collect();
         Units {
             x: "GeV".into(),
@@ -60,9 +53,19 @@ impl ModelFamily for HeavyIonFamily {
             parameters: pairs(&[("e_sw", "GeV/fm³"), ("T_kink", "GeV"), ("a_low", "1/GeV"), ("a_high", "1/GeV")]),
         }
     }
+}
 
-    fn true_process(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn Simulator>> {
-        stand_in(config, truth, "truth")
+impl ModelFamily for HeavyIonFamily {
+    fn kind(&self) -> &'static str {
+        "heavy_ion"
+    }
+
+    fn open(&self, config: &Config) -> Result<Arc<dyn ModelSetup>> {
+        Ok(PlainSetup::new(stand_in(config, &config.model, "model")?, Self::units()))
+    }
+
+    fn open_truth(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn ModelSetup>> {
+        Ok(PlainSetup::new(stand_in(config, truth, "truth")?, Self::units()))
     }
 }
 

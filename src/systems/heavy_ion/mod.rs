@@ -446,7 +446,7 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
 }
 
 /// Smooth (infinite-statistics) observables in the analysis bins: for each
-/// name in [`crate::base::artifacts::PAPER_TABLE_OBSERVABLES`], one value per pT.
+/// name in [`crate::base::paper_table::PAPER_TABLE_OBSERVABLES`], one value per pT.
 pub fn observables(p: &HeavyIonParams, delta_f: DeltaF, pts: &[f64]) -> Vec<(&'static str, Vec<f64>)> {
     let fo = FreezeOut::new(p);
     let q = Quadrature::default();
