@@ -89,6 +89,13 @@ pub enum Command {
     Diagnose {
         #[command(flatten)]
         args: CalibrationArgs,
+        /// Search the model's grammar for a term nobody declared even when a
+        /// candidate explains the data (by default only when none does)
+        #[arg(long, conflicts_with = "no_discover")]
+        discover: bool,
+        /// Never search for undeclared terms
+        #[arg(long)]
+        no_discover: bool,
     },
     /// Build a self-contained HTML report from run folders (calibrate, compare or diagnose outputs)
     Report {
@@ -255,7 +262,7 @@ impl Command {
                 commands::calibrate(args, kernel, observables, sampler, time_limit)
             }
             Command::Compare { args, sampler, replicates } => commands::compare(args, sampler, replicates),
-            Command::Diagnose { args } => commands::diagnose(args),
+            Command::Diagnose { args, discover, no_discover } => commands::diagnose(args, discover, no_discover),
             Command::Design { spec, points, seed, out } => commands::design(&spec, points, seed, &out),
             Command::TrainEmulator { config, training, design, seed, out } => {
                 commands::train_emulator(&config, &training, design.as_deref(), seed, &out)

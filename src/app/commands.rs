@@ -96,15 +96,20 @@ pub fn compare(args: CalibrationArgs, sampler: Option<String>, replicates: Optio
     Ok(())
 }
 
-pub fn diagnose(args: CalibrationArgs) -> Result<()> {
+pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool) -> Result<()> {
     let analysis = crate::pipeline::load(&args.config)?;
     let overrides = parse_overrides(args.data, None, None, None)?;
     artifacts::check_writable(&args.out)?;
+    let discover = match (discover, no_discover) {
+        (true, _) => diagnose::Discover::Always,
+        (_, true) => diagnose::Discover::Never,
+        _ => diagnose::Discover::WhenUnexplained,
+    };
     let run = diagnose::run(
         &analysis,
         &overrides,
         args.seed,
-        &diagnose::DiagnoseSettings::default(),
+        &diagnose::DiagnoseSettings { discover, ..Default::default() },
         Some(&args.out),
         &Bars::default(),
     )?;

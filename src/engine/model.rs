@@ -131,6 +131,60 @@ pub trait ModelSetup: Send + Sync {
     fn candidates(&self) -> Result<Vec<CandidateModel>> {
         Ok(Vec::new())
     }
+
+    /// Terms built from the model's own symbols that `diagnose` may try when
+    /// no candidate explains the data (declared models); None for a model
+    /// with no formulas to extend.
+    fn discoverer(&self) -> Option<&dyn Discoverer> {
+        None
+    }
+}
+
+/// The data a screening fits, one block per observable, and where the base
+/// model's posterior lies.
+pub struct ScreeningData<'a> {
+    pub blocks: Vec<ScreeningBlock<'a>>,
+    /// The base fit's posterior median of θ, in the simulator's order.
+    pub theta: Vec<f64>,
+    /// θ's prior box.
+    pub bounds: Vec<(f64, f64)>,
+}
+
+pub struct ScreeningBlock<'a> {
+    /// Index of the observable in the simulator's `observable_names`.
+    pub model_index: usize,
+    pub x: &'a [f64],
+    pub y: &'a [f64],
+    /// 1σ measurement errors.
+    pub error: &'a [f64],
+}
+
+/// One term (or pair of terms) the screening found worth a full calibration.
+#[derive(Clone)]
+pub struct Proposal {
+    pub candidate: CandidateModel,
+    /// The term as a physicist would write it, and where it joins the model.
+    pub formula: String,
+    /// The `[[candidates]]` block that declares it.
+    pub toml: String,
+    /// χ² of the base model's best fit minus that of the model with the term.
+    pub delta_chi2: f64,
+    /// `delta_chi2` less the term's parameters times ln(number of data).
+    pub delta_bic: f64,
+}
+
+/// What a screening tried and what it proposes, best first.
+pub struct Screening {
+    /// Terms and pairs of terms fitted.
+    pub searched: usize,
+    /// The grammar's forms, for "which forms were tried".
+    pub forms: Vec<String>,
+    pub proposals: Vec<Proposal>,
+}
+
+/// A grammar of terms and a cheap screening of them against the data.
+pub trait Discoverer: Send + Sync {
+    fn screen(&self, data: &ScreeningData) -> Result<Screening>;
 }
 
 /// A setup with nothing left to read: a simulator, its units and candidates.

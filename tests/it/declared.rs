@@ -430,7 +430,12 @@ fn kinetics_blind(pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str,
     analysis.sampler.smc.particles = 400;
     analysis.sampler.smc.replicates = 2;
     analysis.predictions.draws = 200;
-    let settings = mdpipe::diagnose::DiagnoseSettings { repair: false, ..Default::default() };
+    // The library's decision rule alone: discovery has its own blind test.
+    let settings = mdpipe::diagnose::DiagnoseSettings {
+        repair: false,
+        discover: mdpipe::diagnose::Discover::Never,
+        ..Default::default()
+    };
     let dir = tmpdir("kinetics-blind");
     let times: Vec<f64> = (0..10).map(|i| 0.1 + 0.3 * i as f64).collect();
     let sigma = 0.05;

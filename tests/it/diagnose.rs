@@ -261,7 +261,9 @@ fn ball_drop_blind(pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str
     cfg.sampler.smc.particles = 600;
     cfg.sampler.smc.replicates = 2;
     cfg.predictions.draws = 300;
-    let settings = DiagnoseSettings { repair: false, ..Default::default() };
+    // The library's decision rule alone: discovery has its own blind test.
+    let settings =
+        DiagnoseSettings { repair: false, discover: mdpipe::diagnose::Discover::Never, ..Default::default() };
     let dir = std::env::temp_dir().join(format!("mdpipe-blind-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(2026);

@@ -43,6 +43,7 @@
 //!   p < `min_p_value`), and "none" when it is not.
 
 mod decide;
+mod discover;
 mod locate;
 mod suggest;
 mod types;
@@ -116,7 +117,6 @@ impl CandidateRun {
 /// What every calibration of one diagnosis shares.
 struct Diagnoser<'a> {
     overrides: &'a Overrides,
-    strong_log_bf: f64,
     out: Option<&'a Path>,
     observer: &'a dyn Observer,
 }
@@ -138,10 +138,18 @@ impl Diagnoser<'_> {
         Ok((problem, cal))
     }
 
-    /// Explain: every candidate fitted without MD, best evidence first.
-    fn explain(&self, analysis: &Analysis, seed: u64, (z_base, e_base): (f64, f64)) -> Result<Vec<CandidateRun>> {
+    /// Explain: each candidate fitted without MD. A discovered term's
+    /// `prior_log_odds` (ln 1/terms searched) joins its log evidence.
+    fn explain(
+        &self,
+        analysis: &Analysis,
+        candidates: Vec<CandidateModel>,
+        seed: u64,
+        (z_base, e_base): (f64, f64),
+        prior_log_odds: f64,
+    ) -> Result<Vec<CandidateRun>> {
         let mut runs = Vec::new();
-        for (k, candidate) in analysis.candidates()?.into_iter().enumerate() {
+        for (k, candidate) in candidates.into_iter().enumerate() {
             let (problem, calibration) = self.calibrate(
                 &analysis.with_candidate(&candidate),
                 None,
@@ -149,6 +157,7 @@ impl Diagnoser<'_> {
                 &format!("candidate_{}", candidate.name),
             )?;
             let (z, e) = evidence(&calibration.summary);
+            let z = z + prior_log_odds;
             let result = CandidateResult {
                 name: candidate.name.clone(),
                 description: candidate.description.clone(),
@@ -167,34 +176,35 @@ impl Diagnoser<'_> {
                 converged: calibration.summary.diagnostics.converged,
                 emulator_share: calibration.summary.fit.model_variance_share,
                 emulator_share_observable: worst_share_observable(&calibration.summary.fit),
+                prior_log_odds,
             };
             runs.push(CandidateRun { result, candidate, problem, calibration });
         }
-        // A stable sort keeps the library's order among equal evidences.
-        runs.sort_by(|a, b| b.result.log_evidence.total_cmp(&a.result.log_evidence));
-        let preferred = occam(&runs.iter().map(|r| &r.result).collect::<Vec<_>>(), self.strong_log_bf);
-        let first = runs.remove(preferred);
-        runs.insert(0, first);
         Ok(runs)
     }
 }
 
-/// Runs the whole diagnosis. `out`, when given, receives every calibration.
-pub fn run(
-    analysis: &Analysis,
-    overrides: &Overrides,
-    seed: u64,
+/// Best evidence first, then Occam's choice moved to the front.
+fn rank(mut runs: Vec<CandidateRun>, strong_log_bf: f64) -> Vec<CandidateRun> {
+    // A stable sort keeps the library's order among equal evidences.
+    runs.sort_by(|a, b| b.result.log_evidence.total_cmp(&a.result.log_evidence));
+    if runs.is_empty() {
+        return runs;
+    }
+    let preferred = occam(&runs.iter().map(|r| &r.result).collect::<Vec<_>>(), strong_log_bf);
+    let first = runs.remove(preferred);
+    runs.insert(0, first);
+    runs
+}
+
+/// The verdict on ranked candidate runs, and whether one is named alone.
+fn judge(
+    runs: &[CandidateRun],
+    mismatch: &[ObservableMismatch],
+    base: &Summary,
     settings: &DiagnoseSettings,
-    out: Option<&Path>,
-    observer: &dyn Observer,
-) -> Result<DiagnoseRun> {
-    let d = Diagnoser { overrides, strong_log_bf: settings.strong_log_bf, out, observer };
-    let (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
-    let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
-    let (z_base, e_base) = evidence(&base.summary);
-    let (z_md, _) = evidence(&md.summary);
-    let mismatch = locate(&md_problem, &md, &base_problem, &base);
-    let runs = d.explain(analysis, seed, (z_base, e_base))?;
+    (z_base, z_md): (f64, f64),
+) -> (Vec<CandidateResult>, Verdict, bool) {
     let candidates: Vec<CandidateResult> = runs.iter().map(|r| r.result.clone()).collect();
     let named = named_candidate(&candidates, settings, z_md);
     let rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
@@ -206,14 +216,48 @@ pub fn run(
         };
         suggest::suggest(&runs[0].fit(), &other.fit(), goal)
     });
-    let verdict =
-        decide(&candidates, named, (&rivals, suggestion), &runs, &mismatch, &base.summary, settings, (z_base, z_md));
+    let verdict = decide(&candidates, named, (&rivals, suggestion), runs, mismatch, base, settings, (z_base, z_md));
+    // Only a named candidate is repaired: not one that is ambiguous or rests on its emulator.
+    let named_alone = named.is_some_and(|c| rivals.is_empty() && !rests_on_emulator(c));
+    (candidates.clone(), verdict, named_alone)
+}
+
+/// Runs the whole diagnosis. `out`, when given, receives every calibration.
+pub fn run(
+    analysis: &Analysis,
+    overrides: &Overrides,
+    seed: u64,
+    settings: &DiagnoseSettings,
+    out: Option<&Path>,
+    observer: &dyn Observer,
+) -> Result<DiagnoseRun> {
+    let d = Diagnoser { overrides, out, observer };
+    let (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
+    let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
+    let (z_base, e_base) = evidence(&base.summary);
+    let (z_md, _) = evidence(&md.summary);
+    let mismatch = locate(&md_problem, &md, &base_problem, &base);
+    let declared = analysis.candidates()?;
+    let mut runs = rank(d.explain(analysis, declared, seed, (z_base, e_base), 0.0)?, settings.strong_log_bf);
+    let (mut candidates, mut verdict, mut named_alone) =
+        judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
+    let mut discovery = None;
+    if discover::wanted(settings.discover, &verdict) {
+        if let Some(discoverer) = analysis.setup.discoverer() {
+            let (report, proposals) = discover::screen(discoverer, &base_problem, &base)?;
+            let odds = report.prior_log_odds;
+            let found = d.explain(analysis, proposals, seed.wrapping_add(500), (z_base, e_base), odds)?;
+            runs.extend(found);
+            runs = rank(runs, settings.strong_log_bf);
+            (candidates, verdict, named_alone) = judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
+            discover::word(&mut verdict, &report);
+            discovery = Some(report);
+        }
+    }
 
     // Repair: refit the winner with MD on top, to show δ shrink.
     let mut improvement = None;
     let mut repaired_md = None;
-    // Only a named candidate is repaired: not one that is ambiguous or rests on its emulator.
-    let named_alone = named.is_some_and(|c| rivals.is_empty() && !rests_on_emulator(c));
     if named_alone && settings.repair {
         let winner = &runs[0];
         let (rep_md_problem, rep_md) = d.calibrate(
@@ -247,6 +291,7 @@ pub fn run(
         improvement,
         base_log_evidence: z_base,
         md_log_evidence: z_md,
+        discovery,
         provenance: base_problem.provenance(seed, "diagnose"),
     };
     if let Some(dir) = out {
@@ -295,6 +340,7 @@ mod tests {
                 converged: true,
                 emulator_share: 0.0,
                 emulator_share_observable: String::new(),
+                prior_log_odds: 0.0,
             })
             .collect()
     }

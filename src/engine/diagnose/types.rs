@@ -10,11 +10,28 @@ pub struct DiagnoseSettings {
     pub min_p_value: f64,
     /// Refit the winner with MD on top (step 3); blind tests skip it.
     pub repair: bool,
+    /// When to search the model's grammar for a term nobody declared.
+    pub discover: Discover,
+}
+
+/// When `diagnose` searches for a term nobody declared (declared models only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Discover {
+    /// When the verdict would be "unexplained".
+    WhenUnexplained,
+    Always,
+    Never,
 }
 
 impl Default for DiagnoseSettings {
     fn default() -> Self {
-        DiagnoseSettings { kernel: DiscrepancyKernel::KernelII, strong_log_bf: 3.0, min_p_value: 1e-3, repair: true }
+        DiagnoseSettings {
+            kernel: DiscrepancyKernel::KernelII,
+            strong_log_bf: 3.0,
+            min_p_value: 1e-3,
+            repair: true,
+            discover: Discover::WhenUnexplained,
+        }
     }
 }
 
@@ -76,6 +93,11 @@ pub struct CandidateResult {
     /// That observable ("" for an exact model).
     #[serde(default)]
     pub emulator_share_observable: String,
+    /// A discovered term's prior log odds against the base model, ln(1/N)
+    /// for N terms searched (0 for a declared candidate). It is included in
+    /// `log_evidence` and `log_bayes_factor`: the search pays for its size.
+    #[serde(default)]
+    pub prior_log_odds: f64,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -170,7 +192,33 @@ pub struct Diagnosis {
     pub improvement: Option<Improvement>,
     pub base_log_evidence: f64,
     pub md_log_evidence: f64,
+    /// What the search for undeclared terms tried, when it ran.
+    #[serde(default)]
+    pub discovery: Option<DiscoveryReport>,
     pub provenance: Provenance,
+}
+
+/// The search for a term nobody declared.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct DiscoveryReport {
+    /// Terms and pairs of terms the screening fitted.
+    pub searched: usize,
+    /// ln(1/searched): each discovered term's prior odds against the base model.
+    pub prior_log_odds: f64,
+    /// The grammar's forms that were tried.
+    pub forms: Vec<String>,
+    /// What went on to full calibration, best screened first.
+    pub screened: Vec<ScreenedTerm>,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ScreenedTerm {
+    pub name: String,
+    pub formula: String,
+    pub delta_chi2: f64,
+    pub delta_bic: f64,
+    /// The `[[candidates]]` block that declares the term.
+    pub toml: String,
 }
 
 /// Everything `diagnose` computed, for the report.

@@ -35,6 +35,17 @@ pub struct ModelTable {
     /// Whether `diagnose` also tries every pair of candidates (default true).
     #[serde(default = "yes")]
     pub candidate_pairs: bool,
+    /// What `diagnose` may discover beyond the candidates.
+    #[serde(default)]
+    pub discover: DiscoverTable,
+}
+
+/// `[model.discover]`.
+#[derive(Clone, Debug, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DiscoverTable {
+    /// A grammar file of more term forms (the bundled grammar's format), relative to the config.
+    pub grammar: Option<std::path::PathBuf>,
 }
 
 fn yes() -> bool {
@@ -194,6 +205,15 @@ impl Declared {
         declared.check_names(&file, kind)?;
         check_solver(&file, &table.solver)?;
         Ok(declared)
+    }
+
+    /// Whether `name` is already the input, a parameter, a constant, a state or an observable.
+    pub fn knows(&self, name: &str) -> bool {
+        self.input == name
+            || self.parameters.iter().any(|p| p == name)
+            || self.constants.iter().any(|(c, _)| c == name)
+            || self.states.iter().any(|s| s.name == name)
+            || self.observables.iter().any(|(o, _)| o == name)
     }
 
     /// Every name once: the input, θ, constants and states may not share one.

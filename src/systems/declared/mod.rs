@@ -16,6 +16,7 @@
 //! `expression` and `ode` compile a declaration into a `Simulator`.
 
 mod declaration;
+pub mod discover;
 pub mod expression;
 pub mod formula;
 mod notation;
@@ -23,8 +24,8 @@ pub mod ode;
 mod tape;
 
 use crate::base::config::Config;
-use crate::engine::model::{CandidateModel, ModelFamily, ModelSetup, PlainSetup, Simulator, Units};
-use anyhow::Result;
+use crate::engine::model::{CandidateModel, Discoverer, ModelFamily, ModelSetup, PlainSetup, Simulator, Units};
+use anyhow::{Context, Result};
 use declaration::{CandidateTable, Declared, ModelTable, TruthTable};
 use std::sync::Arc;
 
@@ -76,6 +77,7 @@ struct DeclaredSetup {
     units: Units,
     model: Arc<dyn Simulator>,
     singles: Vec<CandidateModel>,
+    discoverer: discover::DeclaredDiscoverer,
 }
 
 impl DeclaredSetup {
@@ -106,6 +108,10 @@ impl ModelSetup for DeclaredSetup {
 
     /// Each declared candidate, then (unless `candidate_pairs = false`) each
     /// pair of them, whose evidence pays for both sets of parameters.
+    fn discoverer(&self) -> Option<&dyn Discoverer> {
+        Some(&self.discoverer)
+    }
+
     fn candidates(&self) -> Result<Vec<CandidateModel>> {
         let mut out = self.singles.clone();
         if self.pairs {
@@ -132,7 +138,16 @@ impl ModelFamily for DeclaredFamily {
         let table: ModelTable = config.decode_family_table(&config.model, "model")?;
         let file = config.path.display().to_string();
         let base = Declared::base(config, &table, self.ode)?;
+        let grammar = table.discover.grammar.as_ref().map(|g| config.resolve(g));
+        let discoverer = discover::DeclaredDiscoverer {
+            family: DeclaredFamily { ode: self.ode },
+            file: file.clone(),
+            base: base.clone(),
+            forms: discover::grammar::forms(grammar.as_deref())
+                .with_context(|| format!("{file}: [model.discover] grammar"))?,
+        };
         let mut setup = DeclaredSetup {
+            discoverer,
             family: DeclaredFamily { ode: self.ode },
             model: self.compile(&file, &base)?,
             file,

@@ -1,0 +1,70 @@
+//! The search for physics nobody declared, as `diagnose` runs it: the
+//! model's discoverer screens its grammar against the data at the base fit,
+//! and the terms it proposes are judged as declared candidates are, by full
+//! calibration and evidence, each with prior odds ln(1/N) for N searched.
+
+use super::*;
+use crate::engine::model::{Discoverer, ScreeningBlock, ScreeningData};
+
+/// Whether to search: always, never, or when no candidate explains a mismatch.
+pub(super) fn wanted(discover: Discover, verdict: &Verdict) -> bool {
+    match discover {
+        Discover::Always => true,
+        Discover::Never => false,
+        Discover::WhenUnexplained => verdict.best == "unexplained",
+    }
+}
+
+/// Screens the grammar at the base fit's posterior median; the report and
+/// the proposed terms as candidates.
+pub(super) fn screen(
+    discoverer: &dyn Discoverer,
+    problem: &Problem,
+    base: &Calibration,
+) -> Result<(DiscoveryReport, Vec<CandidateModel>)> {
+    let names = problem.simulator.parameter_names();
+    let data = ScreeningData {
+        blocks: problem
+            .likelihood
+            .blocks
+            .iter()
+            .map(|b| ScreeningBlock { model_index: b.model_index, x: &b.x, y: &b.y, error: &b.error })
+            .collect(),
+        theta: names.iter().map(|n| base.summary.parameters[n].median).collect(),
+        bounds: (0..names.len()).map(|k| (problem.prior.lower[k], problem.prior.upper[k])).collect(),
+    };
+    let screening = discoverer.screen(&data)?;
+    let report = DiscoveryReport {
+        searched: screening.searched,
+        prior_log_odds: -(screening.searched.max(1) as f64).ln(),
+        forms: screening.forms,
+        screened: screening
+            .proposals
+            .iter()
+            .map(|p| ScreenedTerm {
+                name: p.candidate.name.clone(),
+                formula: p.formula.clone(),
+                delta_chi2: p.delta_chi2,
+                delta_bic: p.delta_bic,
+                toml: p.toml.clone(),
+            })
+            .collect(),
+    };
+    Ok((report, screening.proposals.into_iter().map(|p| p.candidate).collect()))
+}
+
+/// What the verdict says of the search.
+pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
+    let found = report.screened.iter().find(|s| s.name == verdict.best);
+    verdict.statement.push_str(&match found {
+        Some(s) => format!(
+            " It was discovered, not declared: {} ({} terms searched, prior odds 1:{} paid). Declare it with:\n{}",
+            s.formula, report.searched, report.searched, s.toml
+        ),
+        None => format!(
+            " A search of {} terms built from the model's own symbols (forms: {}) found none that explains the data decisively.",
+            report.searched,
+            report.forms.join("; ")
+        ),
+    });
+}

@@ -1,0 +1,348 @@
+//! Discovery for declared models: the physics nobody declared, searched in a
+//! grammar of terms built from the model's own symbols (`grammar`).
+//!
+//! Screening (here) is cheap: every term, and every pair of the best five,
+//! is fitted by least squares with θ (`fit`), and ranked by the Bayesian
+//! information criterion ΔBIC = Δχ² − k ln N. Terms that fit the data the
+//! same way (`v*abs(v)` and `v^2` for a ball that only falls, or `h*v*v`
+//! while h barely changes) are one explanation, and the simpler stands for
+//! both (`distinct`). The best few are handed back as
+//! candidates; `diagnose` then judges them by full calibration and evidence,
+//! with prior odds that pay for the number searched.
+
+mod fit;
+pub mod grammar;
+
+use super::declaration::{CandidateTable, Declared, Written};
+use super::formula;
+use super::DeclaredFamily;
+use crate::base::config::ParamSpec;
+use crate::engine::model::{CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator};
+use anyhow::Result;
+use fit::{Fitted, LeastSquares};
+use grammar::{Instance, ParameterForm, TermForm};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// How many screened terms (or pairs) go on to full calibration.
+const PROPOSALS: usize = 3;
+/// Singles whose pairs are screened.
+const PAIRED: usize = 5;
+/// A coefficient's prior lets its term change an observable by this many
+/// times the observable's own largest size.
+const COEFFICIENT_REACH: f64 = 10.0;
+
+pub struct DeclaredDiscoverer {
+    pub(super) family: DeclaredFamily,
+    pub(super) file: String,
+    pub(super) base: Declared,
+    pub(super) forms: Vec<TermForm>,
+}
+
+/// A screened term: its instance, its parameters' priors and its best fit.
+struct Screened {
+    instances: Vec<Instance>,
+    table: CandidateTable,
+    simulator: Arc<dyn Simulator>,
+    fitted: Fitted,
+}
+
+impl Discoverer for DeclaredDiscoverer {
+    fn screen(&self, data: &ScreeningData) -> Result<Screening> {
+        let base_model = self.family.compile(&self.file, &self.base)?;
+        let base = LeastSquares { blocks: &data.blocks, model: base_model.as_ref(), bounds: data.bounds.clone() };
+        let Some(base_fit) = base.fit(&data.theta) else {
+            anyhow::bail!("discover: the base model cannot be computed at its posterior median");
+        };
+        let scales = self.scales(data, &base_fit.phi)?;
+        let instances = grammar::instances(&self.forms, &self.base);
+        let mut singles: Vec<Screened> =
+            instances.iter().filter_map(|i| self.screen_one(&[i.clone()], data, &base_fit, &scales)).collect();
+        let points = base.points() as f64;
+        let bic = bic_of(base_fit.chi2, points);
+        singles.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
+        let singles = distinct(singles, data);
+        let mut searched = instances.len();
+        let mut all: Vec<Screened> = Vec::new();
+        let top: Vec<&Screened> = singles.iter().take(PAIRED).collect();
+        for (i, a) in top.iter().enumerate() {
+            for b in &top[i + 1..] {
+                searched += 1;
+                let pair = [a.instances[0].clone(), b.instances[0].clone()];
+                if let Some(s) = self.screen_one(&pair, data, &base_fit, &scales) {
+                    all.push(s);
+                }
+            }
+        }
+        all.extend(singles);
+        all.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
+        let all = distinct(all, data);
+        let proposals = all
+            .into_iter()
+            .filter(|s| bic(s) > 0.0)
+            .take(PROPOSALS)
+            .map(|s| proposal(s, base_fit.chi2, &bic))
+            .collect();
+        let forms = self.forms.iter().filter(|f| (f.to == "rates") == !self.base.states.is_empty());
+        Ok(Screening { searched, forms: forms.map(|f| f.form.clone()).collect(), proposals })
+    }
+}
+
+fn bic_of(base_chi2: f64, points: f64) -> impl Fn(&Screened) -> f64 {
+    move |s| base_chi2 - s.fitted.chi2 - (s.table.parameters.len() as f64) * points.ln()
+}
+
+fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64) -> Proposal {
+    let delta_bic = bic(&s);
+    let formula = describe(&s.table);
+    Proposal {
+        toml: candidate_toml(&s.table),
+        formula: formula.clone(),
+        delta_chi2: base_chi2 - s.fitted.chi2,
+        delta_bic,
+        candidate: CandidateModel {
+            name: s.table.name.clone(),
+            description: format!("discovered: {formula}"),
+            extra_parameters: s.table.parameters.iter().map(|(n, p)| (n.clone(), p.clone())).collect(),
+            simulator: s.simulator,
+        },
+    }
+}
+
+/// One explanation per way of fitting the data: of two fits whose
+/// predictions differ by Σ((a − b)/σ)² < ln N (the price BIC asks of one
+/// parameter: the data could not pay for telling them apart), the simpler
+/// stands for both (fewer parameters, then fewer terms, then earlier in the
+/// grammar: `v*abs(v)` before `h*v*v` when h barely changes).
+fn distinct(ranked: Vec<Screened>, data: &ScreeningData) -> Vec<Screened> {
+    let sigma: Vec<f64> = data.blocks.iter().flat_map(|b| b.error.iter().copied()).collect();
+    let threshold = (sigma.len() as f64).ln();
+    let apart = |a: &Screened, b: &Screened| {
+        let d2: f64 = a
+            .fitted
+            .prediction
+            .iter()
+            .zip(&b.fitted.prediction)
+            .zip(&sigma)
+            .map(|((a, b), e)| ((a - b) / e).powi(2))
+            .sum();
+        d2 >= threshold
+    };
+    let mut kept: Vec<Screened> = Vec::new();
+    for s in ranked {
+        match kept.iter().position(|k| !apart(k, &s)) {
+            None => kept.push(s),
+            Some(i) if s.complexity() < kept[i].complexity() => kept[i] = s,
+            Some(_) => {}
+        }
+    }
+    kept
+}
+
+impl Screened {
+    fn complexity(&self) -> (usize, usize, usize) {
+        (self.table.parameters.len(), self.instances.len(), self.instances.iter().map(|i| i.rank).sum())
+    }
+}
+
+/// Numbers the grammar's bounds may use: the input's span over the data,
+/// the most points of one observable, and each symbol's largest size at the
+/// base fit (a state along its trajectory, or the input).
+struct Scales {
+    span: f64,
+    n: f64,
+    smax: BTreeMap<String, f64>,
+}
+
+impl DeclaredDiscoverer {
+    fn scales(&self, data: &ScreeningData, theta: &[f64]) -> Result<Scales> {
+        let xs: Vec<f64> = data.blocks.iter().flat_map(|b| b.x.iter().copied()).collect();
+        let (lo, hi) = xs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| (l.min(*x), h.max(*x)));
+        let n = data.blocks.iter().map(|b| b.x.len()).max().unwrap_or(1) as f64;
+        let mut smax = BTreeMap::new();
+        smax.insert(self.base.input.clone(), xs.iter().fold(0.0f64, |m, x| m.max(x.abs())));
+        if !self.base.states.is_empty() {
+            // The states as observables of the same model, read off along the data's times.
+            let mut d = self.base.clone();
+            for s in &self.base.states {
+                let place = format!("{}: discover", self.file);
+                d.observables.push((format!("state {}", s.name), Written { text: s.name.clone(), place }));
+            }
+            let model = self.family.compile(&self.file, &d)?;
+            let first = self.base.observables.len();
+            for (k, s) in self.base.states.iter().enumerate() {
+                let mut out = vec![0.0; xs.len()];
+                model.predict(first + k, &xs, theta, &mut out);
+                smax.insert(s.name.clone(), out.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+            }
+        }
+        Ok(Scales { span: (hi - lo).max(f64::MIN_POSITIVE), n, smax })
+    }
+
+    /// Fits the model with `terms` added; None when the term cannot be
+    /// declared or computed (a form undefined on these data).
+    fn screen_one(&self, terms: &[Instance], data: &ScreeningData, base: &Fitted, scales: &Scales) -> Option<Screened> {
+        let suffixes: Vec<String> = if terms.len() > 1 {
+            vec!["1".into(), "2".into()]
+        } else if terms[0].parameters.iter().any(|(p, _)| self.base.knows(p)) {
+            vec!["_new".into()]
+        } else {
+            vec![String::new()]
+        };
+        let mut ranges = Vec::new();
+        for (term, suffix) in terms.iter().zip(&suffixes) {
+            for (p, form) in &term.parameters {
+                ranges.push((format!("{p}{suffix}"), self.range(term, form, scales)?));
+            }
+        }
+        // Coefficients at ±1 first, to measure how far one unit moves the model.
+        let provisional = self.table(terms, &suffixes, &ranges, |_| (-1.0, 1.0));
+        let model = self.compile(&provisional)?;
+        let mid: Vec<f64> = base.phi.iter().copied().chain(ranges.iter().map(|(_, r)| r.start())).collect();
+        let reach = self.coefficient_reach(model.as_ref(), data, &mid)?;
+        let table = self.table(terms, &suffixes, &ranges, |_| (-reach, reach));
+        let simulator = self.compile(&table)?;
+        let mut bounds = data.bounds.clone();
+        bounds.extend(table.parameters.values().map(|p| (p.min, p.max)));
+        let ls = LeastSquares { blocks: &data.blocks, model: simulator.as_ref(), bounds };
+        let starts = starts(&base.phi, &ranges);
+        let fitted = ls.best_of(&starts)?;
+        Some(Screened { instances: terms.to_vec(), table, simulator, fitted })
+    }
+
+    fn range(&self, term: &Instance, form: &ParameterForm, scales: &Scales) -> Option<Range> {
+        match form {
+            ParameterForm::Kind(_) => Some(Range::Coefficient),
+            ParameterForm::Range { min, max, starts } => {
+                let smax = term.symbols.iter().filter_map(|s| scales.smax.get(s)).fold(0.0f64, |m, v| m.max(*v));
+                let names = ["span", "n", "smax"].map(String::from);
+                let scope = formula::Scope::new(names);
+                let values = [scales.span, scales.n, smax.max(f64::MIN_POSITIVE)];
+                let eval = |text: &str| formula::Formula::parse(text, &scope, "grammar").ok().map(|f| f.eval(&values));
+                let (lo, hi) = (eval(min)?, eval(max)?);
+                (lo.is_finite() && hi.is_finite() && hi > lo).then_some(Range::Span(lo, hi, (*starts).max(1)))
+            }
+        }
+    }
+
+    /// Half-width of a coefficient's prior: `COEFFICIENT_REACH` times the
+    /// coefficient that changes some observable by its own largest size.
+    fn coefficient_reach(&self, model: &dyn Simulator, data: &ScreeningData, phi: &[f64]) -> Option<f64> {
+        let ls =
+            LeastSquares { blocks: &data.blocks, model, bounds: vec![(f64::NEG_INFINITY, f64::INFINITY); phi.len()] };
+        let at = ls.predict(phi)?;
+        let n_theta = data.theta.len();
+        let mut reach = f64::INFINITY;
+        for k in n_theta..phi.len() {
+            let mut moved = phi.to_vec();
+            moved[k] += 1e-3;
+            let p = ls.predict(&moved)?;
+            let mut offset = 0;
+            for b in data.blocks.iter() {
+                let size = b.y.iter().fold(0.0f64, |m, y| m.max(y.abs()));
+                let slope = (offset..offset + b.x.len()).map(|i| ((p[i] - at[i]) / 1e-3).abs()).fold(0.0, f64::max);
+                if slope > 0.0 && size > 0.0 {
+                    reach = reach.min(size / slope);
+                }
+                offset += b.x.len();
+            }
+        }
+        let r = COEFFICIENT_REACH * reach;
+        (r.is_finite() && r > 0.0).then(|| round_up(r))
+    }
+
+    fn table(
+        &self,
+        terms: &[Instance],
+        suffixes: &[String],
+        ranges: &[(String, Range)],
+        coefficient: impl Fn(&str) -> (f64, f64),
+    ) -> CandidateTable {
+        let mut rates: BTreeMap<String, String> = BTreeMap::new();
+        let mut observables: BTreeMap<String, String> = BTreeMap::new();
+        for (term, suffix) in terms.iter().zip(suffixes) {
+            let to = if term.on_rate { &mut rates } else { &mut observables };
+            let text = term.render(suffix);
+            let joined = match to.get(&term.target) {
+                Some(before) => format!("{before} + {text}"),
+                None => text,
+            };
+            to.insert(term.target.clone(), joined);
+        }
+        let parameters = ranges
+            .iter()
+            .map(|(name, r)| {
+                let (min, max) = match r {
+                    Range::Coefficient => coefficient(name),
+                    Range::Span(lo, hi, _) => (*lo, *hi),
+                };
+                (name.clone(), ParamSpec { min, max, truth: None, units: String::new() })
+            })
+            .collect();
+        let name = terms.iter().map(|t| t.name.as_str()).collect::<Vec<_>>().join("+");
+        CandidateTable { description: String::new(), name, observables, rates, parameters }
+    }
+
+    fn compile(&self, table: &CandidateTable) -> Option<Arc<dyn Simulator>> {
+        let declared = self.base.with_candidate(&self.file, table).ok()?;
+        self.family.compile(&self.file, &declared).ok()
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Range {
+    Coefficient,
+    /// min, max and how many starting points.
+    Span(f64, f64, usize),
+}
+
+impl Range {
+    fn start(&self) -> f64 {
+        match self {
+            Range::Coefficient => 0.0,
+            Range::Span(lo, hi, _) => 0.5 * (lo + hi),
+        }
+    }
+}
+
+/// Starting points: θ at the base fit, coefficients at 0, and every
+/// combination of each ranged parameter's starts (midpoints of equal cells).
+fn starts(theta: &[f64], ranges: &[(String, Range)]) -> Vec<Vec<f64>> {
+    let mut out = vec![theta.to_vec()];
+    for (_, r) in ranges {
+        let values: Vec<f64> = match r {
+            Range::Coefficient => vec![0.0],
+            Range::Span(lo, hi, n) => (0..*n).map(|i| lo + (hi - lo) * (i as f64 + 0.5) / *n as f64).collect(),
+        };
+        out = out.into_iter().flat_map(|s| values.iter().map(move |v| [s.clone(), vec![*v]].concat())).collect();
+    }
+    out
+}
+
+/// Two significant figures, rounded up: a prior bound a person can read.
+fn round_up(x: f64) -> f64 {
+    let scale = 10f64.powf(x.log10().floor() - 1.0);
+    (x / scale).ceil() * scale
+}
+
+/// `c*v*abs(v) in dv/dt` for each term of a candidate table.
+fn describe(table: &CandidateTable) -> String {
+    let rates = table.rates.iter().map(|(s, t)| format!("{t} in d{s}/dt"));
+    let observables = table.observables.iter().map(|(o, t)| format!("{t} in {o}"));
+    rates.chain(observables).collect::<Vec<_>>().join("; ")
+}
+
+/// The `[[candidates]]` block that declares `table`.
+fn candidate_toml(table: &CandidateTable) -> String {
+    let mut out = format!("[[candidates]]\nname = {:?}\ndescription = {:?}\n", table.name, describe(table));
+    for (key, map) in [("rates", &table.rates), ("observables", &table.observables)] {
+        if !map.is_empty() {
+            let items: Vec<String> = map.iter().map(|(k, v)| format!("{k} = {v:?}")).collect();
+            out.push_str(&format!("{key} = {{ {} }}\n", items.join(", ")));
+        }
+    }
+    for (name, p) in &table.parameters {
+        out.push_str(&format!("parameters.{name} = {{ min = {}, max = {} }}\n", p.min, p.max));
+    }
+    out
+}
