@@ -171,11 +171,14 @@ pub struct Proposal {
     pub delta_chi2: f64,
     /// `delta_chi2` less the term's parameters times ln(number of data).
     pub delta_bic: f64,
+    /// Prior log odds against the base model, paying for the search: ln(1/N)
+    /// for one of N single terms, ln(2/(N(N−1))) for one of the pairs.
+    pub prior_log_odds: f64,
 }
 
 /// What a screening tried and what it proposes, best first.
 pub struct Screening {
-    /// Terms and pairs of terms fitted.
+    /// Single terms the grammar made for this model.
     pub searched: usize,
     /// The grammar's forms, for "which forms were tried".
     pub forms: Vec<String>,

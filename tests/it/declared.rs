@@ -19,7 +19,7 @@ fn tmpdir(tag: &str) -> PathBuf {
     d
 }
 
-fn root() -> &'static Path {
+pub(crate) fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
@@ -331,7 +331,7 @@ fn an_ode_that_fails_at_some_theta_is_counted_not_fatal() {
 /// fine step, independently of the ODE crate mdpipe uses: dy/dt = -u y plus
 /// one concealed effect, from y(0) = 5.
 #[derive(Clone, Copy, Debug)]
-enum Effect {
+pub(crate) enum Effect {
     None,
     Equilibrium(f64),
     SecondOrder(f64),
@@ -362,7 +362,7 @@ impl Effect {
         }
     }
 
-    fn truth(self, u: f64, times: &[f64]) -> Vec<f64> {
+    pub(crate) fn truth(self, u: f64, times: &[f64]) -> Vec<f64> {
         let dt: f64 = 1e-4;
         let (mut t, mut y) = (0.0, 5.0);
         times
@@ -385,7 +385,7 @@ impl Effect {
 
 /// Noise-free size of a concealed effect: the largest |truth - best
 /// first-order fit 5 exp(-u t)| / σ, the fit by least squares over u.
-fn kinetics_effect_size(truth: &[f64], times: &[f64], sigma: f64) -> f64 {
+pub(crate) fn kinetics_effect_size(truth: &[f64], times: &[f64], sigma: f64) -> f64 {
     let misfit = |u: f64| times.iter().zip(truth).map(|(t, y)| (y - 5.0 * (-u * t).exp()).powi(2)).sum::<f64>();
     let mut best = (0..=5000).map(|i| i as f64 * 0.001).min_by(|a, b| misfit(*a).total_cmp(&misfit(*b))).unwrap();
     // Refine around the grid minimum by golden section.

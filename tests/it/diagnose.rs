@@ -121,7 +121,7 @@ pub fn check_in_browser(report: &Path, figures: usize) {
 /// Noise-free size of a concealed effect: the largest |truth - best drag-free
 /// fit| / σ over the data points, the fit being weighted least squares in
 /// (g, v0), which enter the drag-free model linearly.
-fn effect_size(opts: &MockOptions) -> f64 {
+pub(crate) fn effect_size(opts: &MockOptions) -> f64 {
     let h0 = opts.setup.h0;
     // Rows (a_g, a_v0, target) per measurement.
     let mut rows = Vec::new();

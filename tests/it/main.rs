@@ -9,6 +9,7 @@ mod common;
 mod declared;
 mod diagnose;
 mod diagnose_heavy_ion;
+mod discover;
 mod emulator;
 mod family;
 mod faults;

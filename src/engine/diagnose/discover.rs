@@ -21,7 +21,7 @@ pub(super) fn screen(
     discoverer: &dyn Discoverer,
     problem: &Problem,
     base: &Calibration,
-) -> Result<(DiscoveryReport, Vec<CandidateModel>)> {
+) -> Result<(DiscoveryReport, Vec<(CandidateModel, f64)>)> {
     let names = problem.simulator.parameter_names();
     let data = ScreeningData {
         blocks: problem
@@ -36,7 +36,6 @@ pub(super) fn screen(
     let screening = discoverer.screen(&data)?;
     let report = DiscoveryReport {
         searched: screening.searched,
-        prior_log_odds: -(screening.searched.max(1) as f64).ln(),
         forms: screening.forms,
         screened: screening
             .proposals
@@ -46,11 +45,12 @@ pub(super) fn screen(
                 formula: p.formula.clone(),
                 delta_chi2: p.delta_chi2,
                 delta_bic: p.delta_bic,
+                prior_log_odds: p.prior_log_odds,
                 toml: p.toml.clone(),
             })
             .collect(),
     };
-    Ok((report, screening.proposals.into_iter().map(|p| p.candidate).collect()))
+    Ok((report, screening.proposals.into_iter().map(|p| (p.candidate, p.prior_log_odds)).collect()))
 }
 
 /// What the verdict says of the search.
@@ -58,8 +58,11 @@ pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
     let found = report.screened.iter().find(|s| s.name == verdict.best);
     verdict.statement.push_str(&match found {
         Some(s) => format!(
-            " It was discovered, not declared: {} ({} terms searched, prior odds 1:{} paid). Declare it with:\n{}",
-            s.formula, report.searched, report.searched, s.toml
+            " It was discovered, not declared: {} (one of {} terms searched; prior odds 1:{:.0} paid). Declare it with:\n{}",
+            s.formula,
+            report.searched,
+            (-s.prior_log_odds).exp(),
+            s.toml
         ),
         None => format!(
             " A search of {} terms built from the model's own symbols (forms: {}) found none that explains the data decisively.",

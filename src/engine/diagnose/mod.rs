@@ -138,18 +138,17 @@ impl Diagnoser<'_> {
         Ok((problem, cal))
     }
 
-    /// Explain: each candidate fitted without MD. A discovered term's
-    /// `prior_log_odds` (ln 1/terms searched) joins its log evidence.
+    /// Explain: each candidate fitted without MD. A discovered term's prior
+    /// log odds (paying for the search) join its log evidence.
     fn explain(
         &self,
         analysis: &Analysis,
-        candidates: Vec<CandidateModel>,
+        candidates: Vec<(CandidateModel, f64)>,
         seed: u64,
         (z_base, e_base): (f64, f64),
-        prior_log_odds: f64,
     ) -> Result<Vec<CandidateRun>> {
         let mut runs = Vec::new();
-        for (k, candidate) in candidates.into_iter().enumerate() {
+        for (k, (candidate, prior_log_odds)) in candidates.into_iter().enumerate() {
             let (problem, calibration) = self.calibrate(
                 &analysis.with_candidate(&candidate),
                 None,
@@ -237,16 +236,15 @@ pub fn run(
     let (z_base, e_base) = evidence(&base.summary);
     let (z_md, _) = evidence(&md.summary);
     let mismatch = locate(&md_problem, &md, &base_problem, &base);
-    let declared = analysis.candidates()?;
-    let mut runs = rank(d.explain(analysis, declared, seed, (z_base, e_base), 0.0)?, settings.strong_log_bf);
+    let declared = analysis.candidates()?.into_iter().map(|c| (c, 0.0)).collect();
+    let mut runs = rank(d.explain(analysis, declared, seed, (z_base, e_base))?, settings.strong_log_bf);
     let (mut candidates, mut verdict, mut named_alone) =
         judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
     let mut discovery = None;
     if discover::wanted(settings.discover, &verdict) {
         if let Some(discoverer) = analysis.setup.discoverer() {
             let (report, proposals) = discover::screen(discoverer, &base_problem, &base)?;
-            let odds = report.prior_log_odds;
-            let found = d.explain(analysis, proposals, seed.wrapping_add(500), (z_base, e_base), odds)?;
+            let found = d.explain(analysis, proposals, seed.wrapping_add(500), (z_base, e_base))?;
             runs.extend(found);
             runs = rank(runs, settings.strong_log_bf);
             (candidates, verdict, named_alone) = judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));

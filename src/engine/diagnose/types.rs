@@ -94,7 +94,8 @@ pub struct CandidateResult {
     #[serde(default)]
     pub emulator_share_observable: String,
     /// A discovered term's prior log odds against the base model, ln(1/N)
-    /// for N terms searched (0 for a declared candidate). It is included in
+    /// for one of N terms searched, ln(2/(N(N−1))) for a pair (0 for a
+    /// declared candidate). It is included in
     /// `log_evidence` and `log_bayes_factor`: the search pays for its size.
     #[serde(default)]
     pub prior_log_odds: f64,
@@ -201,10 +202,9 @@ pub struct Diagnosis {
 /// The search for a term nobody declared.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct DiscoveryReport {
-    /// Terms and pairs of terms the screening fitted.
+    /// Single terms the grammar made for the model (the ten pairs of the
+    /// best five were fitted too).
     pub searched: usize,
-    /// ln(1/searched): each discovered term's prior odds against the base model.
-    pub prior_log_odds: f64,
     /// The grammar's forms that were tried.
     pub forms: Vec<String>,
     /// What went on to full calibration, best screened first.
@@ -217,6 +217,7 @@ pub struct ScreenedTerm {
     pub formula: String,
     pub delta_chi2: f64,
     pub delta_bic: f64,
+    pub prior_log_odds: f64,
     /// The `[[candidates]]` block that declares the term.
     pub toml: String,
 }

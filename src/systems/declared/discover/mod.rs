@@ -8,7 +8,7 @@
 //! while h barely changes) are one explanation, and the simpler stands for
 //! both (`distinct`). The best few are handed back as
 //! candidates; `diagnose` then judges them by full calibration and evidence,
-//! with prior odds that pay for the number searched.
+//! with prior odds that pay for the number searched (`proposal`).
 
 mod fit;
 pub mod grammar;
@@ -62,12 +62,11 @@ impl Discoverer for DeclaredDiscoverer {
         let bic = bic_of(base_fit.chi2, points);
         singles.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let singles = distinct(singles, data);
-        let mut searched = instances.len();
+        let searched = instances.len();
         let mut all: Vec<Screened> = Vec::new();
         let top: Vec<&Screened> = singles.iter().take(PAIRED).collect();
         for (i, a) in top.iter().enumerate() {
             for b in &top[i + 1..] {
-                searched += 1;
                 let pair = [a.instances[0].clone(), b.instances[0].clone()];
                 if let Some(s) = self.screen_one(&pair, data, &base_fit, &scales) {
                     all.push(s);
@@ -81,7 +80,7 @@ impl Discoverer for DeclaredDiscoverer {
             .into_iter()
             .filter(|s| bic(s) > 0.0)
             .take(PROPOSALS)
-            .map(|s| proposal(s, base_fit.chi2, &bic))
+            .map(|s| proposal(s, base_fit.chi2, &bic, searched))
             .collect();
         let forms = self.forms.iter().filter(|f| (f.to == "rates") == !self.base.states.is_empty());
         Ok(Screening { searched, forms: forms.map(|f| f.form.clone()).collect(), proposals })
@@ -92,14 +91,20 @@ fn bic_of(base_chi2: f64, points: f64) -> impl Fn(&Screened) -> f64 {
     move |s| base_chi2 - s.fitted.chi2 - (s.table.parameters.len() as f64) * points.ln()
 }
 
-fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64) -> Proposal {
+/// A screened term as a candidate. Its prior odds pay for the search: the
+/// pairs were chosen after the data ranked the singles, so a pair pays for
+/// every pair the grammar could make, not only the ten fitted.
+fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, singles: usize) -> Proposal {
     let delta_bic = bic(&s);
+    let n = singles.max(2) as f64;
+    let prior_log_odds = if s.instances.len() == 1 { -n.ln() } else { -(n * (n - 1.0) / 2.0).ln() };
     let formula = describe(&s.table);
     Proposal {
         toml: candidate_toml(&s.table),
         formula: formula.clone(),
         delta_chi2: base_chi2 - s.fitted.chi2,
         delta_bic,
+        prior_log_odds,
         candidate: CandidateModel {
             name: s.table.name.clone(),
             description: format!("discovered: {formula}"),
