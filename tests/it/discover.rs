@@ -196,3 +196,29 @@ fn kinetics_discovery_campaign() {
     assert!(count(&periodic) * 5 >= periodic.len() * 4);
     assert!(false_found * 20 <= nulls.len(), "{false_found} discoveries in {} nulls", nulls.len());
 }
+
+/// First tier: an expression model, y = a + b x, measured where the truth
+/// (written here in closed form) curves as 0.5 x² over x in [0, 2]: the
+/// discovered term is a square of x (x*abs(x) or x^2, the same for x ≥ 0)
+/// with its coefficient covering 0.5.
+#[test]
+fn a_missing_square_is_discovered_in_an_expression_model() {
+    let dir = tmp("line");
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(12);
+    let mut csv = String::from("observable,x,value,error\n");
+    for i in 0..15 {
+        let x = 2.0 * i as f64 / 14.0;
+        let z: f64 = rng.sample(rand_distr::StandardNormal);
+        csv.push_str(&format!("y,{x},{},0.05\n", 1.0 + 2.0 * x + 0.5 * x * x + 0.05 * z));
+    }
+    std::fs::write(dir.join("data.csv"), csv).unwrap();
+    let config = "name = \"line\"\n[model]\nkind = \"expression\"\nobservables = { y = \"a + b*x\" }\n[data]\nmeasurements = \"data.csv\"\n[parameters.a]\nmin = -5.0\nmax = 5.0\n[parameters.b]\nmin = -5.0\nmax = 5.0\n[sampler.smc]\nparticles = 600\nreplicates = 2\n";
+    std::fs::write(dir.join("line.toml"), config).unwrap();
+    let analysis = mdpipe::systems::load(&dir.join("line.toml")).unwrap();
+    let d = diagnose_file(&analysis, &dir.join("data.csv"), 3, Discover::WhenUnexplained);
+    let c = discovered(&d).unwrap_or_else(|| panic!("{}", d.verdict.statement));
+    assert!(["signed_square_x_on_y", "square_x_on_y"].contains(&c.name.as_str()), "{}", d.verdict.statement);
+    assert!(c.parameters["c"].covers(0.5), "{:?}", c.parameters["c"]);
+    // 11 forms for an expression model with one observable, each once.
+    assert_eq!(d.discovery.as_ref().unwrap().searched, 11);
+}

@@ -37,9 +37,10 @@ pub(super) fn runner_up<'c>(winner: &CandidateResult, ranked: &'c [CandidateResu
 }
 
 /// The best candidate, when it beats the base model by more than
-/// `strong_log_bf`, fits adequately and is not itself beaten by the MD fit;
-/// a discovered term (its evidence carrying the search's prior odds) must
-/// beat the MD fit outright.
+/// `strong_log_bf`, fits adequately and is not itself beaten by the MD fit
+/// by more than `strong_log_bf`. A discovered term is judged the same way,
+/// its evidence carrying the search's prior odds: a flexible δ that fits as
+/// well is no reason to withhold the term that says what δ was.
 pub(super) fn named_candidate<'c>(
     candidates: &'c [CandidateResult],
     settings: &DiagnoseSettings,
@@ -49,7 +50,6 @@ pub(super) fn named_candidate<'c>(
         c.log_bayes_factor > settings.strong_log_bf
             && c.p_value >= settings.min_p_value
             && c.log_evidence > z_md - settings.strong_log_bf
-            && (c.prior_log_odds == 0.0 || c.log_evidence > z_md)
     })
 }
 

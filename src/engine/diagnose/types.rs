@@ -217,6 +217,7 @@ pub struct ScreenedTerm {
     pub formula: String,
     pub delta_chi2: f64,
     pub delta_bic: f64,
+    #[serde(default)]
     pub prior_log_odds: f64,
     /// The `[[candidates]]` block that declares the term.
     pub toml: String,

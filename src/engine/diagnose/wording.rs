@@ -152,6 +152,19 @@ pub fn print(d: &Diagnosis) {
             c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof
         );
     }
+    if let Some(r) = &d.discovery {
+        println!("Discover ({} terms from the model's own symbols screened; the best calibrated, log BF above includes their prior odds):", r.searched);
+        for t in &r.screened {
+            println!(
+                "  {:<width$} {}   screening Δχ² = {:.1}, ΔBIC = {:.1}, prior odds 1:{:.0}",
+                t.name,
+                t.formula,
+                t.delta_chi2,
+                t.delta_bic,
+                (-t.prior_log_odds).exp()
+            );
+        }
+    }
     println!("Verdict: {} ({})", d.verdict.best, d.verdict.confidence_phrase());
     println!("  {}", d.verdict.statement);
     if let Some(imp) = &d.improvement {

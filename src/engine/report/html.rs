@@ -73,7 +73,8 @@ pub(super) fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[Run
         "<p class=\"verdict\"><b>{}</b> ({}): {}</p>\n",
         html_escape(&diag.verdict.best),
         html_escape(&diag.verdict.confidence_phrase()),
-        html_escape(&diag.verdict.statement)
+        // A discovered term's [[candidates]] block follows the first line; it is shown under Discovery.
+        html_escape(diag.verdict.statement.lines().next().unwrap_or(""))
     ));
     figure(
         html,
@@ -105,6 +106,7 @@ pub(super) fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[Run
         ));
     }
     html.push_str("</table>\n");
+    discovery_section(html, diag);
     if let Some(imp) = &diag.improvement {
         html.push_str("<h3>Before and after the repair</h3><p>χ²/dof is of the model part η alone: for a fit with δ it is what δ had to absorb, not that fit's misfit.</p><table><tr><th>fit</th><th>χ²/dof of η</th><th>log Z</th><th>max |δ|/σ</th><th>parameters</th></tr>\n");
         for f in imp.before.iter().chain(&imp.after) {
@@ -319,4 +321,36 @@ pub(super) fn emulator_section(html: &mut String, dirs: &[PathBuf]) -> Result<()
 pub fn write(dirs: &[PathBuf], out: &Path, title: &str, systems: &[&dyn SystemFigures]) -> Result<()> {
     let html = build(dirs, title, systems)?;
     artifacts::write_text_atomic(out, &html)
+}
+
+/// What the search for undeclared terms tried, and the discovered term's
+/// `[[candidates]]` block.
+fn discovery_section(html: &mut String, diag: &Diagnosis) {
+    let Some(d) = &diag.discovery else { return };
+    html.push_str(&format!(
+        "<h3>Discovery</h3><p>{} terms built from the model's own symbols were screened by least squares (forms: {}); the best went on to full calibration, each paying prior odds for the search:</p>\n",
+        d.searched,
+        html_escape(&d.forms.join("; "))
+    ));
+    html.push_str(
+        "<table><tr><th>term</th><th>where</th><th>Δχ² (screening)</th><th>ΔBIC</th><th>prior odds</th></tr>\n",
+    );
+    for t in &d.screened {
+        html.push_str(&format!(
+            "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>1:{:.0}</td></tr>\n",
+            html_escape(&t.name),
+            html_escape(&t.formula),
+            t.delta_chi2,
+            t.delta_bic,
+            (-t.prior_log_odds).exp()
+        ));
+    }
+    html.push_str("</table>\n");
+    if let Some(t) = d.screened.iter().find(|t| t.name == diag.verdict.best) {
+        html.push_str(&format!(
+            "<p>Discovered: <b>{}</b>. Declare it in the config to use it from now on:</p><pre>{}</pre>\n",
+            html_escape(&t.formula),
+            html_escape(&t.toml)
+        ));
+    }
 }

@@ -3,6 +3,7 @@
 //! declared as a `[[candidates]]` table.
 
 use super::super::declaration::Declared;
+use super::super::formula::{Formula, Scope};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 
@@ -67,17 +68,27 @@ fn parse(text: &str, what: &str) -> Result<Vec<TermForm>> {
                     f.form
                 );
             }
-            if let ParameterForm::Kind(k) = spec {
-                if k != "coefficient" {
-                    bail!(
-                        "{what}: [[terms]] {}: parameter '{p}' = {k:?}; use \"coefficient\" or {{ min, max }}",
-                        f.name
-                    );
+            match spec {
+                ParameterForm::Kind(k) if k != "coefficient" => bail!(
+                    "{what}: [[terms]] {}: parameter '{p}' = {k:?}; use \"coefficient\" or {{ min, max }}",
+                    f.name
+                ),
+                ParameterForm::Kind(_) => {}
+                ParameterForm::Range { min, max, .. } => {
+                    for (key, text) in [("min", min), ("max", max)] {
+                        let place = format!("{what}: [[terms]] {}: parameters.{p}.{key}", f.name);
+                        Formula::parse(text, &bound_scope(), &place)?;
+                    }
                 }
             }
         }
     }
     Ok(file.terms)
+}
+
+/// The names a parameter's bounds may use (`span`, `n`, `smax`; see grammar.toml).
+pub fn bound_scope() -> Scope {
+    Scope::new(["span", "n", "smax"].map(String::from))
 }
 
 /// A form with the model's symbols put in; its parameters still in braces.
@@ -183,6 +194,10 @@ mod tests {
         let bad = "[[terms]]\nname = \"x\"\nform = \"c*t\"\nto = \"rates\"\nparameters = { c = \"coefficient\" }\n";
         let e = parse(bad, "my.toml").unwrap_err().to_string();
         assert!(e.contains("my.toml") && e.contains("write it {c}"), "{e}");
+        // A bound in a name the bounds do not know is refused, not skipped.
+        let bad = "[[terms]]\nname = \"x\"\nform = \"{c}*sin({w}*t)\"\nto = \"rates\"\nparameters = { c = \"coefficient\", w = { min = \"pi/span\", max = \"1\" } }\n";
+        let e = format!("{:#}", parse(bad, "my.toml").unwrap_err());
+        assert!(e.contains("parameters.w.min") && e.contains("unknown name 'pi'"), "{e}");
     }
 
     #[test]

@@ -57,7 +57,7 @@ impl Discoverer for DeclaredDiscoverer {
         let scales = self.scales(data, &base_fit.phi)?;
         let instances = grammar::instances(&self.forms, &self.base);
         let mut singles: Vec<Screened> =
-            instances.iter().filter_map(|i| self.screen_one(&[i.clone()], data, &base_fit, &scales)).collect();
+            instances.iter().filter_map(|i| self.screen_one(&[i.clone()], data, &base_fit, &scales, None)).collect();
         let points = base.points() as f64;
         let bic = bic_of(base_fit.chi2, points);
         singles.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
@@ -68,7 +68,11 @@ impl Discoverer for DeclaredDiscoverer {
         for (i, a) in top.iter().enumerate() {
             for b in &top[i + 1..] {
                 let pair = [a.instances[0].clone(), b.instances[0].clone()];
-                if let Some(s) = self.screen_one(&pair, data, &base_fit, &scales) {
+                // Also from where each term fitted alone (θ from the better of the two).
+                let mut joint: BTreeMap<String, f64> = a.fitted_terms("1");
+                joint.extend(b.fitted_terms("2"));
+                let theta = &a.fitted.phi[..data.theta.len()];
+                if let Some(s) = self.screen_one(&pair, data, &base_fit, &scales, Some((theta, joint))) {
                     all.push(s);
                 }
             }
@@ -145,6 +149,12 @@ fn distinct(ranked: Vec<Screened>, data: &ScreeningData) -> Vec<Screened> {
 }
 
 impl Screened {
+    /// The term parameters' best-fit values, named with `suffix` as in a pair.
+    fn fitted_terms(&self, suffix: &str) -> BTreeMap<String, f64> {
+        let theta = self.fitted.phi.len() - self.table.parameters.len();
+        self.table.parameters.keys().zip(&self.fitted.phi[theta..]).map(|(n, v)| (format!("{n}{suffix}"), *v)).collect()
+    }
+
     fn complexity(&self) -> (usize, usize, usize) {
         (self.table.parameters.len(), self.instances.len(), self.instances.iter().map(|i| i.rank).sum())
     }
@@ -186,7 +196,14 @@ impl DeclaredDiscoverer {
 
     /// Fits the model with `terms` added; None when the term cannot be
     /// declared or computed (a form undefined on these data).
-    fn screen_one(&self, terms: &[Instance], data: &ScreeningData, base: &Fitted, scales: &Scales) -> Option<Screened> {
+    fn screen_one(
+        &self,
+        terms: &[Instance],
+        data: &ScreeningData,
+        base: &Fitted,
+        scales: &Scales,
+        also_from: Option<(&[f64], BTreeMap<String, f64>)>,
+    ) -> Option<Screened> {
         let suffixes: Vec<String> = if terms.len() > 1 {
             vec!["1".into(), "2".into()]
         } else if terms[0].parameters.iter().any(|(p, _)| self.base.knows(p)) {
@@ -200,6 +217,8 @@ impl DeclaredDiscoverer {
                 ranges.push((format!("{p}{suffix}"), self.range(term, form, scales)?));
             }
         }
+        // In the order the compiled model takes them: a candidate's parameters by name.
+        ranges.sort_by(|a, b| a.0.cmp(&b.0));
         // Coefficients at ±1 first, to measure how far one unit moves the model.
         let provisional = self.table(terms, &suffixes, &ranges, |_| (-1.0, 1.0));
         let model = self.compile(&provisional)?;
@@ -210,7 +229,16 @@ impl DeclaredDiscoverer {
         let mut bounds = data.bounds.clone();
         bounds.extend(table.parameters.values().map(|p| (p.min, p.max)));
         let ls = LeastSquares { blocks: &data.blocks, model: simulator.as_ref(), bounds };
-        let starts = starts(&base.phi, &ranges);
+        let mut starts = starts(&base.phi, &ranges);
+        if let Some((theta, terms)) = also_from {
+            starts.push(
+                theta
+                    .iter()
+                    .copied()
+                    .chain(ranges.iter().map(|(n, r)| terms.get(n).copied().unwrap_or(r.start())))
+                    .collect(),
+            );
+        }
         let fitted = ls.best_of(&starts)?;
         Some(Screened { instances: terms.to_vec(), table, simulator, fitted })
     }
@@ -220,8 +248,7 @@ impl DeclaredDiscoverer {
             ParameterForm::Kind(_) => Some(Range::Coefficient),
             ParameterForm::Range { min, max, starts } => {
                 let smax = term.symbols.iter().filter_map(|s| scales.smax.get(s)).fold(0.0f64, |m, v| m.max(*v));
-                let names = ["span", "n", "smax"].map(String::from);
-                let scope = formula::Scope::new(names);
+                let scope = grammar::bound_scope();
                 let values = [scales.span, scales.n, smax.max(f64::MIN_POSITIVE)];
                 let eval = |text: &str| formula::Formula::parse(text, &scope, "grammar").ok().map(|f| f.eval(&values));
                 let (lo, hi) = (eval(min)?, eval(max)?);
