@@ -5,6 +5,7 @@
 use crate::base::progress::Silent;
 use crate::engine::calibrate::{Analysis, Overrides, Problem};
 use crate::engine::compare;
+use crate::engine::diagnose::Discover;
 use crate::engine::gp::DiscrepancyKernel;
 use anyhow::Result;
 use rand::SeedableRng;
@@ -248,10 +249,11 @@ pub struct DiagnoseBench {
     pub verdict: String,
 }
 
-/// Wall time of one full `diagnose` (base ± MD, every candidate, the repair)
-/// with the config's settings, writing nothing.
-pub fn diagnose_time(analysis: &Analysis, seed: u64) -> Result<DiagnoseBench> {
-    let settings = crate::engine::diagnose::DiagnoseSettings::default();
+/// Wall time of one full `diagnose` (base ± MD, every candidate, the repair,
+/// and the search for undeclared terms when `discover` asks) with the
+/// config's settings, writing nothing.
+pub fn diagnose_time(analysis: &Analysis, seed: u64, discover: Discover) -> Result<DiagnoseBench> {
+    let settings = crate::engine::diagnose::DiagnoseSettings { discover, ..Default::default() };
     let start = Instant::now();
     let run = crate::engine::diagnose::run(analysis, &Overrides::default(), seed, &settings, None, &Silent)?;
     Ok(DiagnoseBench {
@@ -316,13 +318,22 @@ pub fn command(a: BenchArgs) -> Result<()> {
     }
     let analysis = crate::systems::load(&a.config)?;
     if a.diagnose {
-        let b = diagnose_time(&analysis, a.seed)?;
+        // Without the search, then with it forced on: what discovery costs.
+        let plain = diagnose_time(&analysis, a.seed, Discover::Never)?;
+        let found = diagnose_time(&analysis, a.seed, Discover::Always)?;
+        for (what, b) in [("without discovery", &plain), ("with --discover", &found)] {
+            println!(
+                "diagnose {} {what}: {} calibrations in {:.1} s on {threads} threads; verdict {}",
+                a.config.display(),
+                b.calibrations,
+                b.seconds,
+                b.verdict
+            );
+        }
         println!(
-            "diagnose {}: {} calibrations in {:.1} s on {threads} threads; verdict {}",
-            a.config.display(),
-            b.calibrations,
-            b.seconds,
-            b.verdict
+            "  discovery adds {:.1} s, {:.0}% of the diagnosis without it",
+            found.seconds - plain.seconds,
+            100.0 * (found.seconds - plain.seconds) / plain.seconds
         );
         return Ok(());
     }

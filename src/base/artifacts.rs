@@ -6,39 +6,12 @@
 //! 15-column heavy-ion tables (`.dat`, `base::paper_table`) are read as
 //! measurements too.
 
+use super::measurement::validate_row;
+pub use super::measurement::Measurement;
 use anyhow::{anyhow, bail, Context, Result};
 use polars::prelude::*;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
-
-/// One measured value.
-#[derive(Clone, Debug)]
-pub struct Measurement {
-    pub observable: String,
-    pub x: f64,
-    pub value: f64,
-    pub error: f64,
-    /// Where it was read from: the CSV line or Parquet row (1-based), 0 if made in memory.
-    pub line: usize,
-}
-
-impl PartialEq for Measurement {
-    fn eq(&self, o: &Self) -> bool {
-        self.observable == o.observable && self.x == o.x && self.value == o.value && self.error == o.error
-    }
-}
-
-impl Measurement {
-    pub fn new(observable: &str, x: f64, value: f64, error: f64) -> Self {
-        Measurement { observable: observable.to_string(), x, value, error, line: 0 }
-    }
-
-    /// "line N" for CSV, "row N" for Parquet, for error messages.
-    pub fn location(&self, path: &Path) -> String {
-        let is_parquet = path.extension().map(|e| e == "parquet" || e == "pq").unwrap_or(false);
-        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
-    }
-}
 
 /// Where a run came from: written into every artifact.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize, PartialEq)]
@@ -254,22 +227,6 @@ pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
         bail!("{}: no measurements in file", path.display());
     }
     Ok(rows)
-}
-
-pub(super) fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
-    let file = path.display();
-    if m.observable.trim().is_empty() {
-        bail!("{file}: {where_}, field 'observable': empty observable name");
-    }
-    for (field, v) in [("x", m.x), ("value", m.value), ("error", m.error)] {
-        if !v.is_finite() {
-            bail!("{file}: {where_}, field '{field}': value is {v}, must be a finite number");
-        }
-    }
-    if m.error <= 0.0 {
-        bail!("{file}: {where_}, field 'error': {} is not a positive 1-sigma error", m.error);
-    }
-    Ok(())
 }
 
 /// Measurements from a CSV or Parquet long table, each row checked.

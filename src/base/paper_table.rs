@@ -2,7 +2,7 @@
 //! columns, `pT` then (value, error) for each of seven heavy-ion observables.
 //! A measurements format like CSV, read where measurements are read.
 
-use super::artifacts::{validate_row, Measurement};
+use super::measurement::{validate_row, Measurement};
 use anyhow::{anyhow, bail, Context, Result};
 use std::path::Path;
 

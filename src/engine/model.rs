@@ -199,7 +199,7 @@ pub struct PlainSetup {
 }
 
 impl PlainSetup {
-    pub fn new(simulator: Arc<dyn Simulator>, units: Units) -> Arc<dyn ModelSetup> {
+    pub fn shared(simulator: Arc<dyn Simulator>, units: Units) -> Arc<dyn ModelSetup> {
         Arc::new(PlainSetup { simulator, units, candidates: Vec::new() })
     }
 }

@@ -62,7 +62,7 @@ impl ModelFamily for LineFamily {
     }
     fn open_truth(&self, _config: &Config, truth: &toml::Table) -> anyhow::Result<Arc<dyn ModelSetup>> {
         let curvature = truth["curvature"].as_float().unwrap_or(0.0);
-        Ok(PlainSetup::new(Arc::new(Line { curvature: Some(curvature) }), line_units()))
+        Ok(PlainSetup::shared(Arc::new(Line { curvature: Some(curvature) }), line_units()))
     }
 }
 

@@ -168,6 +168,6 @@ impl ModelFamily for DeclaredFamily {
         let declared =
             Declared::base(config, &table, self.ode)?.with_truth(&file, &truth_table, &self.library(config)?)?;
         let units = Units { x: table.units.x, observables: table.units.observables, parameters: Default::default() };
-        Ok(PlainSetup::new(self.compile(&file, &declared)?, units))
+        Ok(PlainSetup::shared(self.compile(&file, &declared)?, units))
     }
 }

@@ -61,11 +61,11 @@ impl ModelFamily for HeavyIonFamily {
     }
 
     fn open(&self, config: &Config) -> Result<Arc<dyn ModelSetup>> {
-        Ok(PlainSetup::new(stand_in(config, &config.model, "model")?, Self::units()))
+        Ok(PlainSetup::shared(stand_in(config, &config.model, "model")?, Self::units()))
     }
 
     fn open_truth(&self, config: &Config, truth: &toml::Table) -> Result<Arc<dyn ModelSetup>> {
-        Ok(PlainSetup::new(stand_in(config, truth, "truth")?, Self::units()))
+        Ok(PlainSetup::shared(stand_in(config, truth, "truth")?, Self::units()))
     }
 }
 

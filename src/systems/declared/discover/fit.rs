@@ -208,7 +208,7 @@ mod tests {
         let f = ls.fit(&[0.0, 0.0, 0.0]).unwrap();
         let design: Vec<Vec<f64>> = (0..3).map(|k| x.iter().map(|x| x.powi(k)).collect()).collect();
         let (xtx, _) = normal_equations(&design, &vec![0.0; x.len()]);
-        let row: Vec<f64> = (0..3).map(|k| x[5].powi(k as i32)).collect();
+        let row: Vec<f64> = (0..3).map(|k| x[5].powi(k)).collect();
         let solved = solve(xtx, row.clone()).unwrap();
         let h: f64 = row.iter().zip(&solved).map(|(a, b)| a * b).sum();
         assert!((f.chi2 - 9.0 * (1.0 - h)).abs() < 1e-6, "{} vs {}", f.chi2, 9.0 * (1.0 - h));

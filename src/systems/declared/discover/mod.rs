@@ -56,8 +56,10 @@ impl Discoverer for DeclaredDiscoverer {
         };
         let scales = self.scales(data, &base_fit.phi)?;
         let instances = grammar::instances(&self.forms, &self.base);
-        let mut singles: Vec<Screened> =
-            instances.iter().filter_map(|i| self.screen_one(&[i.clone()], data, &base_fit, &scales, None)).collect();
+        let mut singles: Vec<Screened> = instances
+            .iter()
+            .filter_map(|i| self.screen_one(std::slice::from_ref(i), data, &base_fit, &scales, None))
+            .collect();
         let points = base.points() as f64;
         let bic = bic_of(base_fit.chi2, points);
         singles.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
@@ -86,7 +88,7 @@ impl Discoverer for DeclaredDiscoverer {
             .take(PROPOSALS)
             .map(|s| proposal(s, base_fit.chi2, &bic, searched))
             .collect();
-        let forms = self.forms.iter().filter(|f| (f.to == "rates") == !self.base.states.is_empty());
+        let forms = self.forms.iter().filter(|f| (f.to == "rates") != self.base.states.is_empty());
         Ok(Screening { searched, forms: forms.map(|f| f.form.clone()).collect(), proposals })
     }
 }

@@ -1,0 +1,50 @@
+//! One measured value, and the checks every reader applies to it.
+
+use anyhow::{bail, Result};
+use std::path::Path;
+
+/// One measured value.
+#[derive(Clone, Debug)]
+pub struct Measurement {
+    pub observable: String,
+    pub x: f64,
+    pub value: f64,
+    pub error: f64,
+    /// Where it was read from: the CSV line or Parquet row (1-based), 0 if made in memory.
+    pub line: usize,
+}
+
+impl PartialEq for Measurement {
+    fn eq(&self, o: &Self) -> bool {
+        self.observable == o.observable && self.x == o.x && self.value == o.value && self.error == o.error
+    }
+}
+
+impl Measurement {
+    pub fn new(observable: &str, x: f64, value: f64, error: f64) -> Self {
+        Measurement { observable: observable.to_string(), x, value, error, line: 0 }
+    }
+
+    /// "line N" for CSV, "row N" for Parquet, for error messages.
+    pub fn location(&self, path: &Path) -> String {
+        let is_parquet = path.extension().map(|e| e == "parquet" || e == "pq").unwrap_or(false);
+        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
+    }
+}
+
+/// A row's fields: a named observable, finite numbers, a positive error.
+pub(super) fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
+    let file = path.display();
+    if m.observable.trim().is_empty() {
+        bail!("{file}: {where_}, field 'observable': empty observable name");
+    }
+    for (field, v) in [("x", m.x), ("value", m.value), ("error", m.error)] {
+        if !v.is_finite() {
+            bail!("{file}: {where_}, field '{field}': value is {v}, must be a finite number");
+        }
+    }
+    if m.error <= 0.0 {
+        bail!("{file}: {where_}, field 'error': {} is not a positive 1-sigma error", m.error);
+    }
+    Ok(())
+}
