@@ -33,10 +33,12 @@ pub(super) fn screen(
         theta: names.iter().map(|n| base.summary.parameters[n].median).collect(),
         bounds: (0..names.len()).map(|k| (problem.prior.lower[k], problem.prior.upper[k])).collect(),
     };
+    let start = std::time::Instant::now();
     let screening = discoverer.screen(&data)?;
     let report = DiscoveryReport {
         searched: screening.searched,
         forms: screening.forms,
+        screening_seconds: start.elapsed().as_secs_f64(),
         screened: screening
             .proposals
             .iter()

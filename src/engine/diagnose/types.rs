@@ -207,6 +207,9 @@ pub struct DiscoveryReport {
     pub searched: usize,
     /// The grammar's forms that were tried.
     pub forms: Vec<String>,
+    /// Wall time of the screening (the full calibrations not included).
+    #[serde(default)]
+    pub screening_seconds: f64,
     /// What went on to full calibration, best screened first.
     pub screened: Vec<ScreenedTerm>,
 }

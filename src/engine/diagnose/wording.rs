@@ -153,7 +153,7 @@ pub fn print(d: &Diagnosis) {
         );
     }
     if let Some(r) = &d.discovery {
-        println!("Discover ({} terms from the model's own symbols screened; the best calibrated, log BF above includes their prior odds):", r.searched);
+        println!("Discover ({} terms from the model's own symbols screened in {:.1} s; the best calibrated, log BF above includes their prior odds):", r.searched, r.screening_seconds);
         for t in &r.screened {
             println!(
                 "  {:<width$} {}   screening Δχ² = {:.1}, ΔBIC = {:.1}, prior odds 1:{:.0}",
