@@ -60,6 +60,17 @@ fn parse(text: &str, what: &str) -> Result<Vec<TermForm>> {
         if f.to != "rates" && f.to != "observables" {
             bail!("{what}: [[terms]] {}: to = {:?}; use \"rates\" or \"observables\"", f.name, f.to);
         }
+        // The form's syntax, with every placeholder standing for a name.
+        let mut plain = f.form.clone();
+        while let (Some(a), Some(b)) = (plain.find('{'), plain.find('}')) {
+            if b < a {
+                break;
+            }
+            plain.replace_range(a..=b, "q");
+        }
+        if let Err(e) = super::super::notation::parse(&plain) {
+            bail!("{what}: [[terms]] {}: form = {:?} is not a formula ({e})", f.name, f.form);
+        }
         for (p, spec) in &f.parameters {
             if !f.form.contains(&format!("{{{p}}}")) {
                 bail!(
@@ -194,6 +205,10 @@ mod tests {
         let bad = "[[terms]]\nname = \"x\"\nform = \"c*t\"\nto = \"rates\"\nparameters = { c = \"coefficient\" }\n";
         let e = parse(bad, "my.toml").unwrap_err().to_string();
         assert!(e.contains("my.toml") && e.contains("write it {c}"), "{e}");
+        let bad =
+            "[[terms]]\nname = \"x\"\nform = \"{c}*{s}^\"\nto = \"rates\"\nparameters = { c = \"coefficient\" }\n";
+        let e = parse(bad, "my.toml").unwrap_err().to_string();
+        assert!(e.contains("my.toml") && e.contains("not a formula"), "{e}");
         // A bound in a name the bounds do not know is refused, not skipped.
         let bad = "[[terms]]\nname = \"x\"\nform = \"{c}*sin({w}*t)\"\nto = \"rates\"\nparameters = { c = \"coefficient\", w = { min = \"pi/span\", max = \"1\" } }\n";
         let e = format!("{:#}", parse(bad, "my.toml").unwrap_err());
