@@ -415,6 +415,19 @@ fn kinetics_truth_oracle_matches_closed_forms() {
     }
 }
 
+/// One kinetics data set: a rate u drawn from [1, 3), the truth by RK4,
+/// Gaussian errors σ; its CSV and the effect's noise-free size in σ.
+pub(crate) fn kinetics_data_set(effect: Effect, times: &[f64], sigma: f64, rng: &mut impl Rng) -> (f64, String, f64) {
+    let u = rng.random_range(1.0..3.0);
+    let truth = effect.truth(u, times);
+    let mut csv = String::from("observable,x,value,error\n");
+    for (t, y) in times.iter().zip(&truth) {
+        let z: f64 = rng.sample(rand_distr::StandardNormal);
+        csv.push_str(&format!("concentration,{t},{},{sigma}\n", y + sigma * z));
+    }
+    (u, csv, kinetics_effect_size(&truth, times, sigma))
+}
+
 /// The blind test on a declared ODE other than the ball drop: 80 seeded data
 /// sets of the kinetics example (40 with nothing missing, 10 each of the
 /// three library effects at weak to strong sizes, 10 of a periodic source
@@ -450,14 +463,7 @@ fn kinetics_blind(pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str,
             60..70 => Effect::Saturation(0.01 + 0.5 * size),
             _ => Effect::Periodic(0.2 + 1.5 * size),
         };
-        let u = rng.random_range(1.0..3.0);
-        let truth = effect.truth(u, &times);
-        let mut csv = String::from("observable,x,value,error\n");
-        for (t, y) in times.iter().zip(&truth) {
-            let z: f64 = rng.sample(rand_distr::StandardNormal);
-            csv.push_str(&format!("concentration,{t},{},{sigma}\n", y + sigma * z));
-        }
-        let s = kinetics_effect_size(&truth, &times, sigma);
+        let (u, csv, s) = kinetics_data_set(effect, &times, sigma, &mut rng);
         if !pick(effect.expected(), s) {
             continue;
         }

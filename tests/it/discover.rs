@@ -4,7 +4,7 @@
 //! test: the ball drop's own integrator (`systems::ball_drop`) and the
 //! kinetics test's RK4 (`declared::Effect`).
 
-use crate::declared::{kinetics_effect_size, root, Effect};
+use crate::declared::{kinetics_data_set, root, Effect};
 use crate::diagnose::{clopper_pearson, effect_size};
 use mdpipe::calibrate::{Analysis, Overrides};
 use mdpipe::config::Config;
@@ -167,14 +167,7 @@ fn kinetics_discovery_campaign() {
         let size: f64 = rng.random();
         // Amplitudes of 2 to 6 give 5σ to 17σ over these times (the blind test's 0.2 to 1.7 stay below 5σ).
         let effect = if k % 2 == 0 { Effect::Periodic(2.0 + 4.0 * size) } else { Effect::None };
-        let u = rng.random_range(1.0..3.0);
-        let truth = effect.truth(u, &times);
-        let mut csv = String::from("observable,x,value,error\n");
-        for (t, y) in times.iter().zip(&truth) {
-            let z: f64 = rng.sample(rand_distr::StandardNormal);
-            csv.push_str(&format!("concentration,{t},{},{sigma}\n", y + sigma * z));
-        }
-        let s = kinetics_effect_size(&truth, &times, sigma);
+        let (u, csv, s) = kinetics_data_set(effect, &times, sigma, &mut rng);
         let null = matches!(effect, Effect::None);
         if (null && nulls.len() >= 20) || (!null && (periodic.len() >= 20 || s < 5.0)) {
             continue;

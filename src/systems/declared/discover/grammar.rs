@@ -7,6 +7,10 @@ use super::super::formula::{Formula, Scope};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 
+/// Most starting points of one parameter: the screening fits from each,
+/// so a grammar cannot make it run for hours.
+const MAX_STARTS: usize = 64;
+
 /// The bundled grammar.
 const DEFAULT: &str = include_str!("grammar.toml");
 
@@ -85,6 +89,10 @@ fn parse(text: &str, what: &str) -> Result<Vec<TermForm>> {
                     f.name
                 ),
                 ParameterForm::Kind(_) => {}
+                ParameterForm::Range { starts, .. } if !(1..=MAX_STARTS).contains(starts) => bail!(
+                    "{what}: [[terms]] {}: parameters.{p}.starts = {starts}; use 1 to {MAX_STARTS} (each start is a fit)",
+                    f.name
+                ),
                 ParameterForm::Range { min, max, .. } => {
                     for (key, text) in [("min", min), ("max", max)] {
                         let place = format!("{what}: [[terms]] {}: parameters.{p}.{key}", f.name);
