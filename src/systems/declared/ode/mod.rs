@@ -1,13 +1,22 @@
 //! `[model] kind = "ode"`: state variables with initial values at `t0` and
-//! equations of motion d(state)/dt, integrated by the Dormand–Prince 5(4)
-//! method of the `ode_solvers` crate with error control and dense output;
-//! each observable is a formula of t, θ, constants, the state and its rates.
+//! equations of motion d(state)/dt, integrated by the `ode_solvers` crate
+//! with error control; each observable is a formula of t, θ, constants, the
+//! state and its rates.
+//!
+//! When the data's times lie on a grid `t0 + k·dx` (they usually do), the
+//! 8th-order Dormand–Prince method (DOP853) integrates and interpolates the
+//! state at every grid point as it passes: at the tolerances the bundled
+//! configs ask for it takes 3–6 times fewer steps than the 5th-order method.
+//! Times off that grid (a figure's smooth curve) are served by Dormand–Prince
+//! 5(4) with its continuous output.
 //!
 //! An integration that fails at some θ (too many steps, step-size underflow,
 //! stiffness, a non-finite rate) makes every prediction there NaN, which the
 //! likelihood turns into zero likelihood; the failures are counted and
 //! reported in `summary.json`, never a panic or a hang (the step count is
 //! bounded by `[model.solver] max_steps`).
+
+mod grid;
 
 use super::declaration::{check_parameters_used, corners, describe, Declared, SolverSettings, Variables, MAX_NAMES};
 use super::formula::Formula;
@@ -16,9 +25,11 @@ use anyhow::{bail, Result};
 use nalgebra::allocator::Allocator;
 use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
 use ode_solvers::continuous_output_model::ContinuousOutputModel;
-use ode_solvers::{Dopri5, OutputType, System};
+use grid::Grid;
+use ode_solvers::{Dop853, Dopri5, OutputType, System};
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, RwLock};
 
 pub struct OdeModel {
     /// Tells this model's solutions apart in the per-thread cache.
@@ -40,6 +51,9 @@ pub struct OdeModel {
     solver: SolverSettings,
     /// The latest time any data asked for, so one integration serves every observable.
     horizon: AtomicU64,
+    /// Every data time seen by `check_inputs`, and the grid that holds them.
+    data_times: Mutex<Vec<f64>>,
+    grid: RwLock<Option<Grid>>,
     failures: AtomicU64,
 }
 
@@ -54,11 +68,16 @@ struct Solved {
     y0: Vec<f64>,
 }
 
-/// Dense output of one integration. Up to four state variables live in
-/// stack vectors, so neither the steps nor the evaluations allocate; more
-/// use heap vectors.
+/// Dense output of one integration: the states at the grid's points, or a
+/// continuous output (up to four state variables in stack vectors, more in
+/// heap vectors).
 enum Dense {
     Empty,
+    /// `states[k·dim..(k+1)·dim]` is the state at grid point k.
+    OnGrid {
+        grid: Grid,
+        states: Vec<f64>,
+    },
     S1(ContinuousOutputModel<f64, OVector<f64, Const<1>>>),
     S2(ContinuousOutputModel<f64, OVector<f64, Const<2>>>),
     S3(ContinuousOutputModel<f64, OVector<f64, Const<3>>>),
@@ -77,6 +96,13 @@ impl Dense {
         }
         match self {
             Dense::Empty => false,
+            Dense::OnGrid { grid, states } => match grid.index(t) {
+                Some(k) => {
+                    y.copy_from_slice(&states[k * y.len()..(k + 1) * y.len()]);
+                    true
+                }
+                None => false,
+            },
             Dense::S1(d) => copy(d, t, y),
             Dense::S2(d) => copy(d, t, y),
             Dense::S3(d) => copy(d, t, y),
@@ -131,12 +157,15 @@ impl OdeModel {
             t0: d.t0,
             solver: d.solver,
             horizon: AtomicU64::new(d.t0.to_bits()),
+            data_times: Mutex::new(Vec::new()),
+            grid: RwLock::new(None),
             failures: AtomicU64::new(0),
         })
     }
 
-    /// Integrates from t0 to `t_end` at θ.
-    fn solve(&self, theta: &[f64], t_end: f64) -> Solved {
+    /// Integrates from t0 at θ: over the grid when one is given (its end must
+    /// reach `t_end`), else continuously to `t_end`.
+    fn solve(&self, theta: &[f64], t_end: f64, grid: Option<Grid>) -> Solved {
         let v = self.variables.at(theta);
         let mut at_t0 = v;
         at_t0[0] = self.t0;
@@ -149,6 +178,17 @@ impl OdeModel {
             solved.dense = Some(Dense::Empty);
             return solved;
         }
+        if let Some(grid) = grid {
+            solved.t_end = grid.end();
+            solved.dense = match y0.len() {
+                1 => self.integrate_on_grid::<Const<1>>(v, &y0, grid),
+                2 => self.integrate_on_grid::<Const<2>>(v, &y0, grid),
+                3 => self.integrate_on_grid::<Const<3>>(v, &y0, grid),
+                4 => self.integrate_on_grid::<Const<4>>(v, &y0, grid),
+                _ => self.integrate_on_grid::<Dyn>(v, &y0, grid),
+            };
+            return solved;
+        }
         solved.dense = match y0.len() {
             1 => self.integrate::<Const<1>>(v, &y0, t_end).map(Dense::S1),
             2 => self.integrate::<Const<2>>(v, &y0, t_end).map(Dense::S2),
@@ -157,6 +197,61 @@ impl OdeModel {
             _ => self.integrate::<Dyn>(v, &y0, t_end).map(Dense::Heap),
         };
         solved
+    }
+
+    /// DOP853 from t0 to the grid's end, interpolating the state at every
+    /// grid point; None when the integration fails.
+    fn integrate_on_grid<D: Dim>(&self, values: [f64; MAX_NAMES], y0: &[f64], grid: Grid) -> Option<Dense>
+    where
+        DefaultAllocator: Allocator<D>,
+        OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
+    {
+        let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
+        let s = &self.solver;
+        // Half a grid step past the last point: the crate's interpolation
+        // at the very end of an integration is off (1e-5 where 1e-8 was
+        // asked, measured on the oscillator), inside a step it is right.
+        let t_end = grid.end() + 0.5 * grid.dx;
+        let span = t_end - self.t0;
+        let rhs = Rhs { model: self, values: RefCell::new(values) };
+        // Hairer's defaults for DOP853: safety 0.9, no PI term, step factors
+        // in [0.333, 6], stiffness tested every 1000 steps.
+        let mut stepper = Dop853::from_param(
+            rhs,
+            self.t0,
+            t_end,
+            grid.dx,
+            y,
+            s.rtol,
+            s.atol,
+            0.9,
+            0.0,
+            0.333,
+            6.0,
+            span,
+            0.0,
+            s.max_steps,
+            1000,
+            OutputType::Dense,
+        );
+        stepper.integrate().ok()?;
+        let (times, ys) = stepper.results().get();
+        // One state per grid point, t0 included; the solver's running sum of
+        // dx must land on the grid.
+        if ys.len() != grid.last + 1 || times.last().is_none_or(|t| grid.index(*t) != Some(grid.last)) {
+            return None;
+        }
+        let states = ys.iter().flat_map(|y| y.iter().copied()).collect();
+        Some(Dense::OnGrid { grid, states })
+    }
+
+    /// Adds data times and finds the grid that holds all of them.
+    fn remember_times(&self, x: &[f64]) {
+        let mut times = self.data_times.lock().unwrap_or_else(|e| e.into_inner());
+        times.extend_from_slice(x);
+        times.sort_by(f64::total_cmp);
+        times.dedup();
+        *self.grid.write().unwrap_or_else(|e| e.into_inner()) = Grid::holding(self.t0, &times);
     }
 
     /// Dormand–Prince 5(4) from t0 to `t_end` with the state in vectors of
@@ -204,9 +299,28 @@ impl OdeModel {
             return true;
         }
         match solved.dense.as_ref() {
+            Some(d @ Dense::OnGrid { .. }) => d.state_at(t, y),
             Some(d) if t > self.t0 && t <= solved.t_end => d.state_at(t, y),
             _ => false,
         }
+    }
+
+    /// Whether a solution answers at every time of `x`: a grid solution only
+    /// on its grid.
+    fn serves(&self, solved: &Solved, x: &[f64], t_needed: f64) -> bool {
+        match &solved.dense {
+            Some(Dense::OnGrid { grid, .. }) => x.iter().all(|t| *t == self.t0 || grid.index(*t).is_some()),
+            _ => solved.t_end >= t_needed,
+        }
+    }
+
+    /// The data's grid when every time of `x` lies on it and it reaches
+    /// `t_needed`.
+    fn grid_for(&self, x: &[f64], t_needed: f64) -> Option<Grid> {
+        let grid = (*self.grid.read().unwrap_or_else(|e| e.into_inner()))?;
+        let on_grid = x.iter().all(|t| *t == self.t0 || grid.index(*t).is_some());
+        // t_needed is the latest data time or a time of x, so on the grid.
+        (on_grid && grid.index(t_needed).is_some()).then_some(grid)
     }
 
     fn horizon(&self) -> f64 {
@@ -271,9 +385,10 @@ impl Simulator for OdeModel {
         let t_needed = x.iter().copied().fold(self.horizon(), f64::max);
         SOLVED.with(|cell| {
             let mut cache = cell.borrow_mut();
-            let fresh = cache.as_ref().is_some_and(|s| s.model == self.id && s.theta == theta && s.t_end >= t_needed);
+            let fresh = cache.as_ref().is_some_and(|s| s.model == self.id && s.theta == theta && self.serves(s, x, t_needed));
             if !fresh {
-                let solved = self.solve(theta, t_needed);
+                let grid = self.grid_for(x, t_needed);
+                let solved = self.solve(theta, t_needed, grid);
                 if solved.dense.is_none() {
                     self.failures.fetch_add(1, Ordering::Relaxed);
                 }
@@ -293,6 +408,7 @@ impl Simulator for OdeModel {
         }
         let latest = x.iter().copied().fold(self.horizon(), f64::max);
         self.horizon.store(latest.to_bits(), Ordering::Relaxed);
+        self.remember_times(x);
         for theta in corners(&self.bounds) {
             let mut v = self.variables.at(&theta);
             v[0] = self.t0;
@@ -317,5 +433,43 @@ impl Simulator for OdeModel {
 
     fn failures(&self) -> u64 {
         self.failures.load(Ordering::Relaxed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    /// Whether the latest solution on this thread was made over the grid.
+    fn solved_on_grid() -> bool {
+        SOLVED.with(|c| matches!(c.borrow().as_ref().and_then(|s| s.dense.as_ref()), Some(Dense::OnGrid { .. })))
+    }
+
+    /// The bundled oscillator, x'' = −w²x from x0 at rest, against its closed
+    /// form x0·cos(wt): at the data's times (DOP853 over their grid) and off
+    /// them (Dormand–Prince 5(4)'s continuous output), within 1e-6 m, 2·10⁴
+    /// times below the data's error of 0.02 m.
+    #[test]
+    fn the_oscillator_matches_its_closed_form_on_and_off_the_data_grid() {
+        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/examples/oscillator.toml");
+        let model = crate::systems::load(&config).expect("the bundled oscillator").simulator;
+        let data_times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
+        model.check_inputs(0, &data_times).unwrap();
+        let off_grid: Vec<f64> = (0..30).map(|k| 0.1 + 0.33 * k as f64).collect();
+        for (w, x0) in [(0.5, 1.5), (2.0, 1.0), (4.0, 0.5), (3.3, 0.8)] {
+            // The third request, at the same θ, is answered by the continuous
+            // solution the second made.
+            for (times, on_grid) in [(&data_times, true), (&off_grid, false), (&data_times, false)] {
+                let mut got = vec![0.0; times.len()];
+                model.predict(0, times, &[w, x0], &mut got);
+                assert_eq!(solved_on_grid(), on_grid, "w = {w}, on the grid: {on_grid}");
+                for (t, g) in times.iter().zip(&got) {
+                    let want = x0 * (w * t).cos();
+                    assert!((g - want).abs() < 1e-6, "w = {w}, t = {t}, on the grid: {on_grid}: {g} vs {want}");
+                }
+            }
+        }
+        assert_eq!(model.failures(), 0);
     }
 }

@@ -1,0 +1,88 @@
+//! The data's times as a grid `t0 + k·dx`, so that an integration can hand
+//! out the state at every data time as it passes them (the 8th-order
+//! Dormand–Prince method of `ode_solvers` interpolates only on such a grid).
+
+/// Most grid points an integration may interpolate: beyond this, data times
+/// without a common spacing use the continuous output instead.
+const MAX_POINTS: usize = 4096;
+
+/// Relative distance from a grid point within which a time lies on it.
+const ON_GRID: f64 = 1e-9;
+
+/// Equally spaced times from t0 holding every data time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Grid {
+    pub t0: f64,
+    pub dx: f64,
+    /// Index of the last point (the latest data time).
+    pub last: usize,
+}
+
+impl Grid {
+    /// The coarsest grid from `t0` on which every time lies: the smallest gap
+    /// between distinct times divided by 1, 2, … 64; None when there is no
+    /// such grid of at most [`MAX_POINTS`] points, or no time after t0.
+    pub fn holding(t0: f64, times: &[f64]) -> Option<Grid> {
+        let mut offsets: Vec<f64> = times.iter().map(|t| t - t0).filter(|d| *d > 0.0).collect();
+        offsets.sort_by(f64::total_cmp);
+        offsets.dedup();
+        let latest = *offsets.last()?;
+        let smallest_gap = offsets
+            .iter()
+            .scan(0.0, |previous, d| {
+                let gap = d - *previous;
+                *previous = *d;
+                Some(gap)
+            })
+            .fold(f64::INFINITY, f64::min);
+        (1..=64).map(|m| smallest_gap / m as f64).find_map(|dx| {
+            let last = (latest / dx).round();
+            let grid = Grid { t0, dx, last: last as usize };
+            (last <= MAX_POINTS as f64 && offsets.iter().all(|d| grid.index(t0 + d).is_some())).then_some(grid)
+        })
+    }
+
+    /// The index of the grid point at `t`; None when t is not on the grid.
+    pub fn index(&self, t: f64) -> Option<usize> {
+        let k = ((t - self.t0) / self.dx).round();
+        let point = self.t0 + k * self.dx;
+        (k >= 0.0 && k <= self.last as f64 && (t - point).abs() <= ON_GRID * point.abs().max(self.dx))
+            .then_some(k as usize)
+    }
+
+    pub fn end(&self) -> f64 {
+        self.t0 + self.last as f64 * self.dx
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn evenly_spaced_times_give_their_spacing() {
+        let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
+        let g = Grid::holding(0.0, &times).expect("a grid");
+        assert_eq!(g.last, 40);
+        assert!((g.dx - 0.25).abs() < 1e-15);
+        assert_eq!(g.index(2.5), Some(10));
+        assert_eq!(g.index(2.6), None);
+        assert_eq!(g.index(10.25), None, "past the last data time");
+    }
+
+    #[test]
+    fn uneven_times_find_their_common_step() {
+        // gaps 0.2 and 0.3: the common step is 0.1, found as 0.2 / 2
+        let g = Grid::holding(1.0, &[1.2, 1.5, 1.5, 2.0]).expect("a grid");
+        assert!((g.dx - 0.1).abs() < 1e-15);
+        assert_eq!(g.index(1.5), Some(5));
+        assert_eq!(g.last, 10);
+    }
+
+    #[test]
+    fn times_without_a_common_step_have_no_grid() {
+        assert_eq!(Grid::holding(0.0, &[1.0, std::f64::consts::PI]), None);
+        assert_eq!(Grid::holding(0.0, &[0.0]), None, "no time after t0");
+        assert_eq!(Grid::holding(0.0, &[]), None);
+    }
+}
