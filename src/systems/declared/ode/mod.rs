@@ -15,7 +15,8 @@
 //! twelfth stage at x instead of x + h (its tableau has c12 = 0, not 1). An
 //! autonomous system never reads the stage's time; with a t-dependent rate
 //! the error estimate is wrong and the steps collapse (972 steps where
-//! scipy's DOP853 takes 6, measured on a periodic kinetics source).
+//! scipy's DOP853 takes 6, measured on a periodic kinetics source). The fix
+//! is proposed upstream (srenevey/ode-solvers pull request 42, open).
 //!
 //! An integration that fails at some θ (too many steps, step-size underflow,
 //! stiffness, a non-finite rate) makes every prediction there NaN, which the
