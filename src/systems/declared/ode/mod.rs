@@ -3,20 +3,20 @@
 //! with error control; each observable is a formula of t, θ, constants, the
 //! state and its rates.
 //!
-//! When the data's times lie on a grid `t0 + k·dx` (they usually do) and no
-//! rate depends on t, the 8th-order Dormand–Prince method (DOP853)
-//! integrates and interpolates the state at every grid point as it passes:
-//! at the tolerances the bundled configs ask for it takes 3–6 times fewer
-//! steps than the 5th-order method. Everything else (times off that grid, as
-//! a figure's smooth curve; rates with t, as a periodic force) is served by
-//! Dormand–Prince 5(4) with its continuous output.
+//! When the data's times lie on a grid `t0 + k·dx` (they usually do), the
+//! 8th-order Dormand–Prince method (DOP853) integrates and interpolates the
+//! state at every grid point as it passes: at the tolerances the bundled
+//! configs ask for it takes 3–6 times fewer steps than the 5th-order method.
+//! Times off that grid (a figure's smooth curve) are served by Dormand–Prince
+//! 5(4) with its continuous output.
 //!
-//! Why not DOP853 for rates with t: ode_solvers 0.6.2 evaluates DOP853's
-//! twelfth stage at x instead of x + h (its tableau has c12 = 0, not 1). An
-//! autonomous system never reads the stage's time; with a t-dependent rate
-//! the error estimate is wrong and the steps collapse (972 steps where
-//! scipy's DOP853 takes 6, measured on a periodic kinetics source). The fix
-//! is proposed upstream (srenevey/ode-solvers pull request 42, open).
+//! A system whose rates read t is given to DOP853 in autonomous form, with t
+//! as one more state (dt/dt = 1): ode_solvers 0.6.2 evaluates DOP853's
+//! twelfth stage at x instead of x + h (its tableau has c12 = 0, not 1;
+//! upstream pull request srenevey/ode-solvers#42, open), so the time it
+//! passes cannot be trusted, while the stage's state, built from the
+//! tableau's correct rows, carries the right time. Given t directly, a
+//! periodic kinetics source took 972 steps where scipy's DOP853 takes 6.
 //!
 //! An integration that fails at some θ (too many steps, step-size underflow,
 //! stiffness, a non-finite rate) makes every prediction there NaN, which the
@@ -50,7 +50,7 @@ pub struct OdeModel {
     formulas: Vec<Formula>,
     /// Whether an observable uses a rate `d_<state>` (then rates are evaluated for it).
     uses_rates: Vec<bool>,
-    /// No rate reads t, so DOP853 may integrate (see the module's notes).
+    /// No rate reads t; otherwise DOP853 carries t as a state (module notes).
     autonomous: bool,
     /// Where each initial value and each rate was written, for errors.
     initial_places: Vec<String>,
@@ -87,6 +87,8 @@ enum Dense {
     OnGrid {
         grid: Grid,
         states: Vec<f64>,
+        /// Values per grid point: the state, then t when DOP853 carried it.
+        stride: usize,
     },
     S1(ContinuousOutputModel<f64, OVector<f64, Const<1>>>),
     S2(ContinuousOutputModel<f64, OVector<f64, Const<2>>>),
@@ -106,9 +108,9 @@ impl Dense {
         }
         match self {
             Dense::Empty => false,
-            Dense::OnGrid { grid, states } => match grid.index(t) {
+            Dense::OnGrid { grid, states, stride } => match grid.index(t) {
                 Some(k) => {
-                    y.copy_from_slice(&states[k * y.len()..(k + 1) * y.len()]);
+                    y.copy_from_slice(&states[k * stride..k * stride + y.len()]);
                     true
                 }
                 None => false,
@@ -192,6 +194,8 @@ impl OdeModel {
         }
         if let Some(grid) = grid {
             solved.t_end = grid.end();
+            // The clock: t as the last state when a rate reads it.
+            let y0: Vec<f64> = y0.iter().copied().chain((!self.autonomous).then_some(self.t0)).collect();
             solved.dense = match y0.len() {
                 1 => self.integrate_on_grid::<Const<1>>(v, &y0, grid),
                 2 => self.integrate_on_grid::<Const<2>>(v, &y0, grid),
@@ -212,7 +216,8 @@ impl OdeModel {
     }
 
     /// DOP853 from t0 to the grid's end, interpolating the state at every
-    /// grid point; None when the integration fails.
+    /// grid point; `y0` ends with t0 when the rates read t. None when the
+    /// integration fails.
     fn integrate_on_grid<D: Dim>(&self, values: [f64; MAX_NAMES], y0: &[f64], grid: Grid) -> Option<Dense>
     where
         DefaultAllocator: Allocator<D>,
@@ -225,7 +230,7 @@ impl OdeModel {
         // asked, measured on the oscillator), inside a step it is right.
         let t_end = grid.end() + 0.5 * grid.dx;
         let span = t_end - self.t0;
-        let rhs = Rhs { model: self, values: RefCell::new(values) };
+        let rhs = Rhs { model: self, values: RefCell::new(values), clock: !self.autonomous };
         // Hairer's defaults for DOP853: safety 0.9, no PI term, step factors
         // in [0.333, 6], stiffness tested every 1000 steps.
         let mut stepper = Dop853::from_param(
@@ -254,7 +259,7 @@ impl OdeModel {
             return None;
         }
         let states = ys.iter().flat_map(|y| y.iter().copied()).collect();
-        Some(Dense::OnGrid { grid, states })
+        Some(Dense::OnGrid { grid, states, stride: y0.len() })
     }
 
     /// Adds data times and finds the grid that holds all of them.
@@ -281,7 +286,7 @@ impl OdeModel {
         let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
         let s = &self.solver;
         let span = t_end - self.t0;
-        let rhs = Rhs { model: self, values: RefCell::new(values) };
+        let rhs = Rhs { model: self, values: RefCell::new(values), clock: false };
         let mut stepper = Dopri5::from_param(
             rhs,
             self.t0,
@@ -326,12 +331,9 @@ impl OdeModel {
         }
     }
 
-    /// The data's grid when the rates are autonomous, every time of `x` lies
-    /// on it and it reaches `t_needed`.
+    /// The data's grid when every time of `x` lies on it and it reaches
+    /// `t_needed`.
     fn grid_for(&self, x: &[f64], t_needed: f64) -> Option<Grid> {
-        if !self.autonomous {
-            return None;
-        }
         let grid = (*self.grid.read().unwrap_or_else(|e| e.into_inner()))?;
         let on_grid = x.iter().all(|t| *t == self.t0 || grid.index(*t).is_some());
         // t_needed is the latest data time or a time of x, so on the grid.
@@ -370,6 +372,8 @@ struct Rhs<'a> {
     /// θ and constants in place; t and the state are written per call (in
     /// place: a copy of the whole vector per call was a tenth of the time).
     values: RefCell<[f64; MAX_NAMES]>,
+    /// t is the last state (dt/dt = 1) rather than the solver's time.
+    clock: bool,
 }
 
 impl<D: Dim> System<f64, OVector<f64, D>> for Rhs<'_>
@@ -378,11 +382,15 @@ where
 {
     fn system(&self, t: f64, y: &OVector<f64, D>, dy: &mut OVector<f64, D>) {
         let mut v = self.values.borrow_mut();
-        v[0] = t;
+        let n = self.model.rates.len();
+        v[0] = if self.clock { y[n] } else { t };
         let at = self.model.variables.state_at;
-        v[at..at + y.len()].copy_from_slice(y.as_slice());
+        v[at..at + n].copy_from_slice(&y.as_slice()[..n]);
         for (k, rate) in self.model.rates.iter().enumerate() {
             dy[k] = rate.eval(&v[..]);
+        }
+        if self.clock {
+            dy[n] = 1.0;
         }
     }
 }
@@ -489,10 +497,10 @@ mod tests {
     }
 
     /// A rate with t, y' = a·cos(wt) from y(0) = 1, against its closed form
-    /// 1 + (a/w)·sin(wt): integrated by Dormand–Prince 5(4) even at the
-    /// data's times, since the crate's DOP853 misplaces a stage in t.
+    /// 1 + (a/w)·sin(wt), on the data's grid (DOP853 with t as a state) and
+    /// off it.
     #[test]
-    fn a_rate_with_time_is_integrated_by_the_fifth_order_method() {
+    fn a_rate_with_time_matches_its_closed_form_on_and_off_the_grid() {
         let dir = std::env::temp_dir().join(format!("mdpipe-ode-time-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let times: Vec<f64> = (1..=20).map(|k| 0.5 * k as f64).collect();
@@ -504,13 +512,16 @@ mod tests {
         std::fs::write(dir.join("forced.toml"), config).unwrap();
         let model = crate::systems::load(&dir.join("forced.toml")).expect("the forced model").simulator;
         model.check_inputs(0, &times).unwrap();
+        let off_grid: Vec<f64> = (0..30).map(|k| 0.1 + 0.33 * k as f64).collect();
         for (a, w) in [(1.0, 0.5), (5.0, 6.0), (2.5, 3.3)] {
-            let mut got = vec![0.0; times.len()];
-            model.predict(0, &times, &[a, w], &mut got);
-            assert!(!solved_on_grid(), "a rate with t must not use DOP853");
-            for (t, g) in times.iter().zip(&got) {
-                let want = 1.0 + a / w * (w * t).sin();
-                assert!((g - want).abs() < 1e-6, "a = {a}, w = {w}, t = {t}: {g} vs {want}");
+            for (x, on_grid) in [(&times, true), (&off_grid, false)] {
+                let mut got = vec![0.0; x.len()];
+                model.predict(0, x, &[a, w], &mut got);
+                assert_eq!(solved_on_grid(), on_grid);
+                for (t, g) in x.iter().zip(&got) {
+                    let want = 1.0 + a / w * (w * t).sin();
+                    assert!((g - want).abs() < 1e-6, "a = {a}, w = {w}, t = {t}, grid {on_grid}: {g} vs {want}");
+                }
             }
         }
         std::fs::remove_dir_all(&dir).ok();
