@@ -264,17 +264,43 @@ pub fn diagnose_time(analysis: &Analysis, seed: u64, discover: Discover) -> Resu
 }
 
 /// The arguments of `mdpipe bench` (see `cli::Command::Bench`).
+#[derive(clap::Args, Debug)]
 pub struct BenchArgs {
+    #[arg(default_value = "pipeline/ball_drop.toml")]
     pub config: PathBuf,
+    /// Likelihood evaluations per kernel
+    #[arg(long, default_value_t = 2_000_000)]
     pub evaluations: usize,
+    /// Skip the comparison grid
+    #[arg(long)]
     pub likelihood_only: bool,
+    #[arg(long)]
     pub sampler: Option<String>,
+    #[arg(long, default_value = "outputs/bench")]
     pub out: PathBuf,
+    #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Benchmark this emulator folder (training and prediction throughput) instead
+    #[arg(long)]
     pub emulator: Option<PathBuf>,
+    /// Benchmark one heavy-ion stand-in design point of this many events instead
+    #[arg(long)]
     pub heavy_ion_events: Option<usize>,
+    /// Time one full `diagnose` of the config's data instead
+    #[arg(long)]
     pub diagnose: bool,
+    /// Likelihood rates of the bundled declared models instead: the ball
+    /// drop, the kinetics and the oscillator (run from the checkout)
+    #[arg(long)]
+    pub declared: bool,
 }
+
+/// The bundled declared models `--declared` measures.
+const DECLARED: [(&str, &str); 3] = [
+    ("ball drop", "pipeline/ball_drop.toml"),
+    ("kinetics", "pipeline/examples/kinetics.toml"),
+    ("oscillator", "pipeline/examples/oscillator.toml"),
+];
 
 /// `mdpipe bench`: one of the benchmarks, printed.
 pub fn command(a: BenchArgs) -> Result<()> {
@@ -314,6 +340,19 @@ pub fn command(a: BenchArgs) -> Result<()> {
             "  mean + full {}x{} covariance:  {:>10.0} predictions/s ({threads} threads)",
             b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second
         );
+        return Ok(());
+    }
+    if a.declared {
+        for (name, config) in DECLARED {
+            let analysis = crate::systems::load(Path::new(config))?;
+            for kernel in compare::KERNELS {
+                let b = likelihood_throughput(&analysis, kernel, a.evaluations)?;
+                println!(
+                    "{name:<10} ({config}) kernel={:<4} points={}: {:>10.0} evaluations/s on one core",
+                    b.kernel, b.n_points, b.evaluations_per_second_one_core
+                );
+            }
+        }
         return Ok(());
     }
     let analysis = crate::systems::load(&a.config)?;

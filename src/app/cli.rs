@@ -60,31 +60,7 @@ pub enum Command {
         out: PathBuf,
     },
     /// Benchmarks: likelihood throughput (one core) and the full comparison grid
-    Bench {
-        #[arg(default_value = "pipeline/ball_drop.toml")]
-        config: PathBuf,
-        /// Likelihood evaluations per kernel
-        #[arg(long, default_value_t = 2_000_000)]
-        evaluations: usize,
-        /// Skip the comparison grid
-        #[arg(long)]
-        likelihood_only: bool,
-        #[arg(long)]
-        sampler: Option<String>,
-        #[arg(long, default_value = "outputs/bench")]
-        out: PathBuf,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Benchmark this emulator folder (training and prediction throughput) instead
-        #[arg(long)]
-        emulator: Option<PathBuf>,
-        /// Benchmark one heavy-ion stand-in design point of this many events instead
-        #[arg(long)]
-        heavy_ion_events: Option<usize>,
-        /// Time one full `diagnose` of the config's data instead
-        #[arg(long)]
-        diagnose: bool,
-    },
+    Bench(bench::BenchArgs),
     /// Locate the mismatch, name the missing physics, repair the model, show the fit improve
     Diagnose {
         #[command(flatten)]
@@ -278,27 +254,7 @@ impl Command {
                 commands::run_study(&config, Some("refine".into()), false, seed, out, &executor, None)
             }
             Command::Demo { seed, full, out } => demo::run(seed, full, &out),
-            Command::Bench {
-                config,
-                evaluations,
-                likelihood_only,
-                sampler,
-                out,
-                seed,
-                emulator,
-                heavy_ion_events,
-                diagnose,
-            } => bench::command(bench::BenchArgs {
-                config,
-                evaluations,
-                likelihood_only,
-                sampler,
-                out,
-                seed,
-                emulator,
-                heavy_ion_events,
-                diagnose,
-            }),
+            Command::Bench(args) => bench::command(args),
             Command::Ingest { runs, pt_bins, design, min_events, format, out } => {
                 commands::ingest(&runs, pt_bins, design.as_deref(), min_events, &format, &out)
             }

@@ -614,3 +614,27 @@ fn published_examples_recover_their_known_answers() {
         println!("{config}: {} named; narrowing {:?}", candidate, imp.interval_narrowing);
     }
 }
+
+/// `mdpipe bench --declared` prints the likelihood rate of each bundled
+/// declared model under each kernel (the rates themselves are benchmarks,
+/// docs/performance.md, not asserted).
+#[test]
+fn bench_reports_the_declared_models_likelihood_rates() {
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+        .args(["bench", "--declared", "--evaluations", "300"])
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&run.stderr));
+    for model in ["ball drop", "kinetics", "oscillator"] {
+        for kernel in ["none", "I", "II"] {
+            let line = stdout
+                .lines()
+                .find(|l| l.starts_with(model) && l.contains(&format!("kernel={kernel} ")))
+                .unwrap_or_else(|| panic!("no rate of {model} with kernel {kernel}:\n{stdout}"));
+            let rate: f64 = line.split(':').next_back().unwrap().split_whitespace().next().unwrap().parse().unwrap();
+            assert!(rate > 0.0, "{line}");
+        }
+    }
+}

@@ -30,10 +30,10 @@ use super::declaration::{check_parameters_used, corners, describe, Declared, Sol
 use super::formula::Formula;
 use crate::engine::model::Simulator;
 use anyhow::{bail, Result};
+use grid::Grid;
 use nalgebra::allocator::Allocator;
 use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
 use ode_solvers::continuous_output_model::ContinuousOutputModel;
-use grid::Grid;
 use ode_solvers::{Dop853, Dopri5, OutputType, System};
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -408,7 +408,8 @@ impl Simulator for OdeModel {
         let t_needed = x.iter().copied().fold(self.horizon(), f64::max);
         SOLVED.with(|cell| {
             let mut cache = cell.borrow_mut();
-            let fresh = cache.as_ref().is_some_and(|s| s.model == self.id && s.theta == theta && self.serves(s, x, t_needed));
+            let fresh =
+                cache.as_ref().is_some_and(|s| s.model == self.id && s.theta == theta && self.serves(s, x, t_needed));
             if !fresh {
                 let grid = self.grid_for(x, t_needed);
                 let solved = self.solve(theta, t_needed, grid);
