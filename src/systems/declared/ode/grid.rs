@@ -9,6 +9,11 @@ const MAX_POINTS: usize = 4096;
 /// Relative distance from a grid point within which a time lies on it.
 const ON_GRID: f64 = 1e-9;
 
+/// Smallest spacing, relative to the times, of a grid: the solver walks it
+/// by adding dx, which must move a time by many ulps (a dx lost in the
+/// rounding of t would never advance and the walk would not end).
+const MIN_RELATIVE_STEP: f64 = 1e-6;
+
 /// Equally spaced times from t0 holding every data time.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct Grid {
@@ -21,7 +26,8 @@ pub(super) struct Grid {
 impl Grid {
     /// The coarsest grid from `t0` on which every time lies: the smallest gap
     /// between distinct times divided by 1, 2, … 64; None when there is no
-    /// such grid of at most [`MAX_POINTS`] points, or no time after t0.
+    /// such grid of at most [`MAX_POINTS`] points and a spacing the times
+    /// resolve, or no time after t0.
     pub fn holding(t0: f64, times: &[f64]) -> Option<Grid> {
         let mut offsets: Vec<f64> = times.iter().map(|t| t - t0).filter(|d| *d > 0.0).collect();
         offsets.sort_by(f64::total_cmp);
@@ -35,7 +41,8 @@ impl Grid {
                 Some(gap)
             })
             .fold(f64::INFINITY, f64::min);
-        (1..=64).map(|m| smallest_gap / m as f64).find_map(|dx| {
+        let scale = t0.abs().max((t0 + latest).abs());
+        (1..=64).map(|m| smallest_gap / m as f64).take_while(|dx| *dx > MIN_RELATIVE_STEP * scale).find_map(|dx| {
             let last = (latest / dx).round();
             let grid = Grid { t0, dx, last: last as usize };
             (last <= MAX_POINTS as f64 && offsets.iter().all(|d| grid.index(t0 + d).is_some())).then_some(grid)
@@ -84,5 +91,7 @@ mod tests {
         assert_eq!(Grid::holding(0.0, &[1.0, std::f64::consts::PI]), None);
         assert_eq!(Grid::holding(0.0, &[0.0]), None, "no time after t0");
         assert_eq!(Grid::holding(0.0, &[]), None);
+        // Spacing lost in the rounding of the times themselves.
+        assert_eq!(Grid::holding(1e9, &[1e9 + 1e-4, 1e9 + 2e-4]), None);
     }
 }
