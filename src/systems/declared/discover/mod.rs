@@ -3,7 +3,8 @@
 //!
 //! Screening (here) is cheap: every term, and every pair of the best five,
 //! is fitted by least squares with θ (`fit`), and ranked by the Bayesian
-//! information criterion ΔBIC = Δχ² − k ln N. Terms that fit the data the
+//! information criterion ΔBIC = Δχ² − k ln N; a pair stays only if it beats
+//! both of its terms alone. Terms that fit the data the
 //! same way (`v*abs(v)` and `v^2` for a ball that only falls, or `h*v*v`
 //! while h barely changes) are one explanation, and the simpler stands for
 //! both (`distinct`). The best few are handed back as
@@ -74,8 +75,13 @@ impl Discoverer for DeclaredDiscoverer {
                 let mut joint: BTreeMap<String, f64> = a.fitted_terms("1");
                 joint.extend(b.fitted_terms("2"));
                 let theta = &a.fitted.phi[..data.theta.len()];
+                // A pair whose second term does not pay for itself (its ΔBIC
+                // below one of its own terms') would only lose to that term:
+                // not worth a full calibration.
                 if let Some(s) = self.screen_one(&pair, data, &base_fit, &scales, Some((theta, joint))) {
-                    all.push(s);
+                    if bic(&s) > bic(a).max(bic(b)) {
+                        all.push(s);
+                    }
                 }
             }
         }
