@@ -83,7 +83,7 @@ struct Solved {
 /// heap vectors).
 enum Dense {
     Empty,
-    /// `states[k·dim..(k+1)·dim]` is the state at grid point k.
+    /// `states[k·stride..]` begins with the state at grid point k.
     OnGrid {
         grid: Grid,
         states: Vec<f64>,
