@@ -27,8 +27,15 @@ impl Grid {
     /// The coarsest grid from `t0` on which every time lies: the smallest gap
     /// between distinct times divided by 1, 2, … 64; None when there is no
     /// such grid of at most [`MAX_POINTS`] points and a spacing the times
-    /// resolve, or no time after t0.
+    /// resolve, no time after t0, or t0 < 0.
     pub fn holding(t0: f64, times: &[f64]) -> Option<Grid> {
+        // ode_solvers walks its output grid comparing |t|s (written for
+        // integrating backwards): a walk that crosses zero never advances
+        // (measured: calibrations from t0 = −0.5 s hung). Negative times
+        // use the continuous output.
+        if t0 < 0.0 {
+            return None;
+        }
         let mut offsets: Vec<f64> = times.iter().map(|t| t - t0).filter(|d| *d > 0.0).collect();
         offsets.sort_by(f64::total_cmp);
         offsets.dedup();
@@ -91,6 +98,8 @@ mod tests {
         assert_eq!(Grid::holding(0.0, &[1.0, std::f64::consts::PI]), None);
         assert_eq!(Grid::holding(0.0, &[0.0]), None, "no time after t0");
         assert_eq!(Grid::holding(0.0, &[]), None);
+        // Times before zero: the solver's walk over them would not end.
+        assert_eq!(Grid::holding(-0.5, &[-0.25, 0.0, 0.25]), None);
         // Spacing lost in the rounding of the times themselves.
         assert_eq!(Grid::holding(1e9, &[1e9 + 1e-4, 1e9 + 2e-4]), None);
     }
