@@ -4,7 +4,7 @@
 
 use super::refine_rounds::Rounds;
 use super::run_config::RunConfig;
-use super::stages::{absolute, RunPaths};
+use super::study::{absolute, RunPaths};
 use crate::base::config::Config;
 use crate::engine::calibrate::Analysis;
 use crate::systems;

@@ -1,4 +1,4 @@
-//! The refine stage of `mdpipe run` (and `mdpipe refine`): rounds of
+//! The refine stage of `mdpipe run` (`stage::refine`): rounds of
 //! adaptive design until the emulator's error where the posterior lives is
 //! below the data error, or the run budget is spent.
 //!
@@ -15,7 +15,7 @@
 //! emulator) and `OUT/refine/rounds.json` / `rounds.md`; `rounds.json` names
 //! the emulator the calibrations use.
 
-use super::stages::{absolute, Keys, Study};
+use super::study::{absolute, Study};
 use crate::base::artifacts::{self, Provenance};
 use crate::base::progress::observer;
 use crate::engine::calibrate::{self, Overrides, Problem};
@@ -129,7 +129,8 @@ impl Study<'_> {
         })
     }
 
-    pub(super) fn refine(&self, _keys: &Keys) -> Result<()> {
+    /// The rounds of refinement, until the emulator is good enough where the posterior lives or the budget is spent.
+    pub(super) fn refine_rounds(&self) -> Result<()> {
         let settings =
             self.run.refine.clone().ok_or_else(|| {
                 anyhow!("{}: the refine stage needs a [run.refine] table", self.config.path.display())

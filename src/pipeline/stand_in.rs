@@ -1,12 +1,11 @@
 //! What the heavy-ion stand-in adds to a study: its command as the default
-//! simulator, its mock data with the truth known, and its library of
-//! candidate physics as simulator variants.
+//! simulator, the truth of its mock data (made by the mock stage), and its
+//! library of candidate physics as simulator variants.
 
-use super::stages::*;
+use super::study::*;
 use super::variants::Variant;
-use crate::base::artifacts::{self, Measurement, Provenance};
 use crate::engine::execute::{OutputKind, SimulatorSpec};
-use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
+use crate::systems::heavy_ion::{self, DeltaF};
 use anyhow::{anyhow, Result};
 
 impl Study<'_> {
@@ -80,61 +79,4 @@ impl Study<'_> {
             })
             .collect()
     }
-
-    pub(super) fn mock(&self, _keys: &Keys) -> Result<()> {
-        let params = HeavyIonParams::from_named(&self.truth_named()?)?;
-        let mock_delta_f = self.run.mock_delta_f.clone().unwrap_or_default();
-        let mock_events = self.run.mock_events.unwrap_or_default();
-        let delta_f: DeltaF = mock_delta_f.parse()?;
-        let runs = self.paths.mock().join("runs");
-        if runs.exists() {
-            std::fs::remove_dir_all(&runs)?;
-        }
-        std::fs::create_dir_all(&runs)?;
-        heavy_ion::simulate_runs(
-            &[(0, params)],
-            delta_f,
-            mock_events,
-            self.run.oversample,
-            mock_seed(self.opts.seed),
-            Layout::Hdf5,
-            &runs,
-        )?;
-        let (ingested, _) =
-            crate::engine::ingest::ingest_runs(&runs, None, &crate::engine::ingest::IngestSettings::default())?;
-        let undefined: Vec<String> = ingested.report.points.iter().flat_map(|p| p.undefined_bins.clone()).collect();
-        if !undefined.is_empty() {
-            println!("  mock bins left out (undefined): {}", undefined.join(", "));
-        }
-        let keep = self.all_observables();
-        let data: Vec<Measurement> = ingested
-            .rows
-            .iter()
-            .filter(|r| keep.contains(&r.observable))
-            .map(|r| Measurement::new(&r.observable, r.x, r.value, r.error))
-            .collect();
-        let prov = Provenance::new(
-            self.config.hash.clone(),
-            artifacts::measurements_hash(&data),
-            self.opts.seed,
-            &format!("run --stage mock: {mock_events} events, delta-f {mock_delta_f}"),
-        );
-        artifacts::write_measurements(&self.paths.measurements(), &data, Some(&prov))?;
-        // The bins' jackknife covariance over the same events, for `[data] covariance`.
-        let mut kept = ingested;
-        kept.rows.retain(|r| keep.contains(&r.observable));
-        if let Some(entries) = crate::engine::ingest::single_point_covariance(&kept) {
-            crate::base::covariance::write_covariance_csv(&self.paths.mock().join("covariance.csv"), &entries)?;
-        }
-        println!(
-            "  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}",
-            data.len(),
-            self.paths.measurements().display()
-        );
-        Ok(())
-    }
-}
-
-pub(super) fn mock_seed(seed: u64) -> u64 {
-    seed.wrapping_mul(31).wrapping_add(977)
 }

@@ -8,7 +8,7 @@
 //! emulators) and `diagnose/refine/diagnosis_before.json`; the diagnosis in
 //! `diagnose/` is the one after refinement.
 
-use super::stages::{absolute, Study};
+use super::study::{absolute, Study};
 use super::variants::Variant;
 use crate::base::artifacts::Provenance;
 use crate::base::config::Config;

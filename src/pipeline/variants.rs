@@ -1,7 +1,5 @@
-//! The candidates stage: each candidate physics as a variant of the study's
-//! simulator, built as the base model is built (a design over θ and the
-//! candidate's own parameters, runs through the same executor with the same
-//! retries, ingest, emulator, validation).
+//! Candidate physics as variants of the study's simulator (built by the
+//! candidates stage, `stage::candidates`).
 //!
 //! A `[[candidates]]` table says how the simulator turns its physics on, in
 //! any of three ways: keys added to each point's parameter file
@@ -11,15 +9,13 @@
 //! priors of its fit. The stand-in's library (`[run] candidates`) gives
 //! variants of the same kind (`stand_in::library_variants`).
 
-use super::stages::*;
-use crate::base::artifacts::{self};
+use super::study::*;
 use crate::base::config::{Config, ParamSpec};
 use crate::engine::design::{DesignParameter, DesignSpec};
 use crate::engine::emulator::family::CandidateDeclaration;
 use crate::engine::execute::{spec::placeholders_of, SimulatorSpec};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
-use std::path::Path;
 
 /// A candidate physics as a variant of the simulator.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -173,74 +169,6 @@ impl Study<'_> {
             });
         }
         Ok(variants)
-    }
-
-    /// One variant emulator per candidate: its design, its runs through the
-    /// executor, ingest, training and 5-fold cross-validation.
-    pub(super) fn candidates(&self, _keys: &Keys) -> Result<()> {
-        let spec_path = self.config.resolve(&self.run.design);
-        let spec_hash = artifacts::sha256_hex(
-            &std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?,
-        );
-        let spec = DesignSpec::load(&spec_path)?;
-        for v in self.variants()? {
-            let dir = self.paths.candidate(&v.name);
-            if dir.exists() {
-                std::fs::remove_dir_all(&dir)
-                    .with_context(|| format!("removing the previous variant {}", dir.display()))?;
-            }
-            let design_dir = dir.join("design");
-            let points = self.run.candidate_points.unwrap_or(self.run.points);
-            let label = format!("candidate {}", v.name);
-            self.write_design_for(
-                &v.design_spec(&spec),
-                &v.simulator,
-                &label,
-                &spec_hash,
-                points,
-                v.design_seed,
-                &design_dir,
-            )?;
-            self.run_design(&design_dir, &v.simulator, &label)?;
-            let training = dir.join("training.parquet");
-            self.ingest_design(&design_dir, &training)?;
-            self.train_variant(&v, &training, &dir)?;
-        }
-        Ok(())
-    }
-
-    /// Trains a variant's emulator on `training` into `dir/emulator` and
-    /// cross-validates it: a variant decides verdicts as much as the base
-    /// emulator does.
-    pub(super) fn train_variant(&self, v: &Variant, training: &Path, dir: &Path) -> Result<()> {
-        let mut settings = self
-            .emulator
-            .clone()
-            .ok_or_else(|| anyhow!("{}: the candidates stage needs an [emulator] table", self.config.path.display()))?;
-        settings.parameters.extend(v.parameters.iter().map(|p| p.name.clone()));
-        let command = format!("run {} --stage candidates ({})", self.config.path.display(), v.name);
-        let (_, r) = crate::engine::emulator::train_with_settings(
-            &settings,
-            &self.config.hash,
-            &command,
-            training,
-            None,
-            &dir.join("emulator"),
-            v.design_seed,
-        )?;
-        println!(
-            "  {}: {} points x {} outputs -> {} components ({})",
-            v.name,
-            r.n_points,
-            r.n_outputs,
-            r.n_components,
-            settings.parameters.join(", ")
-        );
-        let cv = crate::engine::emulator::validate::run(&dir.join("emulator"), None, 5, v.design_seed)?;
-        if let Some(cv) = &cv.cross_validation {
-            crate::engine::emulator::validate::print(&format!("  {}: 5-fold cross-validation", v.name), cv);
-        }
-        Ok(())
     }
 }
 

@@ -5,7 +5,7 @@
 //! script are the runs the simulate stage would have made.
 
 use mdpipe::config::Config;
-use mdpipe::pipeline::{run, RunOptions, StageOutcome, STAGES};
+use mdpipe::pipeline::{run, stages, RunOptions, StageOutcome};
 use std::path::{Path, PathBuf};
 
 pub(crate) fn tmpdir(tag: &str) -> PathBuf {
@@ -200,7 +200,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let config = Config::load(&write_config(&dir, 300, 12)).unwrap();
 
     let first = run(&config, &opts(&out, None, false)).unwrap();
-    assert_eq!(ran(&first), STAGES.to_vec());
+    assert_eq!(ran(&first), stages());
     for p in [
         "design/design.parquet",
         "validation_design/design.parquet",
@@ -283,7 +283,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     // Unchanged: nothing runs.
     let second = run(&config, &opts(&out, None, false)).unwrap();
     assert!(ran(&second).is_empty(), "reran {:?}", ran(&second));
-    assert_eq!(second.len(), STAGES.len());
+    assert_eq!(second.len(), stages().len());
 
     // --stage with --force reruns that stage only.
     let forced = run(&config, &opts(&out, Some("calibrate"), true)).unwrap();

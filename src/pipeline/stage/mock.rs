@@ -1,0 +1,89 @@
+//! The mock stage (the heavy-ion stand-in's studies only, `[run]
+//! mock_delta_f`): the stand-in run at the truth with the concealed δf, its
+//! events ingested as the measurements, with their jackknife covariance.
+
+use super::{Keys, Presence, StageDef};
+use crate::base::artifacts::{self, Measurement, Provenance};
+use crate::pipeline::study::Study;
+use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
+use anyhow::Result;
+use std::path::PathBuf;
+
+pub(super) const STAGE: StageDef =
+    StageDef { name: "mock", rank: 50, upstream: &[], present, outputs, settings, body: mock };
+
+fn present(study: &Study<'_>) -> Result<Presence> {
+    Ok(if study.run.stand_in_study() {
+        Presence::Runs
+    } else {
+        Presence::Absent(format!("{} has no mock data ([run] mock_delta_f)", study.config.path.display()))
+    })
+}
+
+fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
+    Ok(vec![study.paths.measurements()])
+}
+
+fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
+    let run = study.run;
+    Ok(
+        serde_json::json!({"truth": study.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": study.opts.seed, "observables": study.all_observables()}),
+    )
+}
+
+fn mock(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
+    let params = HeavyIonParams::from_named(&study.truth_named()?)?;
+    let mock_delta_f = study.run.mock_delta_f.clone().unwrap_or_default();
+    let mock_events = study.run.mock_events.unwrap_or_default();
+    let delta_f: DeltaF = mock_delta_f.parse()?;
+    let runs = study.paths.mock().join("runs");
+    if runs.exists() {
+        std::fs::remove_dir_all(&runs)?;
+    }
+    std::fs::create_dir_all(&runs)?;
+    heavy_ion::simulate_runs(
+        &[(0, params)],
+        delta_f,
+        mock_events,
+        study.run.oversample,
+        mock_seed(study.opts.seed),
+        Layout::Hdf5,
+        &runs,
+    )?;
+    let (ingested, _) =
+        crate::engine::ingest::ingest_runs(&runs, None, &crate::engine::ingest::IngestSettings::default())?;
+    let undefined: Vec<String> = ingested.report.points.iter().flat_map(|p| p.undefined_bins.clone()).collect();
+    if !undefined.is_empty() {
+        println!("  mock bins left out (undefined): {}", undefined.join(", "));
+    }
+    let keep = study.all_observables();
+    let data: Vec<Measurement> = ingested
+        .rows
+        .iter()
+        .filter(|r| keep.contains(&r.observable))
+        .map(|r| Measurement::new(&r.observable, r.x, r.value, r.error))
+        .collect();
+    let prov = Provenance::new(
+        study.config.hash.clone(),
+        artifacts::measurements_hash(&data),
+        study.opts.seed,
+        &format!("run --stage mock: {mock_events} events, delta-f {mock_delta_f}"),
+    );
+    artifacts::write_measurements(&study.paths.measurements(), &data, Some(&prov))?;
+    // The bins' jackknife covariance over the same events, for `[data] covariance`.
+    let mut kept = ingested;
+    kept.rows.retain(|r| keep.contains(&r.observable));
+    if let Some(entries) = crate::engine::ingest::single_point_covariance(&kept) {
+        crate::base::covariance::write_covariance_csv(&study.paths.mock().join("covariance.csv"), &entries)?;
+    }
+    println!(
+        "  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}",
+        data.len(),
+        study.paths.measurements().display()
+    );
+    Ok(())
+}
+
+fn mock_seed(seed: u64) -> u64 {
+    seed.wrapping_mul(31).wrapping_add(977)
+}
