@@ -37,6 +37,7 @@ mod run_config;
 mod stage;
 mod stand_in;
 mod study;
+mod system;
 mod variant_refine;
 mod variants;
 

@@ -2,13 +2,13 @@
 //! table and options) and where it writes (`RunPaths`).
 
 use super::run_config::RunConfig;
+use super::system;
 use crate::base::artifacts;
 use crate::base::config::Config;
 use crate::engine::calibrate::Analysis;
 use crate::engine::emulator::{EmulatorFamily, EmulatorSettings};
 use crate::engine::execute::Executor;
 use crate::engine::model::Registry;
-use crate::systems::heavy_ion::family::HeavyIonFamily;
 use anyhow::{anyhow, Context, Result};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -51,12 +51,6 @@ impl RunPaths {
     }
     pub fn emulator(&self) -> PathBuf {
         self.out.join("emulator")
-    }
-    pub fn mock(&self) -> PathBuf {
-        self.out.join("mock")
-    }
-    pub fn measurements(&self) -> PathBuf {
-        self.out.join("mock").join("measurements.parquet")
     }
     pub fn calibrate(&self) -> PathBuf {
         self.out.join("calibrate")
@@ -117,33 +111,33 @@ impl Study<'_> {
         let mut model = if emulator_kind { c.model.clone() } else { toml::Table::new() };
         model.extend(EmulatorFamily::model_table(&absolute(emulator)));
         c.model = model;
-        if self.run.stand_in_study() {
-            c.data.measurements = absolute(&self.paths.measurements());
-            // The mock's bins are counted from the same events (correlated by
-            // 0.6-0.95 within a spectrum); with errors alone the likelihood
-            // is overconfident and the MD fits excluded ε_sw by 2-3 sd.
-            let covariance = self.paths.mock().join("covariance.csv");
-            c.data.covariance = covariance.exists().then(|| absolute(&covariance));
+        if let Some(data) = system::first(|s| s.data(self)) {
+            c.data.measurements = data.measurements;
+            c.data.covariance = data.covariance;
         }
         c
     }
 
-    /// The study's analysis: the stand-in's emulator as the model, the
-    /// stand-in itself as the `[truth]` process.
+    /// The study's analysis: the study's emulator as the model, a system's
+    /// family (the stand-in itself) as the `[truth]` process.
     pub(super) fn analysis(&self, config: &Config) -> Result<Analysis> {
         let mut families = Registry::new();
-        families.register(Arc::new(EmulatorFamily)).register(Arc::new(HeavyIonFamily));
+        families.register(Arc::new(EmulatorFamily));
+        for family in system::systems().into_iter().filter_map(|s| s.family()) {
+            families.register(family);
+        }
         let mut analysis = Analysis::resolve(config, &families)?;
-        // The emulator knows no units; the stand-in's come first, as in its figures.
-        if self.run.stand_in_study() {
-            analysis.units = HeavyIonFamily::units().or(&analysis.units);
+        // The emulator knows no units; the system's come first, as in its figures.
+        if let Some(units) = system::first(|s| s.units(self)) {
+            analysis.units = units.or(&analysis.units);
         }
         Ok(analysis)
     }
 
-    /// SHA-256 of the measurements the calibrations use (the config's, when there is no mock stage).
+    /// SHA-256 of the measurements the calibrations use (the config's, when
+    /// no system made them: the key of the stage that did covers those).
     pub(super) fn data_hash(&self) -> Result<String> {
-        if self.run.stand_in_study() {
+        if system::first(|s| s.data(self)).is_some() {
             return Ok(String::new());
         }
         let path = self.config.resolve(&self.config.data.measurements);

@@ -7,7 +7,7 @@
 //! (`placeholders`, declared in `[run.simulator] placeholders`), or a command
 //! of its own (`command`). Its `parameters` join θ in its design and are the
 //! priors of its fit. The stand-in's library (`[run] candidates`) gives
-//! variants of the same kind (`stand_in::library_variants`).
+//! variants of the same kind (`system::StudySystem::library_variants`).
 
 use super::study::*;
 use crate::base::config::{Config, ParamSpec};
@@ -142,7 +142,10 @@ impl Study<'_> {
     /// Every candidate of the study: the stand-in's library names, then the
     /// declared `[[candidates]]`.
     pub(super) fn variants(&self) -> Result<Vec<Variant>> {
-        let mut variants = self.library_variants()?;
+        let mut variants = Vec::new();
+        for system in super::system::systems() {
+            variants.extend(system.library_variants(self)?);
+        }
         if self.config.candidates.is_empty() {
             return Ok(variants);
         }

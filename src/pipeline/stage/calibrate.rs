@@ -1,15 +1,16 @@
 //! The calibrate stage: every observable set × kernel as one case
 //! (`pipeline::cases`), each stamped on its own so an interrupted stage
-//! resumes case by case; then the stand-in's study is assessed against its
-//! truth (study.json, study.md) or, without a truth, each case's parameters
-//! and evidence are tabled (calibrate/cases.json, cases.md).
+//! resumes case by case; then a system that made the data assesses the
+//! calibrations against its truth (the stand-in: study.json, study.md) or,
+//! without a truth, each case's parameters and evidence are tabled
+//! (calibrate/cases.json, cases.md).
 
 use super::{Keys, StageDef};
 use crate::base::artifacts::{self, Provenance};
 use crate::engine::execute::Executor;
 use crate::pipeline::study::Study;
+use crate::pipeline::system;
 use anyhow::{anyhow, Result};
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 pub(super) const STAGE: StageDef = StageDef {
@@ -23,11 +24,7 @@ pub(super) const STAGE: StageDef = StageDef {
 };
 
 fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
-    Ok(if study.run.stand_in_study() {
-        vec![study.paths.out.join("study.json")]
-    } else {
-        vec![study.paths.calibrate().join("cases.json")]
-    })
+    Ok(vec![system::first(|s| s.assessment(study)).unwrap_or_else(|| study.paths.calibrate().join("cases.json"))])
 }
 
 fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
@@ -60,26 +57,10 @@ fn calibrate(study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {
         }
         dirs.push(c.dir.clone());
     }
-    if !study.run.stand_in_study() {
-        return study.write_cases(&dirs);
+    match system::systems().into_iter().find(|s| s.assessment(study).is_some()) {
+        Some(system) => system.assess(study, &config, &dirs),
+        None => study.write_cases(&dirs),
     }
-    let truth_curve: BTreeMap<String, f64> = study.truth_named()?.into_iter().collect();
-    let assessed = crate::systems::heavy_ion::study::assess(
-        &config,
-        &dirs,
-        &truth_curve,
-        &study.study_emulator()?,
-        &study.paths.validation(),
-        &study.paths.measurements(),
-    )?;
-    artifacts::write_json_atomic(&study.paths.out.join("study.json"), &assessed)?;
-    let mut md = assessed.markdown();
-    if let Some(rounds) = study.rounds()? {
-        md.push_str(&rounds.study_section());
-    }
-    artifacts::write_text_atomic(&study.paths.out.join("study.md"), &md)?;
-    println!("{md}");
-    Ok(())
 }
 
 impl Study<'_> {

@@ -6,7 +6,7 @@ use crate::base::artifacts;
 use crate::base::progress::observer;
 use crate::engine::calibrate::Overrides;
 use crate::pipeline::study::Study;
-use crate::systems::heavy_ion::figures::HeavyIonFigures;
+use crate::pipeline::system;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -69,7 +69,7 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         std::slice::from_ref(&out),
         &out.join("report.html"),
         &format!("mdpipe run: {} (diagnose)", study.config.name),
-        &[&HeavyIonFigures],
+        &system::systems().into_iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
     )?;
     println!("  {}", out.join("report.html").display());
     Ok(())

@@ -44,9 +44,12 @@ fn always(_: &Study<'_>) -> Result<Presence> {
     Ok(Presence::Runs)
 }
 
-/// Every stage, in the order a study runs them.
+/// Every stage, the generic ones and those systems add, in the order a study runs them.
 pub(in crate::pipeline) fn all() -> Vec<&'static StageDef> {
     let mut stages = FOUND.to_vec();
+    for system in super::system::systems() {
+        stages.extend(system.stages());
+    }
     stages.sort_by_key(|s| s.rank);
     stages
 }
@@ -189,14 +192,15 @@ pub(in crate::pipeline) fn read_stamp(path: &Path) -> Option<Stamp> {
 mod tests {
     use super::*;
 
-    /// Every file in `stage/` is a stage (the build script found them), with
-    /// a name and a rank of its own, reading only stages that run before it.
+    /// Every file in `stage/` is a stage (the build script found them); with
+    /// the systems' stages, each has a name and a rank of its own and reads
+    /// only stages that run before it.
     #[test]
     fn every_stage_file_is_a_stage_that_reads_only_earlier_stages() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/pipeline/stage");
         let files = std::fs::read_dir(&dir).unwrap().filter(|e| e.as_ref().unwrap().file_name() != "mod.rs").count();
+        assert_eq!(FOUND.len(), files, "one STAGE per file in {}", dir.display());
         let stages = all();
-        assert_eq!(stages.len(), files, "one STAGE per file in {}", dir.display());
         for (i, stage) in stages.iter().enumerate() {
             assert!(stages[..i].iter().all(|s| s.name != stage.name && s.rank < stage.rank), "{}", stage.name);
             for u in stage.upstream {

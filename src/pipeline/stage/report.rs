@@ -1,10 +1,11 @@
 //! The report stage: report.html over the calibrations and the emulator,
-//! with the stand-in's study and figures when the study is the stand-in's.
+//! with the section and figures of a system that assessed the study (the
+//! stand-in's study against its truth).
 
 use super::{Keys, StageDef};
 use crate::base::artifacts;
 use crate::pipeline::study::Study;
-use crate::systems::heavy_ion::figures::HeavyIonFigures;
+use crate::pipeline::system;
 use anyhow::Result;
 use std::path::PathBuf;
 
@@ -27,22 +28,18 @@ fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
 }
 
 fn report(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
-    if !study.run.stand_in_study() {
-        let html = crate::engine::report::build(
-            &[study.paths.calibrate(), study.study_emulator()?],
-            &format!("mdpipe run: {}", study.config.name),
-            &[],
-        )?;
-        artifacts::write_text_atomic(&study.paths.out.join("report.html"), &html)?;
-        println!("  {}", study.paths.out.join("report.html").display());
-        return Ok(());
+    let dirs = [study.paths.calibrate(), study.study_emulator()?];
+    // A system that assessed the study adds its section and its figures.
+    let mut figures = Vec::new();
+    let mut sections = String::new();
+    for system in system::systems() {
+        if let Some(section) = system.report_section(study)? {
+            sections.push_str(&section);
+            figures.extend(system.figures());
+        }
     }
-    let assessed: crate::systems::heavy_ion::study::Study =
-        serde_json::from_str(&std::fs::read_to_string(study.paths.out.join("study.json"))?)?;
-    let mut dirs = vec![study.paths.calibrate(), study.study_emulator()?];
-    dirs.dedup();
-    let html = crate::engine::report::build(&dirs, &format!("mdpipe run: {}", study.config.name), &[&HeavyIonFigures])?;
-    let html = html.replacen("</h1>\n", &format!("</h1>\n{}", assessed.html()), 1);
+    let html = crate::engine::report::build(&dirs, &format!("mdpipe run: {}", study.config.name), &figures)?;
+    let html = html.replacen("</h1>\n", &format!("</h1>\n{sections}"), 1);
     artifacts::write_text_atomic(&study.paths.out.join("report.html"), &html)?;
     println!("  {}", study.paths.out.join("report.html").display());
     Ok(())

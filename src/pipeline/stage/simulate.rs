@@ -4,7 +4,8 @@
 use super::{always, read_stamp, Keys, StageDef};
 use crate::engine::execute::{self, SimulatorSpec};
 use crate::pipeline::study::Study;
-use anyhow::{bail, Context, Result};
+use crate::pipeline::system;
+use anyhow::{anyhow, bail, Context, Result};
 use std::path::{Path, PathBuf};
 
 pub(super) const STAGE: StageDef =
@@ -45,13 +46,14 @@ fn simulate(study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {
 }
 
 impl Study<'_> {
-    /// What the simulate stage runs: `[run.simulator]`, or the stand-in as one
-    /// instance of it (the same command line as the design's SLURM array).
+    /// What the simulate stage runs: `[run.simulator]`, or a system's own
+    /// (the stand-in's command, the same as the design's SLURM array runs).
     pub(in crate::pipeline) fn simulator(&self, validation: bool) -> Result<SimulatorSpec> {
         if let Some(s) = &self.run.simulator {
             return Ok(s.clone());
         }
-        self.stand_in_simulator(&self.run.model_delta_f, self.runs_seed(validation))
+        system::first_ok(|s| s.default_simulator(self, validation))?
+            .ok_or_else(|| anyhow!("{}: give a [run.simulator] table", self.config.path.display()))
     }
 
     /// Runs `simulator` at every point of the design in `dir` that has no run

@@ -2,8 +2,8 @@
 //! mock_delta_f`): the stand-in run at the truth with the concealed δf, its
 //! events ingested as the measurements, with their jackknife covariance.
 
-use super::{Keys, Presence, StageDef};
 use crate::base::artifacts::{self, Measurement, Provenance};
+use crate::pipeline::stage::{Keys, Presence, StageDef};
 use crate::pipeline::study::Study;
 use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
 use anyhow::Result;
@@ -11,6 +11,15 @@ use std::path::PathBuf;
 
 pub(super) const STAGE: StageDef =
     StageDef { name: "mock", rank: 50, upstream: &[], present, outputs, settings, body: mock };
+
+/// Where the mock stage writes: mock/runs/, mock/measurements.parquet, mock/covariance.csv.
+pub(super) fn folder(study: &Study<'_>) -> PathBuf {
+    study.paths.out.join("mock")
+}
+
+pub(super) fn measurements(study: &Study<'_>) -> PathBuf {
+    folder(study).join("measurements.parquet")
+}
 
 fn present(study: &Study<'_>) -> Result<Presence> {
     Ok(if study.run.stand_in_study() {
@@ -21,7 +30,7 @@ fn present(study: &Study<'_>) -> Result<Presence> {
 }
 
 fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
-    Ok(vec![study.paths.measurements()])
+    Ok(vec![measurements(study)])
 }
 
 fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
@@ -36,7 +45,7 @@ fn mock(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     let mock_delta_f = study.run.mock_delta_f.clone().unwrap_or_default();
     let mock_events = study.run.mock_events.unwrap_or_default();
     let delta_f: DeltaF = mock_delta_f.parse()?;
-    let runs = study.paths.mock().join("runs");
+    let runs = folder(study).join("runs");
     if runs.exists() {
         std::fs::remove_dir_all(&runs)?;
     }
@@ -69,17 +78,17 @@ fn mock(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         study.opts.seed,
         &format!("run --stage mock: {mock_events} events, delta-f {mock_delta_f}"),
     );
-    artifacts::write_measurements(&study.paths.measurements(), &data, Some(&prov))?;
+    artifacts::write_measurements(&measurements(study), &data, Some(&prov))?;
     // The bins' jackknife covariance over the same events, for `[data] covariance`.
     let mut kept = ingested;
     kept.rows.retain(|r| keep.contains(&r.observable));
     if let Some(entries) = crate::engine::ingest::single_point_covariance(&kept) {
-        crate::base::covariance::write_covariance_csv(&study.paths.mock().join("covariance.csv"), &entries)?;
+        crate::base::covariance::write_covariance_csv(&folder(study).join("covariance.csv"), &entries)?;
     }
     println!(
         "  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}",
         data.len(),
-        study.paths.measurements().display()
+        measurements(study).display()
     );
     Ok(())
 }

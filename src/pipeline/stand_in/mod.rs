@@ -1,0 +1,170 @@
+//! The heavy-ion stand-in as a system of `mdpipe run` (`system::StudySystem`):
+//! its command as the default simulator, its mock data with the truth known
+//! (the mock stage, `mock.rs`), its library of candidate physics as
+//! simulator variants, and the assessment of the calibrations against that
+//! truth (study.json, study.md) with its report section and figures.
+
+mod mock;
+
+use super::stage::StageDef;
+use super::study::*;
+use super::system::{StudyData, StudySystem};
+use super::variants::Variant;
+use crate::base::artifacts;
+use crate::base::config::Config;
+use crate::engine::execute::{OutputKind, SimulatorSpec};
+use crate::engine::model::{ModelFamily, Units};
+use crate::engine::report::SystemFigures;
+use crate::systems::heavy_ion::family::HeavyIonFamily;
+use crate::systems::heavy_ion::figures::HeavyIonFigures;
+use crate::systems::heavy_ion::{self, DeltaF};
+use anyhow::{anyhow, Context, Result};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// The heavy-ion stand-in.
+pub(super) struct StandIn;
+
+impl StudySystem for StandIn {
+    fn stages(&self) -> &'static [&'static StageDef] {
+        &[&mock::STAGE]
+    }
+
+    fn default_simulator(&self, study: &Study<'_>, validation: bool) -> Result<Option<SimulatorSpec>> {
+        study.stand_in_simulator(&study.run.model_delta_f, study.runs_seed(validation)).map(Some)
+    }
+
+    fn library_variants(&self, study: &Study<'_>) -> Result<Vec<Variant>> {
+        study.library_variants()
+    }
+
+    fn data(&self, study: &Study<'_>) -> Option<StudyData> {
+        study.run.stand_in_study().then(|| {
+            // The mock's bins are counted from the same events (correlated by
+            // 0.6-0.95 within a spectrum); with errors alone the likelihood
+            // is overconfident and the MD fits excluded ε_sw by 2-3 sd.
+            let covariance = mock::folder(study).join("covariance.csv");
+            StudyData {
+                measurements: absolute(&mock::measurements(study)),
+                covariance: covariance.exists().then(|| absolute(&covariance)),
+            }
+        })
+    }
+
+    fn family(&self) -> Option<Arc<dyn ModelFamily>> {
+        Some(Arc::new(HeavyIonFamily))
+    }
+
+    fn units(&self, study: &Study<'_>) -> Option<Units> {
+        study.run.stand_in_study().then(HeavyIonFamily::units)
+    }
+
+    fn assessment(&self, study: &Study<'_>) -> Option<PathBuf> {
+        study.run.stand_in_study().then(|| study.paths.out.join("study.json"))
+    }
+
+    fn assess(&self, study: &Study<'_>, config: &Config, dirs: &[PathBuf]) -> Result<()> {
+        let truth_curve: BTreeMap<String, f64> = study.truth_named()?.into_iter().collect();
+        let assessed = heavy_ion::study::assess(
+            config,
+            dirs,
+            &truth_curve,
+            &study.study_emulator()?,
+            &study.paths.validation(),
+            &mock::measurements(study),
+        )?;
+        artifacts::write_json_atomic(&study.paths.out.join("study.json"), &assessed)?;
+        let mut md = assessed.markdown();
+        if let Some(rounds) = study.rounds()? {
+            md.push_str(&rounds.study_section());
+        }
+        artifacts::write_text_atomic(&study.paths.out.join("study.md"), &md)?;
+        println!("{md}");
+        Ok(())
+    }
+
+    fn figures(&self) -> Option<&'static dyn SystemFigures> {
+        Some(&HeavyIonFigures)
+    }
+
+    fn report_section(&self, study: &Study<'_>) -> Result<Option<String>> {
+        let Some(path) = self.assessment(study) else { return Ok(None) };
+        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let assessed: heavy_ion::study::Study = serde_json::from_str(&text)?;
+        Ok(Some(assessed.html()))
+    }
+}
+
+impl Study<'_> {
+    /// Seed of the stand-in's events, distinct for the training and validation designs.
+    fn runs_seed(&self, validation: bool) -> u64 {
+        self.opts.seed.wrapping_mul(31).wrapping_add(if validation { 104_729 } else { 11 })
+    }
+
+    /// The mock truth: `mock_truth`, or every θ's `truth` value from the config.
+    fn truth_named(&self) -> Result<Vec<(String, f64)>> {
+        if let Some(t) = &self.run.mock_truth {
+            return Ok(t.iter().map(|(k, v)| (k.clone(), *v)).collect());
+        }
+        self.config
+            .parameters
+            .iter()
+            .map(|(name, p)| {
+                p.truth.map(|t| (name.clone(), t)).ok_or_else(|| {
+                    anyhow!(
+                        "{}: [parameters.{name}] needs a `truth` value: the mock data are made there",
+                        self.config.path.display()
+                    )
+                })
+            })
+            .collect()
+    }
+
+    /// The stand-in as a simulator like any other: one point's events with
+    /// the particlization `delta_f` (the design may add its candidates'
+    /// parameters, which `simulate heavy-ion --design` reads).
+    fn stand_in_simulator(&self, delta_f: &str, seed: u64) -> Result<SimulatorSpec> {
+        let events = self.run.events.ok_or_else(|| anyhow!("[run] events is needed to run the stand-in"))?;
+        let command = format!(
+            "{{mdpipe}} simulate heavy-ion --design {{design}} --only {{id}} --point-folder --delta-f {delta_f} --events {events} --oversample {} --layout hdf5 --seed {seed} --out {{point}}",
+            self.run.oversample,
+        );
+        Ok(SimulatorSpec {
+            command,
+            placeholders: Default::default(),
+            output: OutputKind::IebeMusic,
+            time_limit: "1h".into(),
+            retries: 1,
+            parallel: None,
+            slurm: Default::default(),
+        })
+    }
+
+    /// The stand-in's library candidates `[run] candidates` names, as
+    /// variants of its simulator: each a command of its own (the Grad δf
+    /// switched on, or the model's δf) with its parameter added to the design.
+    fn library_variants(&self) -> Result<Vec<Variant>> {
+        let model_delta_f: DeltaF = self.run.model_delta_f.parse()?;
+        self.run
+            .candidates
+            .iter()
+            .enumerate()
+            .map(|(k, name)| {
+                let c = heavy_ion::candidate(name)?;
+                let delta_f =
+                    if c.delta_f(model_delta_f) == DeltaF::Grad { "grad" } else { self.run.model_delta_f.as_str() };
+                let seed = self.opts.seed.wrapping_add(1_000 * (k as u64 + 1));
+                let simulator = self.stand_in_simulator(delta_f, seed)?;
+                Ok(Variant {
+                    declaration: c.declaration(self.paths.candidate(name).join("emulator")).to_table()?,
+                    name: c.name.into(),
+                    parameters: c.design_parameter().into_iter().collect(),
+                    parameter_file: Default::default(),
+                    simulator,
+                    design_seed: seed,
+                })
+            })
+            .collect()
+    }
+}
