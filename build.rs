@@ -22,7 +22,10 @@ fn main() {
         code.push_str(&format!("#[path = {:?}]\nmod {name};\n", path.display().to_string()));
     }
     let list: Vec<String> = names.iter().map(|n| format!("&{n}::STAGE")).collect();
-    code.push_str(&format!("/// Every stage file's `STAGE`.\nconst FOUND: &[&StageDef] = &[{}];\n", list.join(", ")));
+    code.push_str(&format!(
+        "/// Every stage file's `STAGE`.\npub(in crate::pipeline) const FOUND: &[&StageDef] = &[{}];\n",
+        list.join(", ")
+    ));
     let out = Path::new(&std::env::var("OUT_DIR").expect("cargo sets OUT_DIR")).join("stages.rs");
     std::fs::write(&out, code).unwrap_or_else(|e| panic!("writing {}: {e}", out.display()));
 }

@@ -2,7 +2,7 @@
 //! builds (its emulator, its candidates' variant emulators) is what
 //! `calibrate`, `diagnose` and `compare` use when the config leaves it out.
 
-use super::refine_rounds::Rounds;
+use super::rounds::Rounds;
 use super::run_config::RunConfig;
 use super::study::{absolute, RunPaths};
 use crate::base::config::Config;

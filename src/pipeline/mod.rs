@@ -33,7 +33,9 @@
 mod cases;
 mod complete;
 mod refine_rounds;
+mod rounds;
 mod run_config;
+mod setup;
 mod stage;
 mod stand_in;
 mod study;
@@ -47,7 +49,7 @@ use crate::engine::emulator::EmulatorSettings;
 use crate::engine::execute::{self};
 use anyhow::{anyhow, bail, Context, Result};
 pub use complete::{fill_in_from_study, load, study_out};
-pub use refine_rounds::Rounds;
+pub use rounds::Rounds;
 pub use run_config::{RefineConfig, RunConfig};
 use stage::StageLoop;
 pub use stage::StageOutcome;
@@ -56,7 +58,7 @@ pub use study::{RunOptions, RunPaths};
 
 /// Every stage a study may have, in order (`--stage` takes these names).
 pub fn stages() -> Vec<&'static str> {
-    stage::all().iter().map(|s| s.name).collect()
+    setup::stages().iter().map(|s| s.name).collect()
 }
 
 /// Runs the study (or one stage of it). Returns what ran and what was skipped.
@@ -87,7 +89,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     let study = Study { config, run, emulator, paths: RunPaths { out: opts.out.clone() }, opts };
     // Every candidate's declaration is checked before anything runs.
     study.variants()?;
-    let planned = stage::plan(&study)?;
+    let planned = setup::plan(&study)?;
     let mut stages = StageLoop::new(&planned);
     for stage in planned {
         stages.run(&study, stage)?;

@@ -2,16 +2,12 @@
 //! table and options) and where it writes (`RunPaths`).
 
 use super::run_config::RunConfig;
-use super::system;
 use crate::base::artifacts;
 use crate::base::config::Config;
-use crate::engine::calibrate::Analysis;
-use crate::engine::emulator::{EmulatorFamily, EmulatorSettings};
+use crate::engine::emulator::EmulatorSettings;
 use crate::engine::execute::Executor;
-use crate::engine::model::Registry;
 use anyhow::{anyhow, Context, Result};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 /// Where and how to run.
 pub struct RunOptions {
@@ -95,55 +91,6 @@ impl Study<'_> {
         let path = self.config.resolve(&self.run.design);
         let bytes = std::fs::read(&path).with_context(|| format!("reading design spec {}", path.display()))?;
         Ok(artifacts::sha256_hex(&bytes))
-    }
-
-    /// The analysis config pointed at the study's emulator (refined, with
-    /// `[run.refine]`) and mock data.
-    pub(super) fn study_config(&self) -> Result<Config> {
-        Ok(self.study_config_with(&self.study_emulator()?))
-    }
-
-    /// The analysis config pointed at `emulator` and this run's mock data.
-    pub(super) fn study_config_with(&self, emulator: &Path) -> Config {
-        let mut c = self.config.clone();
-        // The config's own [model] keys (its units) stay; the study's emulator is the artifact.
-        let emulator_kind = c.model.get("kind").and_then(|k| k.as_str()) == Some("emulator");
-        let mut model = if emulator_kind { c.model.clone() } else { toml::Table::new() };
-        model.extend(EmulatorFamily::model_table(&absolute(emulator)));
-        c.model = model;
-        if let Some(data) = system::first(|s| s.data(self)) {
-            c.data.measurements = data.measurements;
-            c.data.covariance = data.covariance;
-        }
-        c
-    }
-
-    /// The study's analysis: the study's emulator as the model, a system's
-    /// family (the stand-in itself) as the `[truth]` process.
-    pub(super) fn analysis(&self, config: &Config) -> Result<Analysis> {
-        let mut families = Registry::new();
-        families.register(Arc::new(EmulatorFamily));
-        for family in system::systems().into_iter().filter_map(|s| s.family()) {
-            families.register(family);
-        }
-        let mut analysis = Analysis::resolve(config, &families)?;
-        // The emulator knows no units; the system's come first, as in its figures.
-        if let Some(units) = system::first(|s| s.units(self)) {
-            analysis.units = units.or(&analysis.units);
-        }
-        Ok(analysis)
-    }
-
-    /// SHA-256 of the measurements the calibrations use (the config's, when
-    /// no system made them: the key of the stage that did covers those).
-    pub(super) fn data_hash(&self) -> Result<String> {
-        if system::first(|s| s.data(self)).is_some() {
-            return Ok(String::new());
-        }
-        let path = self.config.resolve(&self.config.data.measurements);
-        Ok(artifacts::sha256_hex(
-            &std::fs::read(&path).with_context(|| format!("reading the measurements {}", path.display()))?,
-        ))
     }
 
     pub(super) fn all_observables(&self) -> Vec<String> {

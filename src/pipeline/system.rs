@@ -1,7 +1,7 @@
 //! What a simulator system brings to `mdpipe run` beyond its command line,
 //! as `report::SystemFigures` brings figures to a report. The runner and its
-//! stages know no system; they ask the systems listed in `systems()` (the
-//! heavy-ion stand-in, `stand_in`, is the one built in). Every method has a
+//! stages know no system; they ask the systems listed in `setup::systems()`
+//! (the heavy-ion stand-in, `stand_in`, is the one built in). Every method has a
 //! default that adds nothing, so a system implements only what it brings.
 
 use super::stage::StageDef;
@@ -63,24 +63,4 @@ pub(super) trait StudySystem: Sync {
     fn report_section(&self, _study: &Study<'_>) -> Result<Option<String>> {
         Ok(None)
     }
-}
-
-/// Every system `mdpipe run` knows.
-pub(super) fn systems() -> [&'static dyn StudySystem; 1] {
-    [&super::stand_in::StandIn]
-}
-
-/// The first answer any system gives.
-pub(super) fn first<T>(ask: impl Fn(&dyn StudySystem) -> Option<T>) -> Option<T> {
-    systems().into_iter().find_map(ask)
-}
-
-/// The first answer any system gives, or its first error.
-pub(super) fn first_ok<T>(ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Option<T>> {
-    for s in systems() {
-        if let Some(t) = ask(s)? {
-            return Ok(Some(t));
-        }
-    }
-    Ok(None)
 }

@@ -122,7 +122,7 @@ pub(super) fn check_priors_inside_design(config: &Config, spec: &DesignSpec) -> 
     Ok(())
 }
 
-fn design_parameter(name: &str, prior: &ParamSpec) -> DesignParameter {
+pub(super) fn design_parameter(name: &str, prior: &ParamSpec) -> DesignParameter {
     DesignParameter {
         name: name.into(),
         min: prior.min,
@@ -137,41 +137,6 @@ impl Study<'_> {
     /// Diagnose works on the last (largest) observable set.
     pub(super) fn diagnose_observables(&self) -> Vec<String> {
         self.run.observable_sets.last().cloned().unwrap_or_default()
-    }
-
-    /// Every candidate of the study: the stand-in's library names, then the
-    /// declared `[[candidates]]`.
-    pub(super) fn variants(&self) -> Result<Vec<Variant>> {
-        let mut variants = Vec::new();
-        for system in super::system::systems() {
-            variants.extend(system.library_variants(self)?);
-        }
-        if self.config.candidates.is_empty() {
-            return Ok(variants);
-        }
-        let spec = DesignSpec::load(&self.config.resolve(&self.run.design))?;
-        let base = self.simulator(false)?;
-        for (k, table) in self.config.candidates.iter().enumerate() {
-            let mut c: CandidateDeclaration = self.config.decode(table, "[candidates]")?;
-            c.command = c.command.map(|command| super::run_config::with_config_dir(&command, self.config));
-            let where_ = format!("{}: [[candidates]] {}", self.config.path.display(), c.name);
-            let simulator = check_declaration(&c, &spec, &base).context(where_.clone())?;
-            if variants.iter().any(|v| v.name == c.name) {
-                bail!("{where_}: a second candidate of that name");
-            }
-            let mut declaration = table.clone();
-            let emulator = absolute(&self.paths.candidate(&c.name).join("emulator"));
-            declaration.insert("emulator".into(), emulator.display().to_string().into());
-            variants.push(Variant {
-                name: c.name.clone(),
-                declaration,
-                parameters: c.parameters.iter().map(|(n, p)| design_parameter(n, p)).collect(),
-                parameter_file: c.parameter_file.clone(),
-                simulator,
-                design_seed: self.opts.seed.wrapping_add(1_000 * (self.run.candidates.len() + k + 1) as u64),
-            });
-        }
-        Ok(variants)
     }
 }
 

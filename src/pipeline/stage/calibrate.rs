@@ -8,8 +8,8 @@
 use super::{Keys, StageDef};
 use crate::base::artifacts::{self, Provenance};
 use crate::engine::execute::Executor;
+use crate::pipeline::setup;
 use crate::pipeline::study::Study;
-use crate::pipeline::system;
 use anyhow::{anyhow, Result};
 use std::path::PathBuf;
 
@@ -24,7 +24,7 @@ pub(super) const STAGE: StageDef = StageDef {
 };
 
 fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
-    Ok(vec![system::first(|s| s.assessment(study)).unwrap_or_else(|| study.paths.calibrate().join("cases.json"))])
+    Ok(vec![setup::first(|s| s.assessment(study)).unwrap_or_else(|| study.paths.calibrate().join("cases.json"))])
 }
 
 fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
@@ -57,7 +57,7 @@ fn calibrate(study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {
         }
         dirs.push(c.dir.clone());
     }
-    match system::systems().into_iter().find(|s| s.assessment(study).is_some()) {
+    match setup::systems().into_iter().find(|s| s.assessment(study).is_some()) {
         Some(system) => system.assess(study, &config, &dirs),
         None => study.write_cases(&dirs),
     }

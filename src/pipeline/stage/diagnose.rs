@@ -5,8 +5,8 @@ use super::{Keys, StageDef};
 use crate::base::artifacts;
 use crate::base::progress::observer;
 use crate::engine::calibrate::Overrides;
+use crate::pipeline::setup;
 use crate::pipeline::study::Study;
-use crate::pipeline::system;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -69,7 +69,7 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         std::slice::from_ref(&out),
         &out.join("report.html"),
         &format!("mdpipe run: {} (diagnose)", study.config.name),
-        &system::systems().into_iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
+        &setup::systems().into_iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
     )?;
     println!("  {}", out.join("report.html").display());
     Ok(())

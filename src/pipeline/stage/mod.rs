@@ -10,11 +10,12 @@
 
 use super::study::Study;
 use crate::base::artifacts::{self, Provenance};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-// `mod <file>;` for every stage file, and `FOUND`, their `STAGE`s.
+// `mod <file>;` for every stage file, and `FOUND`, their `STAGE`s
+// (`setup::stages` adds the systems' stages and orders them).
 include!(concat!(env!("OUT_DIR"), "/stages.rs"));
 
 /// Whether a study has a stage, and if not, why (for `--stage`).
@@ -42,31 +43,6 @@ pub(in crate::pipeline) struct StageDef {
 /// For a stage every study has.
 fn always(_: &Study<'_>) -> Result<Presence> {
     Ok(Presence::Runs)
-}
-
-/// Every stage, the generic ones and those systems add, in the order a study runs them.
-pub(in crate::pipeline) fn all() -> Vec<&'static StageDef> {
-    let mut stages = FOUND.to_vec();
-    for system in super::system::systems() {
-        stages.extend(system.stages());
-    }
-    stages.sort_by_key(|s| s.rank);
-    stages
-}
-
-/// The stages this study has, in order; `--stage` naming one it has not is refused.
-pub(in crate::pipeline) fn plan(study: &Study<'_>) -> Result<Vec<&'static StageDef>> {
-    let mut planned = Vec::new();
-    for stage in all() {
-        match (stage.present)(study)? {
-            Presence::Runs => planned.push(stage),
-            Presence::Absent(why) if study.opts.stage.as_deref() == Some(stage.name) => {
-                bail!("--stage {}: {why}", stage.name)
-            }
-            Presence::Absent(_) => {}
-        }
-    }
-    Ok(planned)
 }
 
 /// What a stage body may know of the loop: the keys of the stages before it
@@ -186,42 +162,4 @@ impl StageLoop {
 
 pub(in crate::pipeline) fn read_stamp(path: &Path) -> Option<Stamp> {
     serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every file in `stage/` is a stage (the build script found them); with
-    /// the systems' stages, each has a name and a rank of its own and reads
-    /// only stages that run before it.
-    #[test]
-    fn every_stage_file_is_a_stage_that_reads_only_earlier_stages() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/pipeline/stage");
-        let files = std::fs::read_dir(&dir).unwrap().filter(|e| e.as_ref().unwrap().file_name() != "mod.rs").count();
-        assert_eq!(FOUND.len(), files, "one STAGE per file in {}", dir.display());
-        let stages = all();
-        for (i, stage) in stages.iter().enumerate() {
-            assert!(stages[..i].iter().all(|s| s.name != stage.name && s.rank < stage.rank), "{}", stage.name);
-            for u in stage.upstream {
-                assert!(stages[..i].iter().any(|s| s.name == *u), "{} reads {u}, which is not before it", stage.name);
-            }
-        }
-        let names: Vec<&str> = stages.iter().map(|s| s.name).collect();
-        assert_eq!(
-            names,
-            [
-                "design",
-                "simulate",
-                "ingest",
-                "emulator",
-                "mock",
-                "refine",
-                "calibrate",
-                "report",
-                "candidates",
-                "diagnose"
-            ]
-        );
-    }
 }

@@ -4,8 +4,8 @@
 
 use super::{Keys, StageDef};
 use crate::base::artifacts;
+use crate::pipeline::setup;
 use crate::pipeline::study::Study;
-use crate::pipeline::system;
 use anyhow::Result;
 use std::path::PathBuf;
 
@@ -32,7 +32,7 @@ fn report(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     // A system that assessed the study adds its section and its figures.
     let mut figures = Vec::new();
     let mut sections = String::new();
-    for system in system::systems() {
+    for system in setup::systems() {
         if let Some(section) = system.report_section(study)? {
             sections.push_str(&section);
             figures.extend(system.figures());

@@ -4,8 +4,7 @@
 use super::{always, read_stamp, Keys, StageDef};
 use crate::engine::execute::{self, SimulatorSpec};
 use crate::pipeline::study::Study;
-use crate::pipeline::system;
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
 pub(super) const STAGE: StageDef =
@@ -46,16 +45,6 @@ fn simulate(study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {
 }
 
 impl Study<'_> {
-    /// What the simulate stage runs: `[run.simulator]`, or a system's own
-    /// (the stand-in's command, the same as the design's SLURM array runs).
-    pub(in crate::pipeline) fn simulator(&self, validation: bool) -> Result<SimulatorSpec> {
-        if let Some(s) = &self.run.simulator {
-            return Ok(s.clone());
-        }
-        system::first_ok(|s| s.default_simulator(self, validation))?
-            .ok_or_else(|| anyhow!("{}: give a [run.simulator] table", self.config.path.display()))
-    }
-
     /// Runs `simulator` at every point of the design in `dir` that has no run
     /// yet (an earlier attempt's or the design's Slurm array's are kept),
     /// through the run's executor; failed points are listed and left out.

@@ -6,7 +6,7 @@ use crate::base::artifacts::{self, Measurement, Provenance};
 use crate::pipeline::stage::{Keys, Presence, StageDef};
 use crate::pipeline::study::Study;
 use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
-use anyhow::Result;
+use anyhow::{anyhow, Result};
 use std::path::PathBuf;
 
 pub(super) const STAGE: StageDef =
@@ -95,4 +95,25 @@ fn mock(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
 
 fn mock_seed(seed: u64) -> u64 {
     seed.wrapping_mul(31).wrapping_add(977)
+}
+
+impl Study<'_> {
+    /// The mock truth: `mock_truth`, or every θ's `truth` value from the config.
+    pub(super) fn truth_named(&self) -> Result<Vec<(String, f64)>> {
+        if let Some(t) = &self.run.mock_truth {
+            return Ok(t.iter().map(|(k, v)| (k.clone(), *v)).collect());
+        }
+        self.config
+            .parameters
+            .iter()
+            .map(|(name, p)| {
+                p.truth.map(|t| (name.clone(), t)).ok_or_else(|| {
+                    anyhow!(
+                        "{}: [parameters.{name}] needs a `truth` value: the mock data are made there",
+                        self.config.path.display()
+                    )
+                })
+            })
+            .collect()
+    }
 }

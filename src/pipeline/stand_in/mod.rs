@@ -102,25 +102,6 @@ impl Study<'_> {
         self.opts.seed.wrapping_mul(31).wrapping_add(if validation { 104_729 } else { 11 })
     }
 
-    /// The mock truth: `mock_truth`, or every θ's `truth` value from the config.
-    fn truth_named(&self) -> Result<Vec<(String, f64)>> {
-        if let Some(t) = &self.run.mock_truth {
-            return Ok(t.iter().map(|(k, v)| (k.clone(), *v)).collect());
-        }
-        self.config
-            .parameters
-            .iter()
-            .map(|(name, p)| {
-                p.truth.map(|t| (name.clone(), t)).ok_or_else(|| {
-                    anyhow!(
-                        "{}: [parameters.{name}] needs a `truth` value: the mock data are made there",
-                        self.config.path.display()
-                    )
-                })
-            })
-            .collect()
-    }
-
     /// The stand-in as a simulator like any other: one point's events with
     /// the particlization `delta_f` (the design may add its candidates'
     /// parameters, which `simulate heavy-ion --design` reads).

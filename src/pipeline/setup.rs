@@ -1,0 +1,201 @@
+//! The study as its systems complete it (`system::StudySystem`): the stages
+//! it has, what its simulate stage runs, its candidates, the data and the
+//! analysis its calibrations use. The one list of the systems `mdpipe run`
+//! knows is here.
+
+use super::run_config::with_config_dir;
+use super::stage::{self, Presence, StageDef};
+use super::study::{absolute, Study};
+use super::system::StudySystem;
+use super::variants::{check_declaration, design_parameter, Variant};
+use crate::base::artifacts;
+use crate::base::config::Config;
+use crate::engine::calibrate::Analysis;
+use crate::engine::design::DesignSpec;
+use crate::engine::emulator::family::CandidateDeclaration;
+use crate::engine::emulator::EmulatorFamily;
+use crate::engine::execute::SimulatorSpec;
+use crate::engine::model::Registry;
+use anyhow::{anyhow, bail, Context, Result};
+use std::path::Path;
+use std::sync::Arc;
+
+/// Every system `mdpipe run` knows.
+pub(super) fn systems() -> [&'static dyn StudySystem; 1] {
+    [&super::stand_in::StandIn]
+}
+
+/// The first answer any system gives.
+pub(super) fn first<T>(ask: impl Fn(&dyn StudySystem) -> Option<T>) -> Option<T> {
+    systems().into_iter().find_map(ask)
+}
+
+/// The first answer any system gives, or its first error.
+pub(super) fn first_ok<T>(ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Option<T>> {
+    for s in systems() {
+        if let Some(t) = ask(s)? {
+            return Ok(Some(t));
+        }
+    }
+    Ok(None)
+}
+
+/// Every stage, the generic ones and those systems add, in the order a study runs them.
+pub(super) fn stages() -> Vec<&'static StageDef> {
+    let mut stages = stage::FOUND.to_vec();
+    for system in systems() {
+        stages.extend(system.stages());
+    }
+    stages.sort_by_key(|s| s.rank);
+    stages
+}
+
+/// The stages this study has, in order; `--stage` naming one it has not is refused.
+pub(super) fn plan(study: &Study<'_>) -> Result<Vec<&'static StageDef>> {
+    let mut planned = Vec::new();
+    for stage in stages() {
+        match (stage.present)(study)? {
+            Presence::Runs => planned.push(stage),
+            Presence::Absent(why) if study.opts.stage.as_deref() == Some(stage.name) => {
+                bail!("--stage {}: {why}", stage.name)
+            }
+            Presence::Absent(_) => {}
+        }
+    }
+    Ok(planned)
+}
+
+impl Study<'_> {
+    /// What the simulate stage runs: `[run.simulator]`, or a system's own
+    /// (the stand-in's command, the same as the design's SLURM array runs).
+    pub(super) fn simulator(&self, validation: bool) -> Result<SimulatorSpec> {
+        if let Some(s) = &self.run.simulator {
+            return Ok(s.clone());
+        }
+        first_ok(|s| s.default_simulator(self, validation))?
+            .ok_or_else(|| anyhow!("{}: give a [run.simulator] table", self.config.path.display()))
+    }
+
+    /// The analysis config pointed at the study's emulator (refined, with
+    /// `[run.refine]`) and mock data.
+    pub(super) fn study_config(&self) -> Result<Config> {
+        Ok(self.study_config_with(&self.study_emulator()?))
+    }
+
+    /// The analysis config pointed at `emulator` and this run's mock data.
+    pub(super) fn study_config_with(&self, emulator: &Path) -> Config {
+        let mut c = self.config.clone();
+        // The config's own [model] keys (its units) stay; the study's emulator is the artifact.
+        let emulator_kind = c.model.get("kind").and_then(|k| k.as_str()) == Some("emulator");
+        let mut model = if emulator_kind { c.model.clone() } else { toml::Table::new() };
+        model.extend(EmulatorFamily::model_table(&absolute(emulator)));
+        c.model = model;
+        if let Some(data) = first(|s| s.data(self)) {
+            c.data.measurements = data.measurements;
+            c.data.covariance = data.covariance;
+        }
+        c
+    }
+
+    /// The study's analysis: the study's emulator as the model, a system's
+    /// family (the stand-in itself) as the `[truth]` process.
+    pub(super) fn analysis(&self, config: &Config) -> Result<Analysis> {
+        let mut families = Registry::new();
+        families.register(Arc::new(EmulatorFamily));
+        for family in systems().into_iter().filter_map(|s| s.family()) {
+            families.register(family);
+        }
+        let mut analysis = Analysis::resolve(config, &families)?;
+        // The emulator knows no units; the system's come first, as in its figures.
+        if let Some(units) = first(|s| s.units(self)) {
+            analysis.units = units.or(&analysis.units);
+        }
+        Ok(analysis)
+    }
+
+    /// SHA-256 of the measurements the calibrations use (the config's, when
+    /// no system made them: the key of the stage that did covers those).
+    pub(super) fn data_hash(&self) -> Result<String> {
+        if first(|s| s.data(self)).is_some() {
+            return Ok(String::new());
+        }
+        let path = self.config.resolve(&self.config.data.measurements);
+        Ok(artifacts::sha256_hex(
+            &std::fs::read(&path).with_context(|| format!("reading the measurements {}", path.display()))?,
+        ))
+    }
+
+    /// Every candidate of the study: the stand-in's library names, then the
+    /// declared `[[candidates]]`.
+    pub(super) fn variants(&self) -> Result<Vec<Variant>> {
+        let mut variants = Vec::new();
+        for system in systems() {
+            variants.extend(system.library_variants(self)?);
+        }
+        if self.config.candidates.is_empty() {
+            return Ok(variants);
+        }
+        let spec = DesignSpec::load(&self.config.resolve(&self.run.design))?;
+        let base = self.simulator(false)?;
+        for (k, table) in self.config.candidates.iter().enumerate() {
+            let mut c: CandidateDeclaration = self.config.decode(table, "[candidates]")?;
+            c.command = c.command.map(|command| with_config_dir(&command, self.config));
+            let where_ = format!("{}: [[candidates]] {}", self.config.path.display(), c.name);
+            let simulator = check_declaration(&c, &spec, &base).context(where_.clone())?;
+            if variants.iter().any(|v| v.name == c.name) {
+                bail!("{where_}: a second candidate of that name");
+            }
+            let mut declaration = table.clone();
+            let emulator = absolute(&self.paths.candidate(&c.name).join("emulator"));
+            declaration.insert("emulator".into(), emulator.display().to_string().into());
+            variants.push(Variant {
+                name: c.name.clone(),
+                declaration,
+                parameters: c.parameters.iter().map(|(n, p)| design_parameter(n, p)).collect(),
+                parameter_file: c.parameter_file.clone(),
+                simulator,
+                design_seed: self.opts.seed.wrapping_add(1_000 * (self.run.candidates.len() + k + 1) as u64),
+            });
+        }
+        Ok(variants)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    /// Every file in `stage/` is a stage (the build script found them); with
+    /// the systems' stages, each has a name and a rank of its own and reads
+    /// only stages that run before it.
+    #[test]
+    fn every_stage_file_is_a_stage_that_reads_only_earlier_stages() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/pipeline/stage");
+        let files = std::fs::read_dir(&dir).unwrap().filter(|e| e.as_ref().unwrap().file_name() != "mod.rs").count();
+        assert_eq!(stage::FOUND.len(), files, "one STAGE per file in {}", dir.display());
+        let stages = stages();
+        for (i, stage) in stages.iter().enumerate() {
+            assert!(stages[..i].iter().all(|s| s.name != stage.name && s.rank < stage.rank), "{}", stage.name);
+            for u in stage.upstream {
+                assert!(stages[..i].iter().any(|s| s.name == *u), "{} reads {u}, which is not before it", stage.name);
+            }
+        }
+        let names: Vec<&str> = stages.iter().map(|s| s.name).collect();
+        assert_eq!(
+            names,
+            [
+                "design",
+                "simulate",
+                "ingest",
+                "emulator",
+                "mock",
+                "refine",
+                "calibrate",
+                "report",
+                "candidates",
+                "diagnose"
+            ]
+        );
+    }
+}
