@@ -191,7 +191,8 @@ fn replicate_grid_tabulates_coverage_over_mock_data_sets() {
     let mut cfg = config();
     cfg.sampler.smc.particles = 500;
     let out = tmp("replicates");
-    let n = 3;
+    // Two data sets are enough to check the tabulation against the per-replicate tables.
+    let n = 2;
     let rows = compare::run_replicates(&cfg, &Overrides::default(), n, 11, &out).unwrap();
     assert_eq!(rows.len(), 3 * 3 * 2, "3 observable sets x 3 kernels x (g, v0)");
     for r in &rows {

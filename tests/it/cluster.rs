@@ -423,7 +423,7 @@ fn cancelled_pending_tasks_use_no_attempt() {
     let dir = tmpdir("slurm-cancel");
     let config = write_study(
         &dir,
-        "FAIL= HANG= FLAKY= NAP=3",
+        "FAIL= HANG= FLAKY= NAP=1",
         "time_limit = \"2m\"\nretries = 0\nparallel = 1\nslurm = { poll_seconds = 1.0 }",
     );
     let out = dir.join("out");
