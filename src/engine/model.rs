@@ -157,6 +157,46 @@ pub struct ScreeningBlock<'a> {
     pub y: &'a [f64],
     /// 1σ measurement errors.
     pub error: &'a [f64],
+    /// Lower Cholesky factor (column-major n × n) of the measurements'
+    /// covariance, errors² plus `[data] covariance` within the observable,
+    /// when the data have one.
+    pub covariance_factor: Option<Vec<f64>>,
+}
+
+/// Standardizes differences from the data of several blocks, all in a row,
+/// each part by its own block (`ScreeningBlock::standardize`).
+pub fn standardize_blocks(blocks: &[ScreeningBlock], d: &mut [f64], scale: f64) {
+    let mut offset = 0;
+    for b in blocks {
+        b.standardize(&mut d[offset..offset + b.x.len()], scale);
+        offset += b.x.len();
+    }
+}
+
+impl ScreeningBlock<'_> {
+    /// Standardizes differences from the data (`d`, divided by `scale`) in
+    /// place, so that their squares sum to the χ² the measurements'
+    /// covariance gives: `d / (scale σ)` point by point without a covariance,
+    /// `L⁻¹ d / scale` with one (forward substitution).
+    pub fn standardize(&self, d: &mut [f64], scale: f64) {
+        let Some(l) = &self.covariance_factor else {
+            for (v, e) in d.iter_mut().zip(self.error) {
+                *v /= scale * e;
+            }
+            return;
+        };
+        let n = d.len();
+        for k in 0..n {
+            let z = d[k] / l[k * n + k];
+            d[k] = z;
+            for i in k + 1..n {
+                d[i] -= l[k * n + i] * z;
+            }
+        }
+        for v in d.iter_mut() {
+            *v /= scale;
+        }
+    }
 }
 
 /// One term (or pair of terms) the screening found worth a full calibration.

@@ -4,7 +4,10 @@
 //! calibration and evidence, each with prior odds ln(1/N) for N searched.
 
 use super::*;
+use crate::engine::calibrate::ObservableBlock;
+use crate::engine::gp::CholeskyWorkspace;
 use crate::engine::model::{Discoverer, ScreeningBlock, ScreeningData};
+use anyhow::anyhow;
 
 /// Whether to search: always, never, or when no candidate explains a mismatch.
 pub(super) fn wanted(discover: Discover, verdict: &Verdict) -> bool {
@@ -23,13 +26,17 @@ pub(super) fn screen(
     base: &Calibration,
 ) -> Result<(DiscoveryReport, Vec<(CandidateModel, f64)>)> {
     let names = problem.simulator.parameter_names();
+    let blocks = problem.likelihood.blocks.iter().map(|b| {
+        Ok(ScreeningBlock {
+            model_index: b.model_index,
+            x: &b.x,
+            y: &b.y,
+            error: &b.error,
+            covariance_factor: covariance_factor(b)?,
+        })
+    });
     let data = ScreeningData {
-        blocks: problem
-            .likelihood
-            .blocks
-            .iter()
-            .map(|b| ScreeningBlock { model_index: b.model_index, x: &b.x, y: &b.y, error: &b.error })
-            .collect(),
+        blocks: blocks.collect::<Result<_>>()?,
         theta: names.iter().map(|n| base.summary.parameters[n].median).collect(),
         bounds: (0..names.len()).map(|k| (problem.prior.lower[k], problem.prior.upper[k])).collect(),
     };
@@ -53,6 +60,19 @@ pub(super) fn screen(
             .collect(),
     };
     Ok((report, screening.proposals.into_iter().map(|p| (p.candidate, p.prior_log_odds)).collect()))
+}
+
+/// The lower Cholesky factor of a block's measurement covariance (errors²
+/// and `[data] covariance`), when it has more than the errors. Covariance
+/// between observables is left to the confirming calibrations.
+fn covariance_factor(block: &ObservableBlock) -> Result<Option<Vec<f64>>> {
+    if block.diagonal_data() {
+        return Ok(None);
+    }
+    let mut chol = CholeskyWorkspace::new(block.len());
+    block.add_data_covariance(1.0, &mut chol.factor);
+    chol.factorize().map_err(|e| anyhow!("discover: the covariance of '{}': {e}", block.name))?;
+    Ok(Some(chol.factor))
 }
 
 /// What the verdict says of the search.

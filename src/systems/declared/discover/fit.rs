@@ -3,7 +3,7 @@
 //! It finds each term's best χ² in milliseconds; the evidence that judges a
 //! term comes later, from the full calibration.
 
-use crate::engine::model::{ScreeningBlock, Simulator};
+use crate::engine::model::{standardize_blocks, ScreeningBlock, Simulator};
 
 /// A least-squares problem: the data, a model over φ, and φ's box.
 pub struct LeastSquares<'a> {
@@ -38,10 +38,12 @@ impl LeastSquares<'_> {
         out.iter().all(|v| v.is_finite()).then_some(out)
     }
 
-    /// Standardized residuals (y − η)/σ.
+    /// Standardized residuals: (y − η)/σ, or L⁻¹(y − η) where the data have a covariance.
     fn residuals(&self, prediction: &[f64]) -> Vec<f64> {
-        let data = self.blocks.iter().flat_map(|b| b.y.iter().zip(b.error));
-        data.zip(prediction).map(|((y, e), p)| (y - p) / e).collect()
+        let data = self.blocks.iter().flat_map(|b| b.y.iter());
+        let mut r: Vec<f64> = data.zip(prediction).map(|(y, p)| y - p).collect();
+        standardize_blocks(self.blocks, &mut r, 1.0);
+        r
     }
 
     fn chi2(&self, phi: &[f64]) -> Option<(f64, Vec<f64>)> {
@@ -103,7 +105,6 @@ impl LeastSquares<'_> {
 
     /// ∂(standardized residual)/∂φ_k, column by column (k-major).
     fn jacobian(&self, phi: &[f64], at: &[f64]) -> Option<Vec<Vec<f64>>> {
-        let sigma: Vec<f64> = self.blocks.iter().flat_map(|b| b.error.iter().copied()).collect();
         let mut columns = Vec::with_capacity(phi.len());
         for k in 0..phi.len() {
             let (lo, hi) = self.bounds[k];
@@ -115,7 +116,9 @@ impl LeastSquares<'_> {
             let mut moved = phi.to_vec();
             moved[k] += h;
             let p = self.predict(&moved)?;
-            columns.push(p.iter().zip(at).zip(&sigma).map(|((p, a), s)| -(p - a) / (h * s)).collect());
+            let mut column: Vec<f64> = p.iter().zip(at).map(|(p, a)| -(p - a)).collect();
+            standardize_blocks(self.blocks, &mut column, h);
+            columns.push(column);
         }
         Some(columns)
     }
@@ -191,7 +194,7 @@ mod tests {
         let x: Vec<f64> = (0..12).map(|i| i as f64 / 11.0).collect();
         let y: Vec<f64> = x.iter().map(|x| 1.0 - 2.0 * x + 0.5 * x * x).collect();
         let error = vec![0.1; x.len()];
-        let blocks = [ScreeningBlock { model_index: 0, x: &x, y: &y, error: &error }];
+        let blocks = [ScreeningBlock { model_index: 0, x: &x, y: &y, error: &error, covariance_factor: None }];
         let ls = LeastSquares { blocks: &blocks, model: &Quadratic, bounds: vec![(-5.0, 5.0); 3] };
         let f = ls.fit(&[0.0, 0.0, 0.0]).unwrap();
         for (got, want) in f.phi.iter().zip([1.0, -2.0, 0.5]) {
@@ -203,7 +206,7 @@ mod tests {
         // by the normal equations of the design [1, x, x²].
         let mut moved = y.clone();
         moved[5] += 0.3;
-        let blocks = [ScreeningBlock { model_index: 0, x: &x, y: &moved, error: &error }];
+        let blocks = [ScreeningBlock { model_index: 0, x: &x, y: &moved, error: &error, covariance_factor: None }];
         let ls = LeastSquares { blocks: &blocks, model: &Quadratic, bounds: vec![(-5.0, 5.0); 3] };
         let f = ls.fit(&[0.0, 0.0, 0.0]).unwrap();
         let design: Vec<Vec<f64>> = (0..3).map(|k| x.iter().map(|x| x.powi(k)).collect()).collect();
@@ -212,5 +215,55 @@ mod tests {
         let solved = solve(xtx, row.clone()).unwrap();
         let h: f64 = row.iter().zip(&solved).map(|(a, b)| a * b).sum();
         assert!((f.chi2 - 9.0 * (1.0 - h)).abs() < 1e-6, "{} vs {}", f.chi2, 9.0 * (1.0 - h));
+    }
+
+    /// With a covariance the fit is generalized least squares: for a model
+    /// linear in φ the closed form β = (XᵀC⁻¹X)⁻¹ XᵀC⁻¹y, and its χ² the
+    /// (y − Xβ)ᵀ C⁻¹ (y − Xβ) at that β, computed here with the Cholesky of
+    /// `engine::gp` rather than the fit's own steps.
+    #[test]
+    fn with_a_covariance_the_fit_is_generalized_least_squares() {
+        use crate::engine::gp::CholeskyWorkspace;
+        let n = 12;
+        let x: Vec<f64> = (0..n).map(|i| i as f64 / 11.0).collect();
+        let y: Vec<f64> = x.iter().map(|x| 1.0 - 2.0 * x + 0.5 * x * x + 0.05 * (7.0 * x).sin()).collect();
+        let error = vec![0.1; n];
+        // Errors 0.1 correlated by 0.6^|i − j|.
+        let mut chol = CholeskyWorkspace::new(n);
+        for j in 0..n {
+            for i in j..n {
+                chol.factor[j * n + i] = 0.01 * 0.6f64.powi((i - j) as i32);
+            }
+        }
+        chol.factorize().unwrap();
+        let blocks = [ScreeningBlock {
+            model_index: 0,
+            x: &x,
+            y: &y,
+            error: &error,
+            covariance_factor: Some(chol.factor.clone()),
+        }];
+        let ls = LeastSquares { blocks: &blocks, model: &Quadratic, bounds: vec![(-5.0, 5.0); 3] };
+        let f = ls.fit(&[0.0, 0.0, 0.0]).unwrap();
+        // C⁻¹X and C⁻¹y by the Cholesky solve, then the 3 × 3 normal equations.
+        let design: Vec<Vec<f64>> = (0..3).map(|k| x.iter().map(|x| x.powi(k)).collect()).collect();
+        let c_inv = |v: &[f64]| {
+            let mut v = v.to_vec();
+            chol.solve_in_place(&mut v);
+            v
+        };
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(a, b)| a * b).sum::<f64>();
+        let xtcx: Vec<f64> = (0..9).map(|k| dot(&design[k / 3], &c_inv(&design[k % 3]))).collect();
+        let xtcy: Vec<f64> = (0..3).map(|k| dot(&design[k], &c_inv(&y))).collect();
+        let beta = solve(xtcx, xtcy).unwrap();
+        for (got, want) in f.phi.iter().zip(&beta) {
+            assert!((got - want).abs() < 1e-6, "{:?} vs {beta:?}", f.phi);
+        }
+        let r: Vec<f64> = (0..n).map(|i| y[i] - (0..3).map(|k| beta[k] * design[k][i]).sum::<f64>()).collect();
+        let chi2 = dot(&r, &c_inv(&r));
+        assert!((f.chi2 - chi2).abs() < 1e-8 * chi2.max(1.0), "{} vs {chi2}", f.chi2);
+        // The errors alone would give another χ²: the covariance is what was used.
+        let diagonal: f64 = r.iter().map(|r| (r / 0.1).powi(2)).sum();
+        assert!((diagonal - chi2).abs() > 0.1 * chi2, "{diagonal} vs {chi2}");
     }
 }

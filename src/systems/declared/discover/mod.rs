@@ -18,7 +18,9 @@ use super::declaration::{CandidateTable, Declared, Written};
 use super::formula;
 use super::DeclaredFamily;
 use crate::base::config::ParamSpec;
-use crate::engine::model::{CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator};
+use crate::engine::model::{
+    standardize_blocks, CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator,
+};
 use anyhow::Result;
 use fit::{Fitted, LeastSquares};
 use grammar::{Instance, ParameterForm, TermForm};
@@ -127,23 +129,18 @@ fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, singles
 }
 
 /// One explanation per way of fitting the data: of two fits whose
-/// predictions differ by Σ((a − b)/σ)² < ln N (the price BIC asks of one
+/// predictions differ by a χ² < ln N (their difference standardized by the
+/// data's errors or covariance; ln N is the price BIC asks of one
 /// parameter: the data could not pay for telling them apart), the simpler
 /// stands for both (fewer parameters, then fewer terms, then earlier in the
 /// grammar: `v*abs(v)` before `h*v*v` when h barely changes).
 fn distinct(ranked: Vec<Screened>, data: &ScreeningData) -> Vec<Screened> {
-    let sigma: Vec<f64> = data.blocks.iter().flat_map(|b| b.error.iter().copied()).collect();
-    let threshold = (sigma.len() as f64).ln();
+    let points: usize = data.blocks.iter().map(|b| b.x.len()).sum();
+    let threshold = (points as f64).ln();
     let apart = |a: &Screened, b: &Screened| {
-        let d2: f64 = a
-            .fitted
-            .prediction
-            .iter()
-            .zip(&b.fitted.prediction)
-            .zip(&sigma)
-            .map(|((a, b), e)| ((a - b) / e).powi(2))
-            .sum();
-        d2 >= threshold
+        let mut d: Vec<f64> = a.fitted.prediction.iter().zip(&b.fitted.prediction).map(|(a, b)| a - b).collect();
+        standardize_blocks(&data.blocks, &mut d, 1.0);
+        d.iter().map(|v| v.powi(2)).sum::<f64>() >= threshold
     };
     let mut kept: Vec<Screened> = Vec::new();
     for s in ranked {
