@@ -23,7 +23,9 @@
 //! tables that say how the simulator turns each piece of physics on
 //! (`variants`), or the stand-in's library names in `[run] candidates`.
 //! Each stage is one file in `stage/` (its name, rank, upstream stages,
-//! outputs, settings and body); `stage::StageLoop` owns the keys and stamps:
+//! outputs, settings and body), and a system adds its own through
+//! `system::StudySystem` (the stand-in's mock stage); `stage::StageLoop`
+//! owns the keys and stamps:
 //! a stage whose stamp (`OUT/stages/<stage>.json`) holds the key of its
 //! settings and upstream keys, and whose outputs exist, is skipped. Within
 //! the calibrate stage each case is stamped too
