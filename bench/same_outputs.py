@@ -1,4 +1,10 @@
-"""Compares two mdpipe run folders: JSON without timings and provenance, Parquet data columns (NaN = NaN), markdown and report bytes up to the folder path."""
+"""Compares two mdpipe output folders made from the same seed (say, by the
+binaries before and after a refactor): JSON files without timings and
+provenance, Parquet tables column by column (NaN equal to NaN; metadata,
+which holds provenance, left out), markdown and HTML up to the folders' paths.
+
+    python3 bench/same_outputs.py OLD NEW     # needs pyarrow (pip install pyarrow)
+"""
 import json, math, os, sys
 import pyarrow.parquet as pq
 old, new = sys.argv[1], sys.argv[2]
