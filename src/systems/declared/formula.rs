@@ -43,6 +43,7 @@ pub struct Formula {
     tape: Tape,
     /// The scope's indices of the variables the formula uses.
     slots: Vec<usize>,
+    expr: notation::Expr,
 }
 
 impl Formula {
@@ -66,11 +67,17 @@ impl Formula {
             Err(e) => bail!("{place} = {text:?}: not a formula ({e})"),
         };
         let slots = names.iter().filter(|n| Tape::constant(n).is_none()).filter_map(|n| scope.index(n)).collect();
-        Ok(Formula { text: text.to_string(), tape, slots })
+        Ok(Formula { text: text.to_string(), tape, slots, expr })
     }
 
     pub fn text(&self) -> &str {
         &self.text
+    }
+
+    /// The formula's degree as a polynomial in the names `of` picks out;
+    /// None when it is not one (`notation::Expr::degree`).
+    pub fn degree(&self, of: &dyn Fn(&str) -> bool) -> Option<u32> {
+        self.expr.degree(of)
     }
 
     /// Whether the formula uses the scope's variable `index`.

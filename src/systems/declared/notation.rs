@@ -53,6 +53,35 @@ impl Expr {
             Expr::Call(_, args) => args.iter().for_each(|a| a.names(out)),
         }
     }
+
+    /// The formula's degree as a polynomial in the names `of` picks out (0:
+    /// free of them); None when it is not a polynomial in them (a quotient
+    /// or function of one, or a power other than a whole number).
+    /// Coefficients may be any formula of the other names: `-w^2*x` has
+    /// degree 1 in x.
+    pub fn degree(&self, of: &dyn Fn(&str) -> bool) -> Option<u32> {
+        match self {
+            Expr::Number(_) => Some(0),
+            Expr::Name(n) => Some(u32::from(of(n))),
+            Expr::Neg(a) => a.degree(of),
+            Expr::Binary(op, a, b) => {
+                let (da, db) = (a.degree(of)?, b.degree(of)?);
+                match (op, b.as_ref()) {
+                    ('+' | '-', _) => Some(da.max(db)),
+                    ('*', _) => Some(da + db),
+                    ('/', _) if db == 0 => Some(da),
+                    ('^', _) if da == 0 && db == 0 => Some(0),
+                    // x^2: a whole power of a polynomial.
+                    ('^', Expr::Number(k)) if k.fract() == 0.0 && (0.0..=64.0).contains(k) => Some(da * *k as u32),
+                    _ => None,
+                }
+            }
+            Expr::Call(_, args) => {
+                let free = args.iter().all(|a| a.degree(of) == Some(0));
+                free.then_some(0)
+            }
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -310,6 +339,26 @@ mod tests {
             ("(a+b)^2", "((a+b)^2.0)"),
         ] {
             assert_eq!(parse(text).unwrap().explicit(), want, "{text}");
+        }
+    }
+
+    #[test]
+    fn degree_counts_only_the_chosen_names() {
+        let states = |n: &str| n == "x" || n == "v";
+        for (text, want) in [
+            ("-w^2*x", Some(1)),
+            ("v", Some(1)),
+            ("g - k*v/m", Some(1)),
+            ("u*c", Some(0)),
+            ("exp(-l)*x + sin(w)", Some(1)),
+            ("x*v", Some(2)),
+            ("-b*x^3", Some(3)),
+            ("k*v*abs(v)", None),
+            ("u*y/(1 + m*x)", None),
+            ("x^a", None),
+            ("2^x", None),
+        ] {
+            assert_eq!(parse(text).unwrap().degree(&states), want, "{text}");
         }
     }
 

@@ -113,6 +113,14 @@ impl Tape {
     /// The value with the variables at `values`; NaN where it is undefined.
     #[inline]
     pub fn eval(&self, values: &[f64]) -> f64 {
+        // A lone name or number (`h = "-v"`, `y = "x"`), the commonest rate
+        // and observable, skips the stack.
+        match self.code[..] {
+            [Op::Var(i)] => return values[i as usize],
+            [Op::Var(i), Op::Neg] => return -values[i as usize],
+            [Op::Const(c)] => return c,
+            _ => {}
+        }
         let mut stack = [0.0f64; MAX_DEPTH];
         let mut top = 0usize;
         for op in &self.code {

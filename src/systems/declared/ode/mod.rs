@@ -25,6 +25,7 @@
 //! bounded by `[model.solver] max_steps`).
 
 mod grid;
+mod linear;
 
 use super::declaration::{check_parameters_used, corners, describe, Declared, SolverSettings, Variables, MAX_NAMES};
 use super::formula::Formula;
@@ -52,6 +53,8 @@ pub struct OdeModel {
     uses_rates: Vec<bool>,
     /// No rate reads t; otherwise DOP853 carries t as a state (module notes).
     autonomous: bool,
+    /// The rates are affine in the state: solved exactly on a grid (`linear`).
+    affine: bool,
     /// Where each initial value and each rate was written, for errors.
     initial_places: Vec<String>,
     rate_places: Vec<String>,
@@ -75,6 +78,9 @@ struct Solved {
     t_end: f64,
     /// None when the integration failed.
     dense: Option<Dense>,
+    /// Made by the affine propagator, not an integrator.
+    #[cfg_attr(not(test), allow(dead_code))]
+    exact: bool,
     y0: Vec<f64>,
 }
 
@@ -154,12 +160,15 @@ impl OdeModel {
         check_parameters_used(file, d, &initial.iter().chain(&rates).chain(&formulas).collect::<Vec<_>>())?;
         let uses_rates = formulas.iter().map(|f| (variables.rate_at..variables.len).any(|i| f.uses(i))).collect();
         let autonomous = !rates.iter().any(|f| f.uses(0));
+        let states: Vec<String> = d.states.iter().map(|s| s.name.clone()).collect();
+        let affine = linear::is_affine(&rates, &states, &d.input);
         Ok(OdeModel {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             autonomous,
+            affine,
             parameters: d.parameters.clone(),
             observables: d.observables.iter().map(|(o, _)| o.clone()).collect(),
-            states: d.states.iter().map(|s| s.name.clone()).collect(),
+            states,
             initial,
             rates,
             formulas,
@@ -184,7 +193,8 @@ impl OdeModel {
         let mut at_t0 = v;
         at_t0[0] = self.t0;
         let y0: Vec<f64> = self.initial.iter().map(|f| f.eval(&at_t0)).collect();
-        let mut solved = Solved { model: self.id, theta: theta.to_vec(), t_end, dense: None, y0: y0.clone() };
+        let mut solved =
+            Solved { model: self.id, theta: theta.to_vec(), t_end, dense: None, exact: false, y0: y0.clone() };
         if y0.iter().any(|y| !y.is_finite()) {
             return solved;
         }
@@ -194,6 +204,12 @@ impl OdeModel {
         }
         if let Some(grid) = grid {
             solved.t_end = grid.end();
+            let exact = self.affine.then(|| linear::propagate(&self.rates, v, self.variables.state_at, &y0, &grid));
+            if let Some(Some(states)) = exact {
+                solved.dense = Some(Dense::OnGrid { grid, states, stride: y0.len() });
+                solved.exact = true;
+                return solved;
+            }
             // The clock: t as the last state when a rate reads it.
             let y0: Vec<f64> = y0.iter().copied().chain((!self.autonomous).then_some(self.t0)).collect();
             solved.dense = match y0.len() {
