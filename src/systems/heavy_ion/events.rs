@@ -200,18 +200,34 @@ impl Accumulator {
     }
 }
 
-/// Draws a pT in [lo, lo + w) from the exponential through the bin's two nodes.
-fn sample_pt_in_bin(rng: &mut impl Rng, lo: f64, nodes: &[(f64, f64, f64, f64, f64); 2]) -> f64 {
-    let (p1, d1, p2, d2) = (nodes[0].0, nodes[0].2, nodes[1].0, nodes[1].2);
-    let u: f64 = rng.random();
-    if d1 <= 0.0 || d2 <= 0.0 {
-        return lo + u * FINE_PT_WIDTH;
+/// Draws pT in one fine bin [lo, lo + w) from the exponential through the
+/// bin's two nodes. The slope and its exponential are the bin's, worked out
+/// once rather than once per particle (a log and an exp of the few each
+/// particle costs), with the same arithmetic.
+struct PtSampler {
+    lo: f64,
+    /// None: uniform in the bin (a node without density, or a flat bin).
+    slope: Option<(f64, f64)>,
+}
+
+impl PtSampler {
+    fn new(lo: f64, nodes: &[(f64, f64, f64, f64, f64); 2]) -> PtSampler {
+        let (p1, d1, p2, d2) = (nodes[0].0, nodes[0].2, nodes[1].0, nodes[1].2);
+        if d1 <= 0.0 || d2 <= 0.0 {
+            return PtSampler { lo, slope: None };
+        }
+        let slope = (d2 / d1).ln() / (p2 - p1);
+        let steep = slope.abs() * FINE_PT_WIDTH >= 1e-9;
+        PtSampler { lo, slope: steep.then(|| (slope, (slope * FINE_PT_WIDTH).exp() - 1.0)) }
     }
-    let slope = (d2 / d1).ln() / (p2 - p1);
-    if slope.abs() * FINE_PT_WIDTH < 1e-9 {
-        return lo + u * FINE_PT_WIDTH;
+
+    fn sample(&self, rng: &mut impl Rng) -> f64 {
+        let u: f64 = rng.random();
+        match self.slope {
+            None => self.lo + u * FINE_PT_WIDTH,
+            Some((slope, span)) => self.lo + (1.0 + u * span).ln() / slope,
+        }
     }
-    lo + (1.0 + u * ((slope * FINE_PT_WIDTH).exp() - 1.0)).ln() / slope
 }
 
 fn interpolate(
@@ -247,18 +263,25 @@ pub fn sample_event(tables: &SmoothTables, seed: u64, index: usize, oversample: 
         let kind = FileKind::diff(table.species.pid, Window::Y, -WINDOW, WINDOW);
         let mut identified = Accumulator::new(ORDER_MAX_IDENTIFIED);
         let mut identified_pt2 = 0.0;
+        let bins: Vec<(f64, PtSampler)> = table
+            .nodes
+            .iter()
+            .enumerate()
+            .map(|(b, nodes)| {
+                (nodes.iter().map(|n| n.1 * n.2).sum::<f64>(), PtSampler::new(b as f64 * FINE_PT_WIDTH, nodes))
+            })
+            .collect();
         // Particles, then antiparticles; each `oversample` times over the same event geometry.
         for sign in [1, -1] {
             for _sample in 0..oversample {
-                for (b, nodes) in table.nodes.iter().enumerate() {
-                    let mean = lambda * 2.0 * WINDOW * nodes.iter().map(|n| n.1 * n.2).sum::<f64>();
+                for (b, (nodes, (weight, pt_sampler))) in table.nodes.iter().zip(&bins).enumerate() {
+                    let mean = lambda * 2.0 * WINDOW * weight;
                     if !(mean > 0.0) {
                         continue;
                     }
                     let count = Poisson::new(mean).expect("positive mean").sample(&mut rng) as usize;
-                    let lo = b as f64 * FINE_PT_WIDTH;
                     for _ in 0..count {
-                        let pt = sample_pt_in_bin(&mut rng, lo, nodes);
+                        let pt = pt_sampler.sample(&mut rng);
                         let v2 = scale[0] * interpolate(nodes, pt, |n| n.3);
                         let v3 = scale[1] * interpolate(nodes, pt, |n| n.4);
                         let bound = 1.0 + 2.0 * (v2.abs() + v3.abs());
