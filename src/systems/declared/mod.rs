@@ -15,6 +15,7 @@
 //! compiled (`tape`) to evaluate without allocation; `formula` binds them to names, `declaration` reads the tables, and
 //! `expression` and `ode` compile a declaration into a `Simulator`.
 
+mod closures;
 mod declaration;
 pub mod discover;
 pub mod expression;
