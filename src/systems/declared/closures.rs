@@ -9,7 +9,7 @@
 //! leaves the branch predictor one call per node. The arithmetic, and its
 //! order, are the tape's; `tests` checks the two agree to the bit.
 
-use super::tape::Op;
+use super::ops::Op;
 use std::sync::Arc;
 
 /// A compiled node: the value of a subexpression at the value vector.

@@ -22,6 +22,7 @@ pub mod expression;
 pub mod formula;
 mod notation;
 pub mod ode;
+mod ops;
 mod tape;
 
 use crate::base::config::Config;
