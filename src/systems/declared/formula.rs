@@ -57,6 +57,11 @@ impl Formula {
             Ok(e) => e,
             Err(e) => bail!("{place} = {text:?}: not a formula ({e})"),
         };
+        Formula::from_expr(text, expr, scope, place)
+    }
+
+    /// A formula from its parsed tree (`text` is what errors quote).
+    pub(super) fn from_expr(text: &str, expr: notation::Expr, scope: &Scope, place: &str) -> Result<Formula> {
         let mut names = Vec::new();
         expr.names(&mut names);
         if let Some(unknown) = names.iter().find(|n| scope.index(n).is_none() && Tape::constant(n).is_none()) {
@@ -72,6 +77,11 @@ impl Formula {
 
     pub fn text(&self) -> &str {
         &self.text
+    }
+
+    /// The parsed tree.
+    pub(super) fn expr(&self) -> &notation::Expr {
+        &self.expr
     }
 
     /// The formula's degree as a polynomial in the names `of` picks out;

@@ -4,6 +4,12 @@
 //! a constant force), have an exact solution: over a grid step dx,
 //! (y, 1) ← P (y, 1) with P = exp(M dx) and M = [[A, b], [0, 0]].
 //!
+//! A forcing that is a sinusoid of t, `a*sin(w*t + p)` with w and p free of
+//! the state, joins in: sin and cos of the phase are two more states (s' =
+//! w c, c' = −w s), which keeps the enlarged system affine and autonomous.
+//! A driven oscillator, or kinetics with a periodic source, is then exact
+//! too, at any frequency, where an integrator takes steps per period.
+//!
 //! One matrix exponential per θ (nalgebra's scaling-and-squaring Padé
 //! method of Al-Mohy & Higham 2009, after scipy's `expm`) and one small
 //! matrix–vector product per grid point replace the integration: exact to
@@ -14,8 +20,9 @@
 //! (f(s e_j) − b)/s, exact for an affine f up to rounding (s a power of two,
 //! so the division is exact and the rounding of b is small beside A's).
 
-use super::super::declaration::MAX_NAMES;
-use super::super::formula::Formula;
+use super::super::declaration::{Variables, MAX_NAMES};
+use super::super::formula::{Formula, Scope};
+use super::super::notation::Expr;
 use super::grid::Grid;
 use nalgebra::allocator::Allocator;
 use nalgebra::{Const, DefaultAllocator, Dim, DimMin, DimMinimum, OMatrix};
@@ -28,58 +35,153 @@ const PROBE: f64 = 1_048_576.0;
 /// integrator decides.
 const MAX_NORM: f64 = 1e6;
 
-/// Most states the propagator handles (the augmented matrix is at most 5 × 5
-/// on the stack); larger systems are integrated.
-pub(super) const MAX_STATES: usize = 4;
+/// Most states, sinusoids' two included, the propagator handles (the
+/// augmented matrix is at most 7 × 7, on the stack); larger systems are
+/// integrated.
+const MAX_STATES: usize = 6;
+const MAX_SIDE: usize = MAX_STATES + 1;
 
-/// Whether every rate is affine in the states (degree at most one, with
-/// coefficients free of them) and none reads t.
-pub(super) fn is_affine(rates: &[Formula], states: &[String], time: &str) -> bool {
-    let is_state = |n: &str| states.iter().any(|s| s == n);
-    let no_time = |f: &Formula| f.degree(&|n| n == time) == Some(0);
-    states.len() <= MAX_STATES && rates.iter().all(|f| f.degree(&is_state).is_some_and(|d| d <= 1) && no_time(f))
+/// An affine system ready to propagate.
+pub(super) struct Affine {
+    /// The rates with each sinusoid of t replaced by a name of its own (the
+    /// value-vector slots after the states, which rates never read).
+    rates: Vec<Formula>,
+    /// Each sinusoid's phase, α t + β: a formula of t, θ and constants.
+    phases: Vec<Formula>,
+    /// Where the first sinusoid's sin sits in the value vector (then its
+    /// cos, then the next sinusoid's).
+    extra_at: usize,
 }
 
-/// The state at every point of `grid` from `y0` (row-major, `y0.len()` per
-/// point, t0 first), with θ and constants in `values` and the states from
-/// index `state_at`. None when A, b or P is not finite or ‖M dx‖₁ exceeds
-/// [`MAX_NORM`]: then the integrator is asked instead.
-pub(super) fn propagate(
-    rates: &[Formula],
-    mut values: [f64; MAX_NAMES],
-    state_at: usize,
-    y0: &[f64],
-    grid: &Grid,
-) -> Option<Vec<f64>> {
-    let n = y0.len();
-    let n1 = n + 1;
-    // M dx, row-major, (n + 1) × (n + 1); its last row stays zero.
-    let mut m = [0.0; (MAX_STATES + 1) * (MAX_STATES + 1)];
-    values[state_at..state_at + n].fill(0.0);
-    for (i, f) in rates.iter().enumerate() {
-        m[i * n1 + n] = f.eval(&values) * grid.dx;
-    }
-    for j in 0..n {
-        values[state_at + j] = PROBE;
-        for (i, f) in rates.iter().enumerate() {
-            m[i * n1 + j] = (f.eval(&values) * grid.dx - m[i * n1 + n]) / PROBE;
+impl Affine {
+    /// The plan for `rates` (over the model's names up to its states), or
+    /// None when some rate is not affine in the state once sinusoids of t
+    /// are taken out, or reads t otherwise.
+    pub(super) fn of(rates: &[Formula], variables: &Variables, states: &[String], time: &str) -> Option<Affine> {
+        let is_state = |n: &str| states.iter().any(|s| s == n);
+        let mut phases_found = Vec::new();
+        let rewritten: Vec<Expr> =
+            rates.iter().map(|f| take_sinusoids(f.expr(), &is_state, time, &mut phases_found)).collect();
+        let extras: Vec<String> =
+            (0..phases_found.len()).flat_map(|k| [format!("sin({k})"), format!("cos({k})")]).collect();
+        let extra_at = variables.rate_at;
+        if states.len() + extras.len() > MAX_STATES || extra_at + extras.len() > MAX_NAMES {
+            return None;
         }
-        values[state_at + j] = 0.0;
+        let is_unknown = |n: &str| is_state(n) || extras.iter().any(|e| e == n);
+        let affine = rewritten
+            .iter()
+            .all(|e| e.degree(&|n| n == time) == Some(0) && e.degree(&is_unknown).is_some_and(|d| d <= 1));
+        if !affine {
+            return None;
+        }
+        let base = variables.scope(variables.rate_at);
+        let scope = Scope::new(base.names().iter().cloned().chain(extras.iter().cloned()));
+        let before_state = variables.scope(variables.state_at);
+        let rates = rewritten
+            .into_iter()
+            .zip(rates)
+            .map(|(e, f)| Formula::from_expr(f.text(), e, &scope, "").ok())
+            .collect::<Option<Vec<_>>>()?;
+        let phases = phases_found
+            .into_iter()
+            .map(|e| Formula::from_expr("", e, &before_state, "").ok())
+            .collect::<Option<Vec<_>>>()?;
+        Some(Affine { rates, phases, extra_at })
     }
-    let m = &m[..n1 * n1];
-    let norm = (0..n1).map(|j| (0..n1).map(|i| m[i * n1 + j].abs()).sum::<f64>()).fold(0.0, f64::max);
-    if !(norm <= MAX_NORM) {
-        return None;
+
+    /// The state at every point of `grid` from `y0` at its t0 (row-major,
+    /// `y0.len()` per point, t0 first), with θ and constants in `values`
+    /// and the states from index `state_at`. None when M or P is not finite
+    /// or ‖M dx‖₁ exceeds [`MAX_NORM`]: then the integrator is asked instead.
+    pub(super) fn propagate(
+        &self,
+        mut values: [f64; MAX_NAMES],
+        state_at: usize,
+        y0: &[f64],
+        grid: &Grid,
+    ) -> Option<Vec<f64>> {
+        let n = y0.len();
+        let k = 2 * self.phases.len();
+        let (side, one) = (n + k + 1, n + k);
+        // The unknowns' slots in the value vector: the states, then sin and cos of each phase.
+        let slot = |j: usize| if j < n { state_at + j } else { self.extra_at + j - n };
+        // Initial values, and each phase's rate α (its change over unit time).
+        let mut z0 = [0.0; MAX_SIDE];
+        z0[..n].copy_from_slice(y0);
+        z0[one] = 1.0;
+        let mut alpha = [0.0; MAX_STATES / 2];
+        values[0] = grid.t0;
+        for (p, f) in self.phases.iter().enumerate() {
+            let at_t0 = f.eval(&values);
+            values[0] = grid.t0 + 1.0;
+            alpha[p] = f.eval(&values) - at_t0;
+            values[0] = grid.t0;
+            (z0[n + 2 * p], z0[n + 2 * p + 1]) = at_t0.sin_cos();
+        }
+        // M dx, row-major, side × side; its last row stays zero.
+        let mut m = [0.0; MAX_SIDE * MAX_SIDE];
+        for j in 0..one {
+            values[slot(j)] = 0.0;
+        }
+        for (i, f) in self.rates.iter().enumerate() {
+            m[i * side + one] = f.eval(&values) * grid.dx;
+        }
+        for j in 0..one {
+            values[slot(j)] = PROBE;
+            for (i, f) in self.rates.iter().enumerate() {
+                m[i * side + j] = (f.eval(&values) * grid.dx - m[i * side + one]) / PROBE;
+            }
+            values[slot(j)] = 0.0;
+        }
+        for (p, a) in alpha[..self.phases.len()].iter().enumerate() {
+            let (s, c) = (n + 2 * p, n + 2 * p + 1);
+            m[s * side + c] = a * grid.dx;
+            m[c * side + s] = -a * grid.dx;
+        }
+        let m = &m[..side * side];
+        let norm = (0..side).map(|j| (0..side).map(|i| m[i * side + j].abs()).sum::<f64>()).fold(0.0, f64::max);
+        if !(norm <= MAX_NORM) {
+            return None;
+        }
+        let mut p = [0.0; MAX_SIDE * MAX_SIDE];
+        let p = &mut p[..side * side];
+        let finite = match side {
+            2 => exponential::<Const<2>>(m, p),
+            3 => exponential::<Const<3>>(m, p),
+            4 => exponential::<Const<4>>(m, p),
+            5 => exponential::<Const<5>>(m, p),
+            6 => exponential::<Const<6>>(m, p),
+            _ => exponential::<Const<7>>(m, p),
+        };
+        finite.then(|| walk(p, &z0[..side], n, grid.last))
     }
-    let mut p = [0.0; (MAX_STATES + 1) * (MAX_STATES + 1)];
-    let p = &mut p[..n1 * n1];
-    let finite = match n1 {
-        2 => exponential::<Const<2>>(m, p),
-        3 => exponential::<Const<3>>(m, p),
-        4 => exponential::<Const<4>>(m, p),
-        _ => exponential::<Const<5>>(m, p),
-    };
-    finite.then(|| walk(p, y0, grid.last))
+}
+
+/// `e` with each sin or cos of a phase α t + β (α, β free of the state) replaced by
+/// the name `sin(k)` or `cos(k)`, k the phase's place in `found`.
+fn take_sinusoids(e: &Expr, is_state: &dyn Fn(&str) -> bool, time: &str, found: &mut Vec<Expr>) -> Expr {
+    let mut again = |x: &Expr| take_sinusoids(x, is_state, time, found);
+    match e {
+        Expr::Call(f, args) if (f == "sin" || f == "cos") && args.len() == 1 => {
+            let phase = &args[0];
+            if phase.degree(&|n| n == time) != Some(1) || phase.degree(is_state) != Some(0) {
+                return Expr::Call(f.clone(), vec![again(phase)]);
+            }
+            let k = found.iter().position(|p| p == phase).unwrap_or_else(|| {
+                found.push(phase.clone());
+                found.len() - 1
+            });
+            Expr::Name(format!("{f}({k})"))
+        }
+        Expr::Call(f, args) => Expr::Call(f.clone(), args.iter().map(again).collect()),
+        Expr::Neg(a) => Expr::Neg(Box::new(again(a))),
+        Expr::Binary(op, a, b) => {
+            let a = again(a);
+            Expr::Binary(*op, Box::new(a), Box::new(take_sinusoids(b, is_state, time, found)))
+        }
+        Expr::Number(_) | Expr::Name(_) => e.clone(),
+    }
 }
 
 /// exp(M) into `p` (both row-major); whether it is finite.
@@ -98,21 +200,19 @@ where
     p.iter().all(|v| v.is_finite())
 }
 
-/// The states at grid points 0..=last: z ← P z from z = (y0, 1).
-fn walk(p: &[f64], y0: &[f64], last: usize) -> Vec<f64> {
-    let n = y0.len();
-    let n1 = n + 1;
+/// The first `n` values of z at grid points 0..=last: z ← P z from `z0`.
+fn walk(p: &[f64], z0: &[f64], n: usize, last: usize) -> Vec<f64> {
+    let side = z0.len();
     let mut states = Vec::with_capacity(n * (last + 1));
-    states.extend_from_slice(y0);
-    let mut z = [0.0; MAX_STATES + 1];
-    z[..n].copy_from_slice(y0);
-    z[n] = 1.0;
+    states.extend_from_slice(&z0[..n]);
+    let mut z = [0.0; MAX_SIDE];
+    z[..side].copy_from_slice(z0);
     for _ in 0..last {
-        let mut next = [0.0; MAX_STATES + 1];
-        for (i, out) in next[..n].iter_mut().enumerate() {
-            *out = p[i * n1..(i + 1) * n1].iter().zip(&z[..n1]).map(|(a, b)| a * b).sum();
+        let mut next = [0.0; MAX_SIDE];
+        for (i, out) in next[..side - 1].iter_mut().enumerate() {
+            *out = p[i * side..(i + 1) * side].iter().zip(&z[..side]).map(|(a, b)| a * b).sum();
         }
-        next[n] = 1.0;
+        next[side - 1] = 1.0;
         z = next;
         states.extend_from_slice(&z[..n]);
     }
@@ -196,12 +296,43 @@ mod tests {
         }
     }
 
-    /// Rates that are not affine in the state, or read t, are integrated.
+    /// First-order kinetics with a periodic source, y' = −u y + a sin(w t + p),
+    /// against its closed form: the sinusoid is carried as two more states.
+    /// Up to w = 40 (six steps a period on this grid, where an integrator
+    /// must resolve every period).
+    #[test]
+    fn a_periodic_source_is_solved_exactly() {
+        let times: Vec<f64> = (1..=20).map(|k| 0.25 * k as f64).collect();
+        let tables = "[model.initial]\ny = \"5\"\n[model.rates]\ny = \"-u*y + a*sin(w*t + p)\"\n\
+                      [model.observables]\ny = \"y\"";
+        let params = "[parameters.a]\nmin = 0.0\nmax = 2.0\n[parameters.p]\nmin = -3.2\nmax = 3.2\n\
+                      [parameters.u]\nmin = 0.1\nmax = 3.0\n[parameters.w]\nmin = 0.5\nmax = 40.0\n";
+        let m = model("source", tables, params, &times);
+        for (a, p, u, w) in [(1.0, 0.0, 1.2, 9.0), (0.3, 2.0, 0.1, 0.5), (2.0, -3.0, 3.0, 40.0)] {
+            let got = predictions(m.as_ref(), &times, &[a, p, u, w]);
+            assert!(last_was_exact(), "w = {w}");
+            let particular = |t: f64| a * (u * (w * t + p).sin() - w * (w * t + p).cos()) / (u * u + w * w);
+            for (t, y) in times.iter().zip(&got) {
+                let want = (-u * t).exp() * (5.0 - particular(0.0)) + particular(*t);
+                assert!((y - want).abs() < 1e-11 * 5.0, "a = {a}, w = {w}, t = {t}: {y} vs {want}");
+            }
+        }
+    }
+
+    /// Rates that are not affine in the state, or read t other than through
+    /// a sinusoid, are integrated.
     #[test]
     fn other_rates_are_integrated() {
         let times: Vec<f64> = (1..=10).map(|k| 0.5 * k as f64).collect();
         let params = "[parameters.a]\nmin = 0.1\nmax = 2.0\n";
-        for (name, rate) in [("cubic", "-a*y^3"), ("product", "-a*y*abs(y)"), ("clock", "-a*y + sin(t)")] {
+        let cases = [
+            ("cubic", "-a*y^3"),
+            ("product", "-a*y*abs(y)"),
+            ("transient", "-a*y + exp(-t)"),
+            ("chirp", "-a*y + sin(a*t^2)"),
+            ("modulated", "-a*y*sin(t)"),
+        ];
+        for (name, rate) in cases {
             let tables =
                 format!("[model.initial]\ny = \"1\"\n[model.rates]\ny = \"{rate}\"\n[model.observables]\ny = \"y\"");
             let m = model(name, &tables, params, &times);

@@ -53,8 +53,9 @@ pub struct OdeModel {
     uses_rates: Vec<bool>,
     /// No rate reads t; otherwise DOP853 carries t as a state (module notes).
     autonomous: bool,
-    /// The rates are affine in the state: solved exactly on a grid (`linear`).
-    affine: bool,
+    /// The rates are affine in the state (sinusoids of t allowed): solved
+    /// exactly on a grid (`linear`).
+    affine: Option<linear::Affine>,
     /// Where each initial value and each rate was written, for errors.
     initial_places: Vec<String>,
     rate_places: Vec<String>,
@@ -161,7 +162,7 @@ impl OdeModel {
         let uses_rates = formulas.iter().map(|f| (variables.rate_at..variables.len).any(|i| f.uses(i))).collect();
         let autonomous = !rates.iter().any(|f| f.uses(0));
         let states: Vec<String> = d.states.iter().map(|s| s.name.clone()).collect();
-        let affine = linear::is_affine(&rates, &states, &d.input);
+        let affine = linear::Affine::of(&rates, &variables, &states, &d.input);
         Ok(OdeModel {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             autonomous,
@@ -204,8 +205,8 @@ impl OdeModel {
         }
         if let Some(grid) = grid {
             solved.t_end = grid.end();
-            let exact = self.affine.then(|| linear::propagate(&self.rates, v, self.variables.state_at, &y0, &grid));
-            if let Some(Some(states)) = exact {
+            let exact = self.affine.as_ref().and_then(|a| a.propagate(v, self.variables.state_at, &y0, &grid));
+            if let Some(states) = exact {
                 solved.dense = Some(Dense::OnGrid { grid, states, stride: y0.len() });
                 solved.exact = true;
                 return solved;
