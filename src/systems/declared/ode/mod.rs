@@ -205,9 +205,9 @@ impl OdeModel {
         }
         if let Some(grid) = grid {
             solved.t_end = grid.end();
-            let exact = self.affine.as_ref().and_then(|a| a.propagate(v, self.variables.state_at, &y0, &grid));
-            if let Some(states) = exact {
-                solved.dense = Some(Dense::OnGrid { grid, states, stride: y0.len() });
+            if let Some(affine) = &self.affine {
+                let states = affine.propagate(v, self.variables.state_at, &y0, &grid);
+                solved.dense = states.map(|states| Dense::OnGrid { grid, states, stride: y0.len() });
                 solved.exact = true;
                 return solved;
             }
