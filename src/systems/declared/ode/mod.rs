@@ -3,6 +3,10 @@
 //! with error control; each observable is a formula of t, θ, constants, the
 //! state and its rates.
 //!
+//! Rates affine in the state (sinusoids of t allowed) are solved exactly on
+//! the data's grid, by one matrix exponential per θ (`linear`); the others
+//! are integrated.
+//!
 //! When the data's times lie on a grid `t0 + k·dx` (they usually do), the
 //! 8th-order Dormand–Prince method (DOP853) integrates and interpolates the
 //! state at every grid point as it passes: at the tolerances the bundled
