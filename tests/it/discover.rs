@@ -178,10 +178,14 @@ fn kinetics_discovery_campaign() {
         let d = diagnose_file(&analysis, &path, 700 + k as u64, mode);
         let right =
             if null { discovered(&d).is_none() } else { periodic_found(&d, "y", 2.0 * std::f64::consts::PI / 0.7) };
+        // The found sine's ω, to see where a miss lands (its alias on the
+        // data's spacing of 0.3 is 2π/0.3 − 2π/0.7 = 11.97 rad/s).
+        let omega = discovered(&d).and_then(|c| c.parameters.get("w")).map(|w| format!(" ω {w:?}"));
         println!(
-            "  set {k}: {effect:?} u = {u:.2} {s:.1}σ → {} ({})",
+            "  set {k}: {effect:?} u = {u:.2} {s:.1}σ → {} ({}){}",
             d.verdict.best,
-            if right { "right" } else { "WRONG" }
+            if right { "right" } else { "WRONG" },
+            omega.unwrap_or_default()
         );
         if null { &mut nulls } else { &mut periodic }.push(right);
     }
