@@ -132,7 +132,13 @@ fn ball_drop_discovery_campaign() {
             1 => periodic_found(&d, "v", 2.0 * std::f64::consts::PI / 0.4),
             _ => discovered(&d).is_none(),
         };
-        println!("  set {k}: {forces:?} {size:.1}σ → {} ({})", d.verdict.best, if right { "right" } else { "WRONG" });
+        let omega = discovered(&d).and_then(|c| c.parameters.get("w")).map(|w| format!(" ω {w:?}"));
+        println!(
+            "  set {k}: {forces:?} {size:.1}σ → {} ({}){}",
+            d.verdict.best,
+            if right { "right" } else { "WRONG" },
+            omega.unwrap_or_default()
+        );
         [&mut drag, &mut periodic, &mut nulls][kind].push(right);
     }
     let count = |v: &[bool]| v.iter().filter(|r| **r).count();
