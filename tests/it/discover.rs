@@ -53,6 +53,14 @@ fn drag_found(d: &Diagnosis, k: f64) -> bool {
     })
 }
 
+/// The verdict, whether it is right, and a found sine's ω, to see where a
+/// miss lands (in kinetics, the alias on the data's spacing of 0.3 s is
+/// 2π/0.3 − 2π/0.7 = 11.97 rad/s).
+fn outcome(d: &Diagnosis, right: bool) -> String {
+    let omega = discovered(d).and_then(|c| c.parameters.get("w")).map(|w| format!(" ω {w:?}"));
+    format!("{} ({}){}", d.verdict.best, if right { "right" } else { "WRONG" }, omega.unwrap_or_default())
+}
+
 /// A periodic force found, its angular frequency's interval covering `w`.
 fn periodic_found(d: &Diagnosis, state: &str, w: f64) -> bool {
     discovered(d).is_some_and(|c| c.name == format!("periodic_on_{state}") && c.parameters["w"].covers(w))
@@ -132,13 +140,7 @@ fn ball_drop_discovery_campaign() {
             1 => periodic_found(&d, "v", 2.0 * std::f64::consts::PI / 0.4),
             _ => discovered(&d).is_none(),
         };
-        let omega = discovered(&d).and_then(|c| c.parameters.get("w")).map(|w| format!(" ω {w:?}"));
-        println!(
-            "  set {k}: {forces:?} {size:.1}σ → {} ({}){}",
-            d.verdict.best,
-            if right { "right" } else { "WRONG" },
-            omega.unwrap_or_default()
-        );
+        println!("  set {k}: {forces:?} {size:.1}σ → {}", outcome(&d, right));
         [&mut drag, &mut periodic, &mut nulls][kind].push(right);
     }
     let count = |v: &[bool]| v.iter().filter(|r| **r).count();
@@ -184,15 +186,7 @@ fn kinetics_discovery_campaign() {
         let d = diagnose_file(&analysis, &path, 700 + k as u64, mode);
         let right =
             if null { discovered(&d).is_none() } else { periodic_found(&d, "y", 2.0 * std::f64::consts::PI / 0.7) };
-        // The found sine's ω, to see where a miss lands (its alias on the
-        // data's spacing of 0.3 is 2π/0.3 − 2π/0.7 = 11.97 rad/s).
-        let omega = discovered(&d).and_then(|c| c.parameters.get("w")).map(|w| format!(" ω {w:?}"));
-        println!(
-            "  set {k}: {effect:?} u = {u:.2} {s:.1}σ → {} ({}){}",
-            d.verdict.best,
-            if right { "right" } else { "WRONG" },
-            omega.unwrap_or_default()
-        );
+        println!("  set {k}: {effect:?} u = {u:.2} {s:.1}σ → {}", outcome(&d, right));
         if null { &mut nulls } else { &mut periodic }.push(right);
     }
     let count = |v: &[bool]| v.iter().filter(|r| **r).count();
