@@ -4,7 +4,7 @@
 //! Screening (here) is cheap: every term, and every pair of the best five,
 //! is fitted by least squares with θ (`fit`), and ranked by the Bayesian
 //! information criterion ΔBIC = Δχ² − k ln N; a pair stays only if it beats
-//! both of its terms alone. Terms that fit the data the
+//! every term alone (forward selection). Terms that fit the data the
 //! same way (`v*abs(v)` and `v^2` for a ball that only falls, or `h*v*v`
 //! while h barely changes) are one explanation, and the simpler stands for
 //! both (`distinct`). The best few are handed back as
@@ -24,6 +24,7 @@ use crate::engine::model::{
 use anyhow::Result;
 use fit::{Fitted, LeastSquares};
 use grammar::{Instance, ParameterForm, TermForm};
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
@@ -59,8 +60,9 @@ impl Discoverer for DeclaredDiscoverer {
         };
         let scales = self.scales(data, &base_fit.phi)?;
         let instances = grammar::instances(&self.forms, &self.base);
+        // Each term's fit is independent of the others': the cores share them.
         let mut singles: Vec<Screened> = instances
-            .iter()
+            .par_iter()
             .filter_map(|i| self.screen_one(std::slice::from_ref(i), data, &base_fit, &scales, None))
             .collect();
         let points = base.points() as f64;
@@ -68,25 +70,29 @@ impl Discoverer for DeclaredDiscoverer {
         singles.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let singles = distinct(singles, data);
         let searched = instances.len();
-        let mut all: Vec<Screened> = Vec::new();
         let top: Vec<&Screened> = singles.iter().take(PAIRED).collect();
-        for (i, a) in top.iter().enumerate() {
-            for b in &top[i + 1..] {
+        let pairs: Vec<(&Screened, &Screened)> =
+            top.iter().enumerate().flat_map(|(i, a)| top[i + 1..].iter().map(move |b| (*a, *b))).collect();
+        let best_single = singles.first().map_or(f64::NEG_INFINITY, &bic);
+        let mut all: Vec<Screened> = pairs
+            .par_iter()
+            .filter_map(|(a, b)| {
                 let pair = [a.instances[0].clone(), b.instances[0].clone()];
                 // Also from where each term fitted alone (θ from the better of the two).
                 let mut joint: BTreeMap<String, f64> = a.fitted_terms("1");
                 joint.extend(b.fitted_terms("2"));
                 let theta = &a.fitted.phi[..data.theta.len()];
-                // A pair whose second term does not pay for itself (its ΔBIC
-                // below one of its own terms') would only lose to that term:
-                // not worth a full calibration.
-                if let Some(s) = self.screen_one(&pair, data, &base_fit, &scales, Some((theta, joint))) {
-                    if bic(&s) > bic(a).max(bic(b)) {
-                        all.push(s);
-                    }
-                }
-            }
-        }
+                self.screen_one(&pair, data, &base_fit, &scales, Some((theta, joint)))
+            })
+            // Forward selection: a second term is kept only when the pair
+            // beats every single term (not only its own two). A pair below
+            // some single is, by the screening's own criterion, a worse
+            // explanation than one already proposed: its calibration could
+            // not change the verdict unless BIC misjudged the evidence by
+            // more than the gap, and it would cost an integration of every
+            // parameter it adds.
+            .filter(|s| bic(s) > best_single)
+            .collect();
         all.extend(singles);
         all.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let all = distinct(all, data);
