@@ -446,28 +446,23 @@ impl MdLikelihood {
                 total += -0.5 * (z * z + 2.0 * s.ln() + LN_2PI);
             }
         } else {
+            // The covariance is filled in place, and filled again only for a
+            // retry with jitter (no copy of it per evaluation).
+            let hyper = self.hyper_of(params, b);
+            let (xr, corr) = (&mut ws.xr[..n], &mut ws.corr);
+            let mut fill = |a: &mut [f64]| {
+                match self.kernel {
+                    Some(kernel) => block.gram.fill_lower(kernel, hyper, a, xr, corr),
+                    None => a.iter_mut().for_each(|v| *v = 0.0),
+                }
+                if self.model_covariance {
+                    self.simulator.add_model_covariance(block.model_index, &block.x, theta, inv_scale * inv_scale, a);
+                }
+                block.add_data_covariance(inv_scale * inv_scale, a);
+            };
             let chol = &mut ws.chol[b];
-            match self.kernel {
-                Some(kernel) => block.gram.fill_lower(
-                    kernel,
-                    self.hyper_of(params, b),
-                    &mut chol.factor,
-                    &mut ws.xr[..n],
-                    &mut ws.corr,
-                ),
-                None => chol.factor.iter_mut().for_each(|v| *v = 0.0),
-            }
-            if self.model_covariance {
-                self.simulator.add_model_covariance(
-                    block.model_index,
-                    &block.x,
-                    theta,
-                    inv_scale * inv_scale,
-                    &mut chol.factor,
-                );
-            }
-            block.add_data_covariance(inv_scale * inv_scale, &mut chol.factor);
-            match chol.factorize() {
+            fill(&mut chol.factor);
+            match chol.factorize_refilling(fill) {
                 Ok(jitter) => self.note_jitter(jitter, chol.n()),
                 Err(_) => return f64::NEG_INFINITY,
             }

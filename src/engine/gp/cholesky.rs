@@ -131,17 +131,36 @@ impl CholeskyWorkspace {
         let n = self.n;
         // Only the lower triangle is read, so only it is kept for a retry:
         // for the joint likelihood's N × N matrix this copy is per evaluation.
-        copy_lower(&self.factor, &mut self.backup, n);
-        let mean_diag = (0..n).map(|i| self.backup[i * n + i]).sum::<f64>() / n.max(1) as f64;
+        // Small blocks are copied whole: one memcpy beats n short ones.
+        let mut backup = std::mem::take(&mut self.backup);
+        if n <= SMALL_N {
+            backup.copy_from_slice(&self.factor);
+        } else {
+            copy_lower(&self.factor, &mut backup, n);
+        }
+        let result = self.factorize_refilling(|a| copy_lower(&backup, a, n));
+        self.backup = backup;
+        result
+    }
+
+    /// `factorize` of the matrix `fill` writes (its lower triangle) into
+    /// the factor, which already holds it: a retry with jitter fills it
+    /// again instead of copying a backup on every call.
+    pub fn factorize_refilling(&mut self, mut fill: impl FnMut(&mut [f64])) -> Result<f64, NotPositiveDefinite> {
+        let n = self.n;
+        let mut mean_diag = f64::NAN;
         for (attempt, &rel) in JITTER_LADDER.iter().enumerate() {
             if attempt > 0 {
-                copy_lower(&self.backup, &mut self.factor, n);
+                fill(&mut self.factor);
+                if attempt == 1 {
+                    mean_diag = (0..n).map(|i| self.factor[i * n + i]).sum::<f64>() / n.max(1) as f64;
+                }
                 for i in 0..n {
                     self.factor[i * n + i] += rel * mean_diag.abs().max(f64::MIN_POSITIVE);
                 }
             }
             if self.factorize_exact() && (0..n).all(|i| self.factor[i * n + i].is_finite()) {
-                return Ok(rel * mean_diag.abs().max(f64::MIN_POSITIVE));
+                return Ok(if attempt == 0 { 0.0 } else { rel * mean_diag.abs().max(f64::MIN_POSITIVE) });
             }
         }
         Err(NotPositiveDefinite { n, max_jitter: *JITTER_LADDER.last().unwrap() })

@@ -91,18 +91,20 @@ impl Affine {
         Some(Affine { rates, phases, extra_at })
     }
 
-    /// The state at every point of `grid` from `y0` at its t0 (row-major,
-    /// `y0.len()` per point, t0 first), with θ and constants in `values`
-    /// and the states from index `state_at`. None when there is no solution
-    /// at this θ: M undefined (a rate NaN or infinite) or P overflowing (a
+    /// The state at every point of `grid` from `y0` at its t0 into `states`
+    /// (row-major, `y0.len()` per point, t0 first; its old contents are
+    /// dropped, its allocation kept), with θ and constants in `values` and
+    /// the states from index `state_at`. False when there is no solution at
+    /// this θ: M undefined (a rate NaN or infinite) or P overflowing (a
     /// growing mode), where an integrator would fail too.
     pub(super) fn propagate(
         &self,
-        mut values: [f64; MAX_NAMES],
+        values: &mut [f64; MAX_NAMES],
         state_at: usize,
         y0: &[f64],
         grid: &Grid,
-    ) -> Option<Vec<f64>> {
+        states: &mut Vec<f64>,
+    ) -> bool {
         let n = y0.len();
         let k = 2 * self.phases.len();
         let (side, one) = (n + k + 1, n + k);
@@ -115,9 +117,9 @@ impl Affine {
         let mut alpha = [0.0; MAX_STATES / 2];
         values[0] = grid.t0;
         for (p, f) in self.phases.iter().enumerate() {
-            let at_t0 = f.eval(&values);
+            let at_t0 = f.eval(&values[..]);
             values[0] = grid.t0 + 1.0;
-            alpha[p] = f.eval(&values) - at_t0;
+            alpha[p] = f.eval(&values[..]) - at_t0;
             values[0] = grid.t0;
             (z0[n + 2 * p], z0[n + 2 * p + 1]) = at_t0.sin_cos();
         }
@@ -127,12 +129,12 @@ impl Affine {
             values[slot(j)] = 0.0;
         }
         for (i, f) in self.rates.iter().enumerate() {
-            m[i * side + one] = f.eval(&values) * grid.dx;
+            m[i * side + one] = f.eval(&values[..]) * grid.dx;
         }
         for j in 0..one {
             values[slot(j)] = PROBE;
             for (i, f) in self.rates.iter().enumerate() {
-                m[i * side + j] = (f.eval(&values) * grid.dx - m[i * side + one]) / PROBE;
+                m[i * side + j] = (f.eval(&values[..]) * grid.dx - m[i * side + one]) / PROBE;
             }
             values[slot(j)] = 0.0;
         }
@@ -144,7 +146,7 @@ impl Affine {
         let m = &m[..side * side];
         let norm = (0..side).map(|j| (0..side).map(|i| m[i * side + j].abs()).sum::<f64>()).fold(0.0, f64::max);
         if !(norm <= MAX_NORM) {
-            return None;
+            return false;
         }
         let mut p = [0.0; MAX_SIDE * MAX_SIDE];
         let p = &mut p[..side * side];
@@ -156,8 +158,10 @@ impl Affine {
             6 => exponential::<Const<6>>(m, p),
             _ => exponential::<Const<7>>(m, p),
         };
-        let states = finite.then(|| walk(p, &z0[..side], n, grid.last))?;
-        states.iter().all(|v| v.is_finite()).then_some(states)
+        finite && {
+            walk(p, &z0[..side], n, grid.last, states);
+            states.iter().all(|v| v.is_finite())
+        }
     }
 }
 
@@ -203,10 +207,10 @@ where
     p.iter().all(|v| v.is_finite())
 }
 
-/// The first `n` values of z at grid points 0..=last: z ← P z from `z0`.
-fn walk(p: &[f64], z0: &[f64], n: usize, last: usize) -> Vec<f64> {
+/// The first `n` values of z at grid points 0..=last into `states`: z ← P z from `z0`.
+fn walk(p: &[f64], z0: &[f64], n: usize, last: usize, states: &mut Vec<f64>) {
     let side = z0.len();
-    let mut states = Vec::with_capacity(n * (last + 1));
+    states.clear();
     states.extend_from_slice(&z0[..n]);
     let mut z = [0.0; MAX_SIDE];
     z[..side].copy_from_slice(z0);
@@ -219,7 +223,6 @@ fn walk(p: &[f64], z0: &[f64], n: usize, last: usize) -> Vec<f64> {
         z = next;
         states.extend_from_slice(&z[..n]);
     }
-    states
 }
 
 #[cfg(test)]

@@ -87,6 +87,24 @@ struct Solved {
     #[cfg_attr(not(test), allow(dead_code))]
     exact: bool,
     y0: Vec<f64>,
+    /// The value vector at θ, kept so that each observable's predictions
+    /// write t, the state and the rates into it instead of copying it.
+    values: [f64; MAX_NAMES],
+}
+
+impl Solved {
+    /// A solution of no model yet: the buffers `OdeModel::solve` fills.
+    fn empty() -> Solved {
+        Solved {
+            model: 0,
+            theta: Vec::new(),
+            t_end: f64::NAN,
+            dense: None,
+            exact: false,
+            y0: Vec::new(),
+            values: [0.0; MAX_NAMES],
+        }
+    }
 }
 
 /// Dense output of one integration: the states at the grid's points, or a
@@ -109,16 +127,11 @@ enum Dense {
 }
 
 impl Dense {
-    /// The state at t into `y`; false outside the solution.
+    /// The state at t into `y`; false outside the solution. The grid's case
+    /// is inlined: it is asked once per data point per likelihood evaluation.
+    #[inline]
     fn state_at(&self, t: f64, y: &mut [f64]) -> bool {
-        fn copy<D: Dim>(d: &ContinuousOutputModel<f64, OVector<f64, D>>, t: f64, y: &mut [f64]) -> bool
-        where
-            DefaultAllocator: Allocator<D>,
-        {
-            d.evaluate(t).map(|s| y.copy_from_slice(s.as_slice())).is_some()
-        }
         match self {
-            Dense::Empty => false,
             Dense::OnGrid { grid, states, stride } => match grid.index(t) {
                 Some(k) => {
                     y.copy_from_slice(&states[k * stride..k * stride + y.len()]);
@@ -126,6 +139,20 @@ impl Dense {
                 }
                 None => false,
             },
+            _ => self.continuous_state_at(t, y),
+        }
+    }
+
+    #[inline(never)]
+    fn continuous_state_at(&self, t: f64, y: &mut [f64]) -> bool {
+        fn copy<D: Dim>(d: &ContinuousOutputModel<f64, OVector<f64, D>>, t: f64, y: &mut [f64]) -> bool
+        where
+            DefaultAllocator: Allocator<D>,
+        {
+            d.evaluate(t).map(|s| y.copy_from_slice(s.as_slice())).is_some()
+        }
+        match self {
+            Dense::Empty | Dense::OnGrid { .. } => false,
             Dense::S1(d) => copy(d, t, y),
             Dense::S2(d) => copy(d, t, y),
             Dense::S3(d) => copy(d, t, y),
@@ -191,32 +218,45 @@ impl OdeModel {
         })
     }
 
-    /// Integrates from t0 at θ: over the grid when one is given (its end must
-    /// reach `t_end`), else continuously to `t_end`.
-    fn solve(&self, theta: &[f64], t_end: f64, grid: Option<Grid>) -> Solved {
-        let v = self.variables.at(theta);
-        let mut at_t0 = v;
-        at_t0[0] = self.t0;
-        let y0: Vec<f64> = self.initial.iter().map(|f| f.eval(&at_t0)).collect();
-        let mut solved =
-            Solved { model: self.id, theta: theta.to_vec(), t_end, dense: None, exact: false, y0: y0.clone() };
+    /// Integrates from t0 at θ into `solved`: over the grid when one is
+    /// given (its end must reach `t_end`), else continuously to `t_end`. The
+    /// previous solution's buffers are reused, so the exact path allocates
+    /// nothing per θ (and nothing the size of the value vector is moved).
+    fn solve(&self, solved: &mut Solved, theta: &[f64], t_end: f64, grid: Option<Grid>) {
+        solved.model = self.id;
+        solved.theta.clear();
+        solved.theta.extend_from_slice(theta);
+        solved.t_end = t_end;
+        solved.exact = false;
+        let states = match solved.dense.take() {
+            Some(Dense::OnGrid { states, .. }) => states,
+            _ => Vec::new(),
+        };
+        let v = &mut solved.values;
+        *v = self.variables.at(theta);
+        v[0] = self.t0;
+        solved.y0.clear();
+        solved.y0.extend(self.initial.iter().map(|f| f.eval(&v[..])));
+        let y0 = &solved.y0;
         if y0.iter().any(|y| !y.is_finite()) {
-            return solved;
+            return;
         }
         if t_end <= self.t0 {
             solved.dense = Some(Dense::Empty);
-            return solved;
+            return;
         }
         if let Some(grid) = grid {
             solved.t_end = grid.end();
             if let Some(affine) = &self.affine {
-                let states = affine.propagate(v, self.variables.state_at, &y0, &grid);
-                solved.dense = states.map(|states| Dense::OnGrid { grid, states, stride: y0.len() });
+                let mut states = states;
+                let ok = affine.propagate(v, self.variables.state_at, y0, &grid, &mut states);
+                solved.dense = ok.then_some(Dense::OnGrid { grid, states, stride: y0.len() });
                 solved.exact = true;
-                return solved;
+                return;
             }
             // The clock: t as the last state when a rate reads it.
             let y0: Vec<f64> = y0.iter().copied().chain((!self.autonomous).then_some(self.t0)).collect();
+            let v = *v;
             solved.dense = match y0.len() {
                 1 => self.integrate_on_grid::<Const<1>>(v, &y0, grid),
                 2 => self.integrate_on_grid::<Const<2>>(v, &y0, grid),
@@ -224,16 +264,16 @@ impl OdeModel {
                 4 => self.integrate_on_grid::<Const<4>>(v, &y0, grid),
                 _ => self.integrate_on_grid::<Dyn>(v, &y0, grid),
             };
-            return solved;
+            return;
         }
+        let v = *v;
         solved.dense = match y0.len() {
-            1 => self.integrate::<Const<1>>(v, &y0, t_end).map(Dense::S1),
-            2 => self.integrate::<Const<2>>(v, &y0, t_end).map(Dense::S2),
-            3 => self.integrate::<Const<3>>(v, &y0, t_end).map(Dense::S3),
-            4 => self.integrate::<Const<4>>(v, &y0, t_end).map(Dense::S4),
-            _ => self.integrate::<Dyn>(v, &y0, t_end).map(Dense::Heap),
+            1 => self.integrate::<Const<1>>(v, y0, t_end).map(Dense::S1),
+            2 => self.integrate::<Const<2>>(v, y0, t_end).map(Dense::S2),
+            3 => self.integrate::<Const<3>>(v, y0, t_end).map(Dense::S3),
+            4 => self.integrate::<Const<4>>(v, y0, t_end).map(Dense::S4),
+            _ => self.integrate::<Dyn>(v, y0, t_end).map(Dense::Heap),
         };
-        solved
     }
 
     /// DOP853 from t0 to the grid's end, interpolating the state at every
@@ -330,25 +370,21 @@ impl OdeModel {
         stepper.integrate_with_continuous_output_model(&mut dense).ok().map(|_| dense)
     }
 
-    /// The state at each t of `x` from a solution; None where it is undefined.
-    fn state_at(&self, solved: &Solved, t: f64, y: &mut [f64]) -> bool {
+    /// The state at `t` from a solution (its initial state `y0`, its dense
+    /// output reaching `t_end`) into `y`: None when the solution does not
+    /// reach t (off its grid, or past its end), Some(false) where the state
+    /// is undefined (a failed integration).
+    #[inline]
+    fn state_at(&self, (y0, dense, t_end): (&[f64], &Option<Dense>, f64), t: f64, y: &mut [f64]) -> Option<bool> {
         if t == self.t0 {
-            y.copy_from_slice(&solved.y0);
-            return true;
+            y.copy_from_slice(y0);
+            return Some(true);
         }
-        match solved.dense.as_ref() {
-            Some(d @ Dense::OnGrid { .. }) => d.state_at(t, y),
-            Some(d) if t > self.t0 && t <= solved.t_end => d.state_at(t, y),
-            _ => false,
-        }
-    }
-
-    /// Whether a solution answers at every time of `x`: a grid solution only
-    /// on its grid.
-    fn serves(&self, solved: &Solved, x: &[f64], t_needed: f64) -> bool {
-        match &solved.dense {
-            Some(Dense::OnGrid { grid, .. }) => x.iter().all(|t| *t == self.t0 || grid.index(*t).is_some()),
-            _ => solved.t_end >= t_needed,
+        match dense {
+            None => Some(false),
+            Some(d @ Dense::OnGrid { .. }) => d.state_at(t, y).then_some(true),
+            Some(_) if t > t_end => None,
+            Some(d) => Some(t > self.t0 && d.state_at(t, y)),
         }
     }
 
@@ -365,25 +401,30 @@ impl OdeModel {
         f64::from_bits(self.horizon.load(Ordering::Relaxed))
     }
 
-    fn predict_from(&self, solved: &Solved, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
-        let n = self.states.len();
+    /// The observable at each t of `x` into `out` (NaN where undefined);
+    /// false, with `out` unfinished, when `solved` does not reach some t.
+    fn predict_from(&self, solved: &mut Solved, observable: usize, x: &[f64], out: &mut [f64]) -> bool {
+        let (at, n) = (self.variables.state_at, self.states.len());
         let formula = &self.formulas[observable];
-        let mut v = self.variables.at(theta);
-        let mut y = [0.0; MAX_NAMES];
+        let Solved { y0, dense, t_end, values: v, .. } = solved;
         for (o, &t) in out.iter_mut().zip(x) {
-            if !self.state_at(solved, t, &mut y[..n]) {
-                *o = f64::NAN;
-                continue;
+            match self.state_at((y0, dense, *t_end), t, &mut v[at..at + n]) {
+                None => return false,
+                Some(false) => {
+                    *o = f64::NAN;
+                    continue;
+                }
+                Some(true) => {}
             }
             v[0] = t;
-            v[self.variables.state_at..self.variables.state_at + n].copy_from_slice(&y[..n]);
             if self.uses_rates[observable] {
                 for (k, rate) in self.rates.iter().enumerate() {
-                    v[self.variables.rate_at + k] = rate.eval(&v);
+                    v[self.variables.rate_at + k] = rate.eval(&v[..]);
                 }
             }
-            *o = formula.eval(&v);
+            *o = formula.eval(&v[..]);
         }
+        true
     }
 }
 
@@ -426,20 +467,27 @@ impl Simulator for OdeModel {
     }
 
     fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
-        let t_needed = x.iter().copied().fold(self.horizon(), f64::max);
         SOLVED.with(|cell| {
             let mut cache = cell.borrow_mut();
-            let fresh =
-                cache.as_ref().is_some_and(|s| s.model == self.id && s.theta == theta && self.serves(s, x, t_needed));
-            if !fresh {
-                let grid = self.grid_for(x, t_needed);
-                let solved = self.solve(theta, t_needed, grid);
-                if solved.dense.is_none() {
-                    self.failures.fetch_add(1, Ordering::Relaxed);
+            // The likelihood asks for each observable in turn at one θ: the
+            // solution made for the first serves the others.
+            if let Some(s) = cache.as_mut().filter(|s| s.model == self.id && s.theta == theta) {
+                if self.predict_from(s, observable, x, out) {
+                    return;
                 }
-                *cache = Some(solved);
             }
-            self.predict_from(cache.as_ref().expect("just solved"), observable, x, theta, out);
+            let t_needed = x.iter().copied().fold(self.horizon(), f64::max);
+            let grid = self.grid_for(x, t_needed);
+            let solved = cache.get_or_insert_with(Solved::empty);
+            self.solve(solved, theta, t_needed, grid);
+            if solved.dense.is_none() {
+                self.failures.fetch_add(1, Ordering::Relaxed);
+            }
+            // A fresh solution reaches every t of x (on its grid, or
+            // integrated to the latest); NaN should one not.
+            if !self.predict_from(solved, observable, x, out) {
+                out.fill(f64::NAN);
+            }
         });
     }
 
