@@ -43,12 +43,23 @@ fn cholesky_unblocked(a: &mut [f64], n: usize) -> bool {
     true
 }
 
-/// `cholesky_unblocked` with the size known at compile time, so the short
-/// loops unroll and lose their bounds checks; the discrepancy blocks (n ≈ 10)
-/// spend most of their time here.
+/// Cholesky with the size known at compile time, so the short loops unroll
+/// and lose their bounds checks; the discrepancy blocks (n ≈ 10) spend most
+/// of their time here. Left-looking: column j takes every earlier column's
+/// update just before its own square root. The products and their order
+/// are `cholesky_unblocked`'s (L_ik L_jk subtracted for k = 0, 1, …), so the
+/// factor is the same to the bit, but only one column's update waits on
+/// each square root and division, which run one after another (measured
+/// at n = 10: 171 ns against 190 ns for the right-looking order).
 fn cholesky_fixed<const N: usize>(a: &mut [f64]) -> bool {
     let a = &mut a[..N * N];
     for j in 0..N {
+        for k in 0..j {
+            let l_jk = a[j + k * N];
+            for i in j..N {
+                a[i + j * N] -= a[i + k * N] * l_jk;
+            }
+        }
         let d = a[j + j * N];
         if !(d > 0.0) || !d.is_finite() {
             return false;
@@ -58,12 +69,6 @@ fn cholesky_fixed<const N: usize>(a: &mut [f64]) -> bool {
         let inv = 1.0 / d;
         for i in j + 1..N {
             a[i + j * N] *= inv;
-        }
-        for k in j + 1..N {
-            let l_kj = a[k + j * N];
-            for i in k..N {
-                a[i + k * N] -= a[i + j * N] * l_kj;
-            }
         }
     }
     true

@@ -28,6 +28,7 @@
 //! reported in `summary.json`, never a panic or a hang (the step count is
 //! bounded by `[model.solver] max_steps`).
 
+mod dense;
 mod grid;
 mod linear;
 
@@ -35,6 +36,7 @@ use super::declaration::{check_parameters_used, corners, describe, Declared, Sol
 use super::formula::Formula;
 use crate::engine::model::Simulator;
 use anyhow::{bail, Result};
+use dense::Dense;
 use grid::Grid;
 use nalgebra::allocator::Allocator;
 use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
@@ -103,61 +105,6 @@ impl Solved {
             exact: false,
             y0: Vec::new(),
             values: [0.0; MAX_NAMES],
-        }
-    }
-}
-
-/// Dense output of one integration: the states at the grid's points, or a
-/// continuous output (up to four state variables in stack vectors, more in
-/// heap vectors).
-enum Dense {
-    Empty,
-    /// `states[k·stride..]` begins with the state at grid point k.
-    OnGrid {
-        grid: Grid,
-        states: Vec<f64>,
-        /// Values per grid point: the state, then t when DOP853 carried it.
-        stride: usize,
-    },
-    S1(ContinuousOutputModel<f64, OVector<f64, Const<1>>>),
-    S2(ContinuousOutputModel<f64, OVector<f64, Const<2>>>),
-    S3(ContinuousOutputModel<f64, OVector<f64, Const<3>>>),
-    S4(ContinuousOutputModel<f64, OVector<f64, Const<4>>>),
-    Heap(ContinuousOutputModel<f64, OVector<f64, Dyn>>),
-}
-
-impl Dense {
-    /// The state at t into `y`; false outside the solution. The grid's case
-    /// is inlined: it is asked once per data point per likelihood evaluation.
-    #[inline]
-    fn state_at(&self, t: f64, y: &mut [f64]) -> bool {
-        match self {
-            Dense::OnGrid { grid, states, stride } => match grid.index(t) {
-                Some(k) => {
-                    y.copy_from_slice(&states[k * stride..k * stride + y.len()]);
-                    true
-                }
-                None => false,
-            },
-            _ => self.continuous_state_at(t, y),
-        }
-    }
-
-    #[inline(never)]
-    fn continuous_state_at(&self, t: f64, y: &mut [f64]) -> bool {
-        fn copy<D: Dim>(d: &ContinuousOutputModel<f64, OVector<f64, D>>, t: f64, y: &mut [f64]) -> bool
-        where
-            DefaultAllocator: Allocator<D>,
-        {
-            d.evaluate(t).map(|s| y.copy_from_slice(s.as_slice())).is_some()
-        }
-        match self {
-            Dense::Empty | Dense::OnGrid { .. } => false,
-            Dense::S1(d) => copy(d, t, y),
-            Dense::S2(d) => copy(d, t, y),
-            Dense::S3(d) => copy(d, t, y),
-            Dense::S4(d) => copy(d, t, y),
-            Dense::Heap(d) => copy(d, t, y),
         }
     }
 }
