@@ -339,6 +339,42 @@ mod tests {
         assert!(jitter > 0.0);
     }
 
+    /// The likelihood's path: the matrix refilled for each retry, not backed
+    /// up. A singular block (rank one, n = 10) needs jitter; the refilling
+    /// factorization gives `factorize`'s jitter and factor to the bit, and
+    /// fills once per retry.
+    #[test]
+    fn refilling_matches_the_backed_up_factorization() {
+        let n = 10;
+        let fill = |a: &mut [f64]| {
+            for j in 0..n {
+                for i in j..n {
+                    a[i + n * j] = (1.0 + i as f64) * (1.0 + j as f64);
+                }
+            }
+        };
+        let mut backed_up = CholeskyWorkspace::new(n);
+        fill(&mut backed_up.factor);
+        let jitter = backed_up.factorize().expect("jitter rescues a PSD matrix");
+        assert!(jitter > 0.0);
+        let mut refilled = CholeskyWorkspace::new(n);
+        fill(&mut refilled.factor);
+        let mut fills = 0;
+        let got = refilled.factorize_refilling(|a| {
+            fills += 1;
+            fill(a)
+        });
+        assert_eq!(got.unwrap().to_bits(), jitter.to_bits());
+        // The jitter is a rung of the ladder times the mean diagonal, Σ(1 + i)²/n = 38.5.
+        let rung = JITTER_LADDER.iter().position(|r| *r > 0.0 && r * 38.5 == jitter).unwrap();
+        assert_eq!(fills, rung, "one fill per retry");
+        for j in 0..n {
+            for i in j..n {
+                assert_eq!(refilled.factor[i + n * j].to_bits(), backed_up.factor[i + n * j].to_bits());
+            }
+        }
+    }
+
     #[test]
     fn every_factorization_path_reproduces_the_matrix() {
         // n = 3, 10: fixed-size; 20: unblocked; 30, 70: faer. L Lᵀ must give A
