@@ -35,10 +35,8 @@ impl Study<'_> {
                 anyhow!("{}: the refine stage needs a [run.refine] table", self.config.path.display())
             })?;
         let dir = self.refine_dir();
-        if dir.exists() {
-            std::fs::remove_dir_all(&dir)
-                .with_context(|| format!("removing the previous refinement {}", dir.display()))?;
-        }
+        crate::engine::execute::attempt::remove_after_attempts(&dir)
+            .with_context(|| format!("removing the previous refinement {}", dir.display()))?;
         let mut emulator_dir = self.paths.emulator();
         let mut tables = vec![self.paths.training()];
         let mut rounds: Vec<Round> = Vec::new();

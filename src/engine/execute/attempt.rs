@@ -129,14 +129,7 @@ pub fn started(runs: &Path, id: i64, tag: &str) -> bool {
 
 /// Whether an attempt's script still holds its lock (it is running on this machine).
 pub fn is_running_here(runs: &Path, id: i64, tag: &str) -> bool {
-    let Ok(f) = std::fs::OpenOptions::new().write(true).open(attempt_path(runs, id, tag, ".lock")) else {
-        return false;
-    };
-    match f.try_lock() {
-        Ok(()) => false,
-        Err(std::fs::TryLockError::WouldBlock) => true,
-        Err(_) => false,
-    }
+    lock_is_held(&attempt_path(runs, id, tag, ".lock"))
 }
 
 /// Tags of attempts that started (have a folder or lock) but have no exit record.
@@ -225,4 +218,84 @@ fn tail(path: &Path, n: usize) -> String {
     let text = std::fs::read_to_string(path).unwrap_or_default();
     let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
     lines[lines.len().saturating_sub(n)..].join("\n")
+}
+
+/// Removes a folder that may hold runs, first waiting for every attempt
+/// still running in it: a killed mdpipe leaves its attempts running (they
+/// outlive it by design, so a restart can adopt them), and removing their
+/// folder under them fails or lets them write into its successor. An attempt
+/// ends within its time limit, so the wait is bounded.
+pub fn remove_after_attempts(dir: &Path) -> Result<()> {
+    if !dir.exists() {
+        return Ok(());
+    }
+    let locks = attempt_locks(dir);
+    let running: Vec<&PathBuf> = locks.iter().filter(|l| lock_is_held(l)).collect();
+    if !running.is_empty() {
+        println!("  waiting for {} attempt(s) of an earlier run in {} to end", running.len(), dir.display());
+    }
+    for lock in running {
+        if let Ok(f) = std::fs::OpenOptions::new().write(true).open(lock) {
+            f.lock().with_context(|| format!("waiting for the attempt holding {}", lock.display()))?;
+        }
+    }
+    std::fs::remove_dir_all(dir).with_context(|| format!("removing {}", dir.display()))
+}
+
+fn lock_is_held(lock: &Path) -> bool {
+    let Ok(f) = std::fs::OpenOptions::new().write(true).open(lock) else { return false };
+    matches!(f.try_lock(), Err(std::fs::TryLockError::WouldBlock))
+}
+
+/// Every attempt lock file in the `.attempts` folders under `dir`.
+fn attempt_locks(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let Ok(entries) = std::fs::read_dir(dir) else { return out };
+    let in_attempts = dir.file_name().is_some_and(|n| n == ".attempts");
+    for e in entries.flatten() {
+        let p = e.path();
+        if e.file_type().is_ok_and(|t| t.is_dir()) {
+            out.extend(attempt_locks(&p));
+        } else if in_attempts && p.extension().is_some_and(|x| x == "lock") {
+            out.push(p);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An attempt left running by a killed mdpipe, which writes into its
+    /// folder a moment later: removal waits for it, so nothing is written
+    /// into the folder after it is gone.
+    #[test]
+    fn removal_waits_for_an_attempt_still_running_in_the_folder() {
+        let dir = std::env::temp_dir().join(format!("mdpipe-remove-after-{}", std::process::id()));
+        let attempts = dir.join("runs").join(".attempts");
+        std::fs::create_dir_all(&attempts).unwrap();
+        let lock = attempts.join("0001.a1.lock");
+        let late = attempts.join("0001.a1").join("late.txt");
+        let script = format!(
+            "exec 9>'{}'; flock 9; sleep 1; mkdir -p '{}' && echo late > '{}'",
+            lock.display(),
+            late.parent().unwrap().display(),
+            late.display()
+        );
+        let mut orphan = std::process::Command::new("bash").args(["-c", &script]).spawn().unwrap();
+        let start = std::time::Instant::now();
+        while !lock_is_held(&lock) {
+            assert!(start.elapsed().as_secs() < 10, "the stand-in attempt never took its lock");
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        remove_after_attempts(&dir).unwrap();
+        orphan.wait().unwrap();
+        assert!(!dir.exists(), "the attempt wrote into the folder after it was removed");
+    }
+
+    #[test]
+    fn removal_of_a_missing_folder_is_a_no_op() {
+        remove_after_attempts(Path::new("/nonexistent/mdpipe/runs")).unwrap();
+    }
 }

@@ -54,10 +54,8 @@ fn candidates(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     let spec = DesignSpec::load(&spec_path)?;
     for v in study.variants()? {
         let dir = study.paths.candidate(&v.name);
-        if dir.exists() {
-            std::fs::remove_dir_all(&dir)
-                .with_context(|| format!("removing the previous variant {}", dir.display()))?;
-        }
+        crate::engine::execute::attempt::remove_after_attempts(&dir)
+            .with_context(|| format!("removing the previous variant {}", dir.display()))?;
         let design_dir = dir.join("design");
         let points = study.run.candidate_points.unwrap_or(study.run.points);
         let label = format!("candidate {}", v.name);

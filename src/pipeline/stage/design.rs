@@ -64,7 +64,7 @@ impl Study<'_> {
         // keeps unstamped point folders (SLURM's), so they must not survive here.
         let runs = dir.join("runs");
         if runs.exists() {
-            std::fs::remove_dir_all(&runs)
+            crate::engine::execute::attempt::remove_after_attempts(&runs)
                 .with_context(|| format!("removing runs of the previous design {}", runs.display()))?;
             println!("  removed {} (runs of the previous design)", runs.display());
         }

@@ -39,10 +39,8 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     config.candidates = study.variants()?.into_iter().map(|v| v.declaration).collect();
     let out = study.paths.diagnose();
     // A previous run's refined variants are of other settings (its runs would mix with new ones).
-    if out.join("refine").exists() {
-        std::fs::remove_dir_all(out.join("refine"))
-            .with_context(|| format!("removing the previous variant refinement {}", out.join("refine").display()))?;
-    }
+    crate::engine::execute::attempt::remove_after_attempts(&out.join("refine"))
+        .with_context(|| format!("removing the previous variant refinement {}", out.join("refine").display()))?;
     let overrides = Overrides { observables: Some(study.diagnose_observables()), ..Default::default() };
     let settings = crate::engine::diagnose::DiagnoseSettings::default();
     let seed = study.opts.seed.wrapping_add(77);

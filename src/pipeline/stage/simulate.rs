@@ -30,12 +30,13 @@ fn simulate(study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {
     let forced = previous.is_some() && !stale;
     for (dir, label) in [(study.paths.design(), "design"), (study.paths.validation_design(), "validation design")] {
         let runs = dir.join("runs");
-        if stale && runs.exists() {
-            std::fs::remove_dir_all(&runs).with_context(|| format!("removing outdated runs {}", runs.display()))?;
+        if stale {
+            execute::attempt::remove_after_attempts(&runs)
+                .with_context(|| format!("removing outdated runs {}", runs.display()))?;
         }
         let attempts = runs.join(".attempts");
-        if forced && attempts.exists() {
-            std::fs::remove_dir_all(&attempts)
+        if forced {
+            execute::attempt::remove_after_attempts(&attempts)
                 .with_context(|| format!("removing the previous attempts {}", attempts.display()))?;
         }
         let simulator = study.simulator(label == "validation design")?;
