@@ -305,6 +305,10 @@ mod tests {
             "2/x",
             "x - 2",
             "PI*x",
+            "(-x)*abs(y) + y^2/x - abs(a)",
+            "x^2 - abs(y)*(-b) + (-c)/y^2",
+            "exp(-x^2) + sqrt(-x) + abs(x - y)",
+            "c + -a*x*abs(x)",
         ];
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
         for text in formulas {

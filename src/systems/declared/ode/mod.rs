@@ -394,7 +394,11 @@ where
         let n = self.model.rates.len();
         v[0] = if self.clock { y[n] } else { t };
         let at = self.model.variables.state_at;
-        v[at..at + n].copy_from_slice(&y.as_slice()[..n]);
+        // A loop, not copy_from_slice: n is a handful and memcpy's call cost
+        // more than the copy (perf, the ball drop with drag).
+        for (slot, y) in v[at..at + n].iter_mut().zip(y.iter()) {
+            *slot = *y;
+        }
         for (k, rate) in self.model.rates.iter().enumerate() {
             dy[k] = rate.eval(&v[..]);
         }
