@@ -232,7 +232,12 @@ pub fn remove_after_attempts(dir: &Path) -> Result<()> {
     let locks = attempt_locks(dir);
     let running: Vec<&PathBuf> = locks.iter().filter(|l| lock_is_held(l)).collect();
     if !running.is_empty() {
-        println!("  waiting for {} attempt(s) of an earlier run in {} to end", running.len(), dir.display());
+        println!(
+            "  waiting for {} attempt(s) of an earlier run still running in {} (each ends within its \
+             time limit; stop them to go on at once)",
+            running.len(),
+            dir.display()
+        );
     }
     for lock in running {
         if let Ok(f) = std::fs::OpenOptions::new().write(true).open(lock) {
