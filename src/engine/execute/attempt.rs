@@ -252,20 +252,28 @@ fn lock_is_held(lock: &Path) -> bool {
     matches!(f.try_lock(), Err(std::fs::TryLockError::WouldBlock))
 }
 
-/// Every attempt lock file in the `.attempts` folders under `dir`.
+/// Every attempt lock file in the `.attempts` folders under `dir`. Locks
+/// lie directly in a runs folder's `.attempts`, so a runs folder's point
+/// folders (a study's event files) and the attempts' own folders are not read.
 fn attempt_locks(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let Ok(entries) = std::fs::read_dir(dir) else { return out };
-    let in_attempts = dir.file_name().is_some_and(|n| n == ".attempts");
-    for e in entries.flatten() {
-        let p = e.path();
-        if e.file_type().is_ok_and(|t| t.is_dir()) {
-            out.extend(attempt_locks(&p));
-        } else if in_attempts && p.extension().is_some_and(|x| x == "lock") {
-            out.push(p);
-        }
+    let children =
+        |d: &Path| -> Vec<std::fs::DirEntry> { std::fs::read_dir(d).into_iter().flatten().flatten().collect() };
+    if dir.file_name().is_some_and(|n| n == ".attempts") {
+        return children(dir)
+            .into_iter()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|x| x == "lock"))
+            .collect();
     }
-    out
+    let attempts = attempts_dir(dir);
+    if attempts.is_dir() {
+        return attempt_locks(&attempts);
+    }
+    children(dir)
+        .into_iter()
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
+        .flat_map(|e| attempt_locks(&e.path()))
+        .collect()
 }
 
 #[cfg(test)]
