@@ -86,8 +86,11 @@ fn read_events_unguarded(path: &Path) -> Result<(Vec<Event>, Vec<UnreadableEvent
     Ok((good, bad))
 }
 
-/// Writes events as iEBE-MUSIC's combine script does (float32, gzip level 9,
-/// `header` attribute), to a temporary file renamed into place.
+/// Writes events in the layout of iEBE-MUSIC's combine script (float32 gzip
+/// datasets, `header` attribute), to a temporary file renamed into place.
+/// The script compresses at level 9; level 1 reads back the same values, and
+/// the stand-in's design point is written in 0.27 s instead of 0.43 s, for
+/// files 6% larger (`mdpipe bench --heavy-ion-events 1000`, docs/performance.md).
 pub fn write_events(path: &Path, events: &[Event]) -> Result<()> {
     let mut builder = hdf5_pure::FileBuilder::new();
     for ev in events {
@@ -100,7 +103,7 @@ pub fn write_events(path: &Path, events: &[Event]) -> Result<()> {
                 .with_f32_data(&data)
                 .with_shape(&[rows, f.columns as u64])
                 .with_chunks(&[rows.max(1), f.columns as u64])
-                .with_deflate(9)
+                .with_deflate(1)
                 .set_attr("header", AttrValue::AsciiString(format!("{}\n", f.header)));
         }
         builder.add_group(group.finish());

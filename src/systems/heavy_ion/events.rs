@@ -139,15 +139,14 @@ impl Accumulator {
         }
     }
 
-    fn add(&mut self, bin: usize, pt: f64, phi: f64) {
+    /// Adds one particle whose e^{inφ} for n = 1, 2, … are `harmonics`
+    /// (this accumulator reads the first `orders`).
+    fn add(&mut self, bin: usize, pt: f64, harmonics: &Harmonics) {
         self.count[bin] += 1.0;
         self.sum_pt[bin] += pt;
-        let (s1, c1) = phi.sin_cos();
-        let (mut c, mut s) = (c1, s1);
-        for slot in self.q[bin].iter_mut() {
+        for (slot, &(c, s)) in self.q[bin].iter_mut().zip(&harmonics.0) {
             slot.0 += c;
             slot.1 += s;
-            (c, s) = (c * c1 - s * s1, s * c1 + c * s1);
         }
     }
 
@@ -239,70 +238,109 @@ fn interpolate(
     pick(&nodes[0]) * (1.0 - t) + pick(&nodes[1]) * t
 }
 
+/// e^{inφ} of one particle for n = 1 … ORDER_MAX_CHARGED − 1, by rotation
+/// from one sin_cos; worked out once and added to both the identified and the
+/// charged tables.
+struct Harmonics([(f64, f64); ORDER_MAX_CHARGED - 1]);
+
+impl Harmonics {
+    fn of(phi: f64) -> Harmonics {
+        let (s1, c1) = phi.sin_cos();
+        let mut h = [(0.0, 0.0); ORDER_MAX_CHARGED - 1];
+        let (mut c, mut s) = (c1, s1);
+        for slot in h.iter_mut() {
+            *slot = (c, s);
+            (c, s) = (c * c1 - s * s1, s * c1 + c * s1);
+        }
+        Harmonics(h)
+    }
+}
+
+/// One event's flow geometry: v_n scale factors |ε_n| / ε_n,rms and event-plane angles.
+struct Geometry {
+    scale: [f64; 2],
+    psi: [f64; 2],
+}
+
+/// φ from `1 + 2 v2 cos 2(φ − ψ2) + 2 v3 cos 3(φ − ψ3)` by rejection under
+/// `bound`. A draw below the density's floor `1 − 2(|v2| + |v3|)` is
+/// accepted without the cosines (a squeeze): the same draws and the same
+/// decisions as evaluating the density every time, since the margin is far
+/// above the density's rounding error.
+fn draw_phi(rng: &mut impl Rng, v2: f64, v3: f64, psi: &[f64; 2]) -> f64 {
+    let reach = 2.0 * (v2.abs() + v3.abs());
+    let bound = 1.0 + reach;
+    let sure = (1.0 - reach) - 1e-12;
+    loop {
+        let phi = rng.random::<f64>() * std::f64::consts::TAU;
+        let u = rng.random::<f64>() * bound;
+        if u < sure {
+            return phi;
+        }
+        let density = 1.0 + 2.0 * v2 * (2.0 * (phi - psi[0])).cos() + 2.0 * v3 * (3.0 * (phi - psi[1])).cos();
+        if u < density {
+            return phi;
+        }
+    }
+}
+
+/// Whether a particle of rapidity y lies in |η| < WINDOW, with
+/// η = asinh(mT sinh y / pT). asinh is worked out only within a relative
+/// 1e-9 of the edge sinh(WINDOW); elsewhere the comparison of its argument
+/// decides, with a margin far above asinh's rounding error (NaN falls
+/// through to asinh, which is NaN, so outside, as before).
+fn in_eta_window(pt: f64, m: f64, y: f64) -> bool {
+    let edge = WINDOW.sinh();
+    let mt = (pt * pt + m * m).sqrt();
+    let x = mt * y.sinh() / pt;
+    let ax = x.abs();
+    if ax < edge * (1.0 - 1e-9) {
+        true
+    } else if ax > edge * (1.0 + 1e-9) {
+        false
+    } else {
+        x.asinh().abs() < WINDOW
+    }
+}
+
 /// One event (`oversample` samples of one fluid evolution), reproducible
 /// from (seed, index).
 pub fn sample_event(tables: &SmoothTables, seed: u64, index: usize, oversample: usize) -> Event {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ (index as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let shape = 1.0 / (MULTIPLICITY_SD * MULTIPLICITY_SD);
     let lambda = Gamma::new(shape, 1.0 / shape).expect("valid gamma").sample(&mut rng);
-    let eps_rp = (ECCENTRICITY[0].powi(2) - 2.0 * EPS2_FLUCTUATION.powi(2)).sqrt();
-    let sigma3 = ECCENTRICITY[1] / 2f64.sqrt();
-    let normal = Normal::new(0.0, 1.0).expect("valid normal");
-    let psi_rp = rng.random::<f64>() * std::f64::consts::TAU;
-    let (ex, ey) = (eps_rp + EPS2_FLUCTUATION * normal.sample(&mut rng), EPS2_FLUCTUATION * normal.sample(&mut rng));
-    let (e3x, e3y) = (sigma3 * normal.sample(&mut rng), sigma3 * normal.sample(&mut rng));
-    let scale = [ex.hypot(ey) / ECCENTRICITY[0], e3x.hypot(e3y) / ECCENTRICITY[1]];
-    let psi = [ey.atan2(ex) / 2.0 + psi_rp, e3y.atan2(e3x) / 3.0 + psi_rp];
-
+    let geometry = draw_geometry(&mut rng);
     let charged_kind = FileKind::diff(CHARGED_PID, Window::Eta, -WINDOW, WINDOW);
     let mut charged = Accumulator::new(ORDER_MAX_CHARGED);
     let mut charged_pt2 = 0.0;
     let mut files = Vec::new();
     for table in &tables.species {
-        let m = table.species.mass;
         let kind = FileKind::diff(table.species.pid, Window::Y, -WINDOW, WINDOW);
         let mut identified = Accumulator::new(ORDER_MAX_IDENTIFIED);
         let mut identified_pt2 = 0.0;
-        let bins: Vec<(f64, PtSampler)> = table
-            .nodes
-            .iter()
-            .enumerate()
-            .map(|(b, nodes)| {
-                (nodes.iter().map(|n| n.1 * n.2).sum::<f64>(), PtSampler::new(b as f64 * FINE_PT_WIDTH, nodes))
-            })
-            .collect();
+        let bins = species_bins(table, lambda);
         // Particles, then antiparticles; each `oversample` times over the same event geometry.
         for sign in [1, -1] {
             for _sample in 0..oversample {
-                for (b, (nodes, (weight, pt_sampler))) in table.nodes.iter().zip(&bins).enumerate() {
-                    let mean = lambda * 2.0 * WINDOW * weight;
-                    if !(mean > 0.0) {
-                        continue;
-                    }
-                    let count = Poisson::new(mean).expect("positive mean").sample(&mut rng) as usize;
-                    for _ in 0..count {
+                for (b, (nodes, (count, pt_sampler))) in table.nodes.iter().zip(&bins).enumerate() {
+                    let Some(count) = count else { continue };
+                    for _ in 0..count.sample(&mut rng) as usize {
                         let pt = pt_sampler.sample(&mut rng);
-                        let v2 = scale[0] * interpolate(nodes, pt, |n| n.3);
-                        let v3 = scale[1] * interpolate(nodes, pt, |n| n.4);
-                        let bound = 1.0 + 2.0 * (v2.abs() + v3.abs());
-                        let phi = loop {
-                            let phi = rng.random::<f64>() * std::f64::consts::TAU;
-                            let density =
-                                1.0 + 2.0 * v2 * (2.0 * (phi - psi[0])).cos() + 2.0 * v3 * (3.0 * (phi - psi[1])).cos();
-                            if rng.random::<f64>() * bound < density {
-                                break phi;
-                            }
-                        };
+                        let v2 = geometry.scale[0] * interpolate(nodes, pt, |n| n.3);
+                        let v3 = geometry.scale[1] * interpolate(nodes, pt, |n| n.4);
+                        let phi = draw_phi(&mut rng, v2, v3, &geometry.psi);
                         let y = (rng.random::<f64>() * 2.0 - 1.0) * WINDOW;
-                        let mt = (pt * pt + m * m).sqrt();
-                        let eta = (mt * y.sinh() / pt).asinh();
-                        if sign == 1 {
-                            identified.add(b, pt, phi);
-                            identified_pt2 += pt * pt;
-                        }
-                        if eta.abs() < WINDOW {
-                            charged.add(b, pt, phi);
-                            charged_pt2 += pt * pt;
+                        let in_eta = in_eta_window(pt, table.species.mass, y);
+                        if sign == 1 || in_eta {
+                            let harmonics = Harmonics::of(phi);
+                            if sign == 1 {
+                                identified.add(b, pt, &harmonics);
+                                identified_pt2 += pt * pt;
+                            }
+                            if in_eta {
+                                charged.add(b, pt, &harmonics);
+                                charged_pt2 += pt * pt;
+                            }
                         }
                     }
                 }
@@ -315,6 +353,37 @@ pub fn sample_event(tables: &SmoothTables, seed: u64, index: usize, oversample: 
     files.push(charged.integrated_file(&charged_kind, charged_pt2, oversample));
     files.sort_by(|a, b| a.name.cmp(&b.name));
     Event { label: format!("spvn_results_{index}"), files }
+}
+
+/// The event's eccentricities, as v_n scales and event-plane angles.
+fn draw_geometry(rng: &mut impl Rng) -> Geometry {
+    let eps_rp = (ECCENTRICITY[0].powi(2) - 2.0 * EPS2_FLUCTUATION.powi(2)).sqrt();
+    let sigma3 = ECCENTRICITY[1] / 2f64.sqrt();
+    let normal = Normal::new(0.0, 1.0).expect("valid normal");
+    let psi_rp = rng.random::<f64>() * std::f64::consts::TAU;
+    let (ex, ey) = (eps_rp + EPS2_FLUCTUATION * normal.sample(rng), EPS2_FLUCTUATION * normal.sample(rng));
+    let (e3x, e3y) = (sigma3 * normal.sample(rng), sigma3 * normal.sample(rng));
+    Geometry {
+        scale: [ex.hypot(ey) / ECCENTRICITY[0], e3x.hypot(e3y) / ECCENTRICITY[1]],
+        psi: [ey.atan2(ex) / 2.0 + psi_rp, e3y.atan2(e3x) / 3.0 + psi_rp],
+    }
+}
+
+/// Per fine bin of one species in one event: the Poisson law of its count
+/// (None when the bin holds no particles), made once rather than per sample,
+/// and its pT sampler.
+fn species_bins(table: &SpeciesTable, lambda: f64) -> Vec<(Option<Poisson<f64>>, PtSampler)> {
+    table
+        .nodes
+        .iter()
+        .enumerate()
+        .map(|(b, nodes)| {
+            let weight = nodes.iter().map(|n| n.1 * n.2).sum::<f64>();
+            let mean = lambda * 2.0 * WINDOW * weight;
+            let count = (mean > 0.0).then(|| Poisson::new(mean).expect("positive mean"));
+            (count, PtSampler::new(b as f64 * FINE_PT_WIDTH, nodes))
+        })
+        .collect()
 }
 
 /// `n` events at one parameter point (in parallel; reproducible from `seed`).
