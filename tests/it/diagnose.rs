@@ -347,3 +347,65 @@ pub(crate) fn each_verdict_is_right(system: &str, rows: &[(&str, String, f64)]) 
         }
     }
 }
+
+/// The ball drop's model with every prediction scaled by 1 + 1e-3: the same
+/// config, data and seed, another model.
+struct Scaled(std::sync::Arc<dyn mdpipe::model::Simulator>);
+
+impl mdpipe::model::Simulator for Scaled {
+    fn parameter_names(&self) -> Vec<String> {
+        self.0.parameter_names()
+    }
+    fn observable_names(&self) -> Vec<String> {
+        self.0.observable_names()
+    }
+    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
+        self.0.predict(observable, x, theta, out);
+        out.iter_mut().for_each(|v| *v *= 1.0 + 1e-3);
+    }
+    fn check_inputs(&self, observable: usize, x: &[f64]) -> anyhow::Result<()> {
+        self.0.check_inputs(observable, x)
+    }
+    fn predicts_any_x(&self) -> bool {
+        self.0.predicts_any_x()
+    }
+}
+
+#[test]
+fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
+    let small = |mut cfg: mdpipe::calibrate::Analysis| {
+        cfg.sampler.smc.particles = 300;
+        cfg.sampler.smc.replicates = 2;
+        cfg
+    };
+    let settings = DiagnoseSettings { discover: diagnose::Discover::Never, ..Default::default() };
+    let reuse = diagnose::Reuse::across_diagnoses();
+    let run = |cfg: &mdpipe::calibrate::Analysis| {
+        diagnose::run_reusing(cfg, &Overrides::default(), 3, &settings, None, &Silent, &reuse).unwrap()
+    };
+    let wall = |c: &mdpipe::calibrate::Calibration| c.summary.diagnostics.wall_seconds;
+    let cfg = small(config());
+    let first = run(&cfg);
+    let again = run(&cfg);
+    // A reused fit is the first fit itself, down to the wall time it took.
+    assert_eq!(wall(&again.base), wall(&first.base));
+    assert_eq!(wall(&again.md), wall(&first.md));
+    assert_eq!(again.candidates.len(), first.candidates.len());
+    for ((name, a), (_, b)) in again.candidates.iter().zip(&first.candidates) {
+        assert_eq!(wall(a), wall(b), "{name}");
+    }
+    assert_eq!(again.diagnosis.verdict.best, first.diagnosis.verdict.best);
+    // Another base model under the same config: both base fits are sampled
+    // again (other draws, another time); the candidates carry their own
+    // models, unchanged, and are reused.
+    let mut other = small(config());
+    other.simulator = std::sync::Arc::new(Scaled(other.simulator.clone()));
+    let third = run(&other);
+    for (new, old) in [(&third.base, &first.base), (&third.md, &first.md)] {
+        assert_ne!(wall(new), wall(old));
+        assert!(new.chains.chains != old.chains.chains, "the same draws from another model");
+    }
+    for ((name, a), (_, b)) in third.candidates.iter().zip(&first.candidates) {
+        assert_eq!(wall(a), wall(b), "{name}");
+    }
+}

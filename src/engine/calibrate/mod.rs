@@ -296,6 +296,7 @@ fn prior_of(analysis: &Analysis, likelihood: &MdLikelihood) -> Result<UniformPri
 }
 
 /// Output of one calibration run, in memory.
+#[derive(Clone)]
 pub struct Calibration {
     pub chains: Chains,
     pub summary: summary::Summary,

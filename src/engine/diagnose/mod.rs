@@ -45,6 +45,7 @@
 mod decide;
 mod discover;
 mod locate;
+mod reuse;
 mod suggest;
 mod types;
 mod wording;
@@ -58,6 +59,7 @@ use crate::engine::model::CandidateModel;
 use anyhow::Result;
 use decide::*;
 use locate::{locate, mismatch_phrase};
+pub use reuse::Reuse;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -119,6 +121,7 @@ struct Diagnoser<'a> {
     overrides: &'a Overrides,
     out: Option<&'a Path>,
     observer: &'a dyn Observer,
+    reuse: &'a Reuse,
 }
 
 impl Diagnoser<'_> {
@@ -131,7 +134,17 @@ impl Diagnoser<'_> {
         name: &str,
     ) -> Result<(Problem, Calibration)> {
         let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..self.overrides.clone() })?;
-        let cal = calibrate::run(&problem, seed, self.observer)?;
+        let cal = match self.reuse.get(name, &problem, seed) {
+            Some(cal) => {
+                println!("  {name}: the same problem and seed as in the diagnosis before; its fit is reused");
+                cal
+            }
+            None => {
+                let cal = calibrate::run(&problem, seed, self.observer)?;
+                self.reuse.keep(name, &problem, seed, &cal);
+                cal
+            }
+        };
         if let Some(dir) = self.out {
             calibrate::write_outputs(&dir.join(name), &problem, &cal)?;
         }
@@ -230,7 +243,21 @@ pub fn run(
     out: Option<&Path>,
     observer: &dyn Observer,
 ) -> Result<DiagnoseRun> {
-    let d = Diagnoser { overrides, out, observer };
+    run_reusing(analysis, overrides, seed, settings, out, observer, &Reuse::none())
+}
+
+/// As `run`, taking from `reuse` the fits an earlier diagnosis made of the
+/// same problems with the same seeds, and keeping its own there.
+pub fn run_reusing(
+    analysis: &Analysis,
+    overrides: &Overrides,
+    seed: u64,
+    settings: &DiagnoseSettings,
+    out: Option<&Path>,
+    observer: &dyn Observer,
+    reuse: &Reuse,
+) -> Result<DiagnoseRun> {
+    let d = Diagnoser { overrides, out, observer, reuse };
     let (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
     let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
     let (z_base, e_base) = evidence(&base.summary);

@@ -44,14 +44,17 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     let overrides = Overrides { observables: Some(study.diagnose_observables()), ..Default::default() };
     let settings = crate::engine::diagnose::DiagnoseSettings::default();
     let seed = study.opts.seed.wrapping_add(77);
+    // The diagnosis after refinement takes the fits whose problems did not change.
+    let reuse = crate::engine::diagnose::Reuse::across_diagnoses();
     let diagnose = |analysis: &_| {
-        crate::engine::diagnose::run(
+        crate::engine::diagnose::run_reusing(
             analysis,
             &overrides,
             seed,
             &settings,
             Some(&out),
             observer(study.opts.show_progress),
+            &reuse,
         )
     };
     let analysis = study.analysis(&config)?;
