@@ -67,7 +67,17 @@ impl Study<'_> {
             calibrate::checkpoint_key(&problem, c.seed),
             None,
         );
-        let cal = calibrate::run_and_write(&problem, c.seed, observer(self.opts.show_progress), &checkpoint, &c.dir)?;
+        // The last refinement round fitted the same problem with the same emulator.
+        let (cal, whence) = match calibrate::stored::find(&self.stored_fits(&self.refine_dir()), &problem)? {
+            Some((dir, cal)) => {
+                calibrate::write_outputs(&c.dir, &problem, &cal)?;
+                (cal, format!(" (the fit of {}, the same problem)", dir.display()))
+            }
+            None => (
+                calibrate::run_and_write(&problem, c.seed, observer(self.opts.show_progress), &checkpoint, &c.dir)?,
+                String::new(),
+            ),
+        };
         let seconds = cal.summary.diagnostics.wall_seconds;
         let prov = Provenance::new(
             self.config.hash.clone(),
@@ -85,7 +95,7 @@ impl Study<'_> {
                 provenance: prov,
             },
         )?;
-        println!("  {:<60} {seconds:>6.1} s", c.name);
+        println!("  {:<60} {seconds:>6.1} s{whence}", c.name);
         Ok(())
     }
 

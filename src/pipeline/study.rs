@@ -4,6 +4,7 @@
 use super::run_config::RunConfig;
 use crate::base::artifacts;
 use crate::base::config::Config;
+use crate::engine::calibrate;
 use crate::engine::emulator::EmulatorSettings;
 use crate::engine::execute::Executor;
 use anyhow::{anyhow, Context, Result};
@@ -91,6 +92,25 @@ impl Study<'_> {
         let path = self.config.resolve(&self.run.design);
         let bytes = std::fs::read(&path).with_context(|| format!("reading design spec {}", path.display()))?;
         Ok(artifacts::sha256_hex(&bytes))
+    }
+
+    /// The calibrations written under `dir`, at most three folders down (the
+    /// calibrate stage's cases, the refine rounds' pilots), in path order:
+    /// fits a later stage may take for the same problem (`calibrate::stored`).
+    pub(super) fn stored_fits(&self, dir: &Path) -> Vec<PathBuf> {
+        let mut found = Vec::new();
+        let mut level = vec![dir.to_path_buf()];
+        for _ in 0..3 {
+            let mut next = Vec::new();
+            for d in &level {
+                let Ok(entries) = std::fs::read_dir(d) else { continue };
+                next.extend(entries.flatten().map(|e| e.path()).filter(|p| p.is_dir()));
+            }
+            found.extend(next.iter().filter(|p| p.join(calibrate::stored::KEY_FILE).is_file()).cloned());
+            level = next;
+        }
+        found.sort();
+        found
     }
 
     pub(super) fn all_observables(&self) -> Vec<String> {

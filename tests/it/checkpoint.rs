@@ -147,3 +147,50 @@ fn time_limit_stops_and_resumes(sampler: &[&str]) {
     let _ = std::fs::remove_dir_all(&out);
     let _ = std::fs::remove_dir_all(&plain_dir);
 }
+
+/// A fit written to disk reads back as the same calibration, bit for bit, and
+/// is found for its own problem only: not for the same data with another
+/// kernel, nor for the same problem after its model changed.
+#[test]
+fn a_stored_fit_reads_back_whole_and_is_found_only_for_its_own_problem() {
+    use mdpipe::calibrate::stored;
+    let p = problem();
+    let fit = mdpipe::calibrate::run(&p, 11, &Silent).unwrap();
+    let dir = std::env::temp_dir().join(format!("mdpipe-stored-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    mdpipe::calibrate::write_outputs(&dir, &p, &fit).unwrap();
+    let (found, back) = stored::find(std::slice::from_ref(&dir), &p).unwrap().expect("its own problem");
+    assert_eq!(found, dir);
+    assert_eq!(back.chains.chains, fit.chains.chains);
+    assert_eq!(back.predictions, fit.predictions);
+    assert_eq!(serde_json::to_string(&back.summary).unwrap(), serde_json::to_string(&fit.summary).unwrap());
+    let mut cfg =
+        mdpipe::systems::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
+    cfg.sampler.smc.particles = 300;
+    cfg.sampler.smc.replicates = 2;
+    let kernel_i =
+        Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelI)), ..Default::default() });
+    assert!(stored::find(std::slice::from_ref(&dir), &kernel_i.unwrap()).unwrap().is_none());
+    // Another model under the same config: only its answers tell it apart.
+    let mut other = problem();
+    assert_eq!(stored::problem_key(&other), stored::problem_key(&p));
+    other.simulator = std::sync::Arc::new(Shifted(other.simulator.clone()));
+    assert!(stored::find(std::slice::from_ref(&dir), &other).unwrap().is_none());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A model whose every prediction is 1e-12 higher.
+struct Shifted(std::sync::Arc<dyn mdpipe::model::Simulator>);
+
+impl mdpipe::model::Simulator for Shifted {
+    fn parameter_names(&self) -> Vec<String> {
+        self.0.parameter_names()
+    }
+    fn observable_names(&self) -> Vec<String> {
+        self.0.observable_names()
+    }
+    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
+        self.0.predict(observable, x, theta, out);
+        out.iter_mut().for_each(|v| *v += 1e-12);
+    }
+}

@@ -379,7 +379,7 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
         cfg
     };
     let settings = DiagnoseSettings { discover: diagnose::Discover::Never, ..Default::default() };
-    let reuse = diagnose::Reuse::across_diagnoses();
+    let reuse = diagnose::Reuse::across_diagnoses(Vec::new());
     let run = |cfg: &mdpipe::calibrate::Analysis| {
         diagnose::run_reusing(cfg, &Overrides::default(), 3, &settings, None, &Silent, &reuse).unwrap()
     };

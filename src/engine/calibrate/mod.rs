@@ -18,6 +18,7 @@ pub mod likelihood;
 pub mod prior;
 pub mod settings;
 pub mod smc;
+pub mod stored;
 pub mod summary;
 
 use crate::base::artifacts::{self, Measurement, Provenance};
@@ -463,6 +464,7 @@ pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result
     let mut staged = artifacts::StagedWrites::new();
     staged.parquet(&dir.join("posterior.parquet"), &mut df, Some(prov))?;
     staged.json(&dir.join("summary.json"), &cal.summary)?;
+    staged.text(&dir.join(stored::KEY_FILE), &stored::problem_key(problem))?;
     let mut pred = summary::predictions_frame(&cal.predictions)?;
     staged.parquet(&dir.join("predictions.parquet"), &mut pred, Some(prov))?;
     // The measurements fitted, so that reports and re-analyses need nothing else.

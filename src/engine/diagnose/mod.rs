@@ -134,9 +134,9 @@ impl Diagnoser<'_> {
         name: &str,
     ) -> Result<(Problem, Calibration)> {
         let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..self.overrides.clone() })?;
-        let cal = match self.reuse.get(name, &problem, seed) {
-            Some(cal) => {
-                println!("  {name}: the same problem and seed as in the diagnosis before; its fit is reused");
+        let cal = match self.reuse.get(name, &problem, seed)? {
+            Some((cal, whence)) => {
+                println!("  {name}: the same problem was fitted in {whence}; that fit is used");
                 cal
             }
             None => {

@@ -44,8 +44,10 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     let overrides = Overrides { observables: Some(study.diagnose_observables()), ..Default::default() };
     let settings = crate::engine::diagnose::DiagnoseSettings::default();
     let seed = study.opts.seed.wrapping_add(77);
-    // The diagnosis after refinement takes the fits whose problems did not change.
-    let reuse = crate::engine::diagnose::Reuse::across_diagnoses();
+    // The base fits are two of the calibrate stage's cases; the diagnosis
+    // after refinement takes the fits whose problems did not change.
+    let stored = [study.paths.calibrate(), study.refine_dir()].iter().flat_map(|d| study.stored_fits(d)).collect();
+    let reuse = crate::engine::diagnose::Reuse::across_diagnoses(stored);
     let diagnose = |analysis: &_| {
         crate::engine::diagnose::run_reusing(
             analysis,
