@@ -71,7 +71,7 @@ impl Study<'_> {
         let (cal, whence) = match calibrate::stored::find(&self.stored_fits(&self.refine_dir()), &problem)? {
             Some((dir, cal)) => {
                 calibrate::write_outputs(&c.dir, &problem, &cal)?;
-                (cal, format!(" (the fit of {}, the same problem)", dir.display()))
+                (cal, format!(" when sampled in {}, the same problem; taken from there", dir.display()))
             }
             None => (
                 calibrate::run_and_write(&problem, c.seed, observer(self.opts.show_progress), &checkpoint, &c.dir)?,

@@ -129,6 +129,6 @@ pub fn model_digest(problem: &Problem) -> String {
 /// A point at fraction t of [lo, hi], mirrored in every other coordinate so
 /// that the probes are not all on the box's diagonal.
 fn probe(lo: f64, hi: f64, t: f64, i: usize) -> f64 {
-    let t = if i % 2 == 0 { t } else { 1.0 - t };
+    let t = if i.is_multiple_of(2) { t } else { 1.0 - t };
     lo + t * (hi - lo)
 }
