@@ -68,9 +68,10 @@ impl Study<'_> {
             None,
         );
         // The last refinement round fitted the same problem with the same emulator.
-        let (cal, whence) = match calibrate::stored::find(&self.stored_fits(&self.refine_dir()), &problem)? {
+        let (cal, whence) = match calibrate::stored::find(&self.stored_fits(&self.refine_dir()), &problem) {
             Some((dir, cal)) => {
                 calibrate::write_outputs(&c.dir, &problem, &cal)?;
+                checkpoint.clear();
                 (cal, format!(" when sampled in {}, the same problem; taken from there", dir.display()))
             }
             None => (

@@ -159,7 +159,7 @@ fn a_stored_fit_reads_back_whole_and_is_found_only_for_its_own_problem() {
     let dir = std::env::temp_dir().join(format!("mdpipe-stored-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     mdpipe::calibrate::write_outputs(&dir, &p, &fit).unwrap();
-    let (found, back) = stored::find(std::slice::from_ref(&dir), &p).unwrap().expect("its own problem");
+    let (found, back) = stored::find(std::slice::from_ref(&dir), &p).expect("its own problem");
     assert_eq!(found, dir);
     assert_eq!(back.chains.chains, fit.chains.chains);
     assert_eq!(back.predictions, fit.predictions);
@@ -170,12 +170,15 @@ fn a_stored_fit_reads_back_whole_and_is_found_only_for_its_own_problem() {
     cfg.sampler.smc.replicates = 2;
     let kernel_i =
         Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelI)), ..Default::default() });
-    assert!(stored::find(std::slice::from_ref(&dir), &kernel_i.unwrap()).unwrap().is_none());
+    assert!(stored::find(std::slice::from_ref(&dir), &kernel_i.unwrap()).is_none());
     // Another model under the same config: only its answers tell it apart.
     let mut other = problem();
     assert_eq!(stored::problem_key(&other), stored::problem_key(&p));
     other.simulator = std::sync::Arc::new(Shifted(other.simulator.clone()));
-    assert!(stored::find(std::slice::from_ref(&dir), &other).unwrap().is_none());
+    assert!(stored::find(std::slice::from_ref(&dir), &other).is_none());
+    // A stored fit whose draws were removed since is passed over, not an error.
+    std::fs::remove_file(dir.join("posterior.parquet")).unwrap();
+    assert!(stored::find(std::slice::from_ref(&dir), &p).is_none());
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -27,17 +27,21 @@ pub fn problem_key(problem: &Problem) -> String {
     artifacts::sha256_hex(material.as_bytes())
 }
 
-/// The first stored fit among `dirs` of this very problem, read back.
-pub fn find(dirs: &[PathBuf], problem: &Problem) -> Result<Option<(PathBuf, Calibration)>> {
+/// The first stored fit among `dirs` of this very problem, read back. One
+/// that cannot be read (a file removed or damaged since) is passed over with
+/// a warning: the caller then samples the problem itself.
+pub fn find(dirs: &[PathBuf], problem: &Problem) -> Option<(PathBuf, Calibration)> {
     let key = problem_key(problem);
     for dir in dirs {
         let stored = std::fs::read_to_string(dir.join(KEY_FILE)).unwrap_or_default();
         if stored.trim() == key {
-            let fit = read(dir, problem).with_context(|| format!("reading the stored fit {}", dir.display()))?;
-            return Ok(Some((dir.clone(), fit)));
+            match read(dir, problem) {
+                Ok(fit) => return Some((dir.clone(), fit)),
+                Err(e) => eprintln!("warning: the stored fit {} cannot be read ({e:#}); not taken", dir.display()),
+            }
         }
     }
-    Ok(None)
+    None
 }
 
 /// A calibration as `write_outputs` wrote it.

@@ -40,7 +40,7 @@ impl Reuse {
         if let Some(fit) = fits.lock().ok().and_then(|f| f.get(&key).cloned()) {
             return Ok(Some((fit, "the diagnosis before".into())));
         }
-        Ok(stored::find(&self.stored, problem)?.map(|(dir, fit)| (fit, dir.display().to_string())))
+        Ok(stored::find(&self.stored, problem).map(|(dir, fit)| (fit, dir.display().to_string())))
     }
 
     pub(super) fn keep(&self, name: &str, problem: &Problem, seed: u64, fit: &Calibration) {
