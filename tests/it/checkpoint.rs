@@ -174,26 +174,11 @@ fn a_stored_fit_reads_back_whole_and_is_found_only_for_its_own_problem() {
     // Another model under the same config: only its answers tell it apart.
     let mut other = problem();
     assert_eq!(stored::problem_key(&other), stored::problem_key(&p));
-    other.simulator = std::sync::Arc::new(Shifted(other.simulator.clone()));
+    other.simulator =
+        std::sync::Arc::new(crate::common::Perturbed { inner: other.simulator.clone(), change: |v| v + 1e-12 });
     assert!(stored::find(std::slice::from_ref(&dir), &other).is_none());
     // A stored fit whose draws were removed since is passed over, not an error.
     std::fs::remove_file(dir.join("posterior.parquet")).unwrap();
     assert!(stored::find(std::slice::from_ref(&dir), &p).is_none());
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// A model whose every prediction is 1e-12 higher.
-struct Shifted(std::sync::Arc<dyn mdpipe::model::Simulator>);
-
-impl mdpipe::model::Simulator for Shifted {
-    fn parameter_names(&self) -> Vec<String> {
-        self.0.parameter_names()
-    }
-    fn observable_names(&self) -> Vec<String> {
-        self.0.observable_names()
-    }
-    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
-        self.0.predict(observable, x, theta, out);
-        out.iter_mut().for_each(|v| *v += 1e-12);
-    }
 }

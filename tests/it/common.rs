@@ -116,3 +116,30 @@ pub fn pinned_prior(theta_box: [(f64, f64); 2], hyper: &[f64], names: Vec<String
     }
     UniformPrior::new(names, lo, hi).unwrap()
 }
+
+/// Another model with the same parameters and observables: `inner`'s
+/// predictions, each mapped by `change` (a scale, a shift), for tests that
+/// need a model only its answers tell apart.
+pub struct Perturbed {
+    pub inner: std::sync::Arc<dyn mdpipe::model::Simulator>,
+    pub change: fn(f64) -> f64,
+}
+
+impl mdpipe::model::Simulator for Perturbed {
+    fn parameter_names(&self) -> Vec<String> {
+        self.inner.parameter_names()
+    }
+    fn observable_names(&self) -> Vec<String> {
+        self.inner.observable_names()
+    }
+    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
+        self.inner.predict(observable, x, theta, out);
+        out.iter_mut().for_each(|v| *v = (self.change)(*v));
+    }
+    fn check_inputs(&self, observable: usize, x: &[f64]) -> anyhow::Result<()> {
+        self.inner.check_inputs(observable, x)
+    }
+    fn predicts_any_x(&self) -> bool {
+        self.inner.predicts_any_x()
+    }
+}

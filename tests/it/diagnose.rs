@@ -348,29 +348,6 @@ pub(crate) fn each_verdict_is_right(system: &str, rows: &[(&str, String, f64)]) 
     }
 }
 
-/// The ball drop's model with every prediction scaled by 1 + 1e-3: the same
-/// config, data and seed, another model.
-struct Scaled(std::sync::Arc<dyn mdpipe::model::Simulator>);
-
-impl mdpipe::model::Simulator for Scaled {
-    fn parameter_names(&self) -> Vec<String> {
-        self.0.parameter_names()
-    }
-    fn observable_names(&self) -> Vec<String> {
-        self.0.observable_names()
-    }
-    fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
-        self.0.predict(observable, x, theta, out);
-        out.iter_mut().for_each(|v| *v *= 1.0 + 1e-3);
-    }
-    fn check_inputs(&self, observable: usize, x: &[f64]) -> anyhow::Result<()> {
-        self.0.check_inputs(observable, x)
-    }
-    fn predicts_any_x(&self) -> bool {
-        self.0.predicts_any_x()
-    }
-}
-
 #[test]
 fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
     let small = |mut cfg: mdpipe::calibrate::Analysis| {
@@ -399,7 +376,9 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
     // again (other draws, another time); the candidates carry their own
     // models, unchanged, and are reused.
     let mut other = small(config());
-    other.simulator = std::sync::Arc::new(Scaled(other.simulator.clone()));
+    // The ball drop's model with every prediction scaled by 1 + 1e-3.
+    other.simulator =
+        std::sync::Arc::new(crate::common::Perturbed { inner: other.simulator.clone(), change: |v| v * (1.0 + 1e-3) });
     let third = run(&other);
     for (new, old) in [(&third.base, &first.base), (&third.md, &first.md)] {
         assert_ne!(wall(new), wall(old));

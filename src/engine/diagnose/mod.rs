@@ -134,7 +134,7 @@ impl Diagnoser<'_> {
         name: &str,
     ) -> Result<(Problem, Calibration)> {
         let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..self.overrides.clone() })?;
-        let cal = match self.reuse.get(name, &problem, seed)? {
+        let cal = match self.reuse.get(name, &problem, seed) {
             Some((cal, whence)) => {
                 println!("  {name}: the same problem was fitted in {whence}; that fit is used");
                 cal

@@ -9,7 +9,6 @@
 //! answers at probe points bit for bit) is the same.
 
 use crate::engine::calibrate::{stored, Calibration, Problem};
-use anyhow::Result;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -34,13 +33,13 @@ impl Reuse {
 
     /// The fit made earlier for this name, problem and seed, or a stored fit
     /// of this problem, with where it came from.
-    pub(super) fn get(&self, name: &str, problem: &Problem, seed: u64) -> Result<Option<(Calibration, String)>> {
-        let Some(fits) = &self.fits else { return Ok(None) };
+    pub(super) fn get(&self, name: &str, problem: &Problem, seed: u64) -> Option<(Calibration, String)> {
+        let fits = self.fits.as_ref()?;
         let key = key(name, problem, seed);
         if let Some(fit) = fits.lock().ok().and_then(|f| f.get(&key).cloned()) {
-            return Ok(Some((fit, "the diagnosis before".into())));
+            return Some((fit, "the diagnosis before".into()));
         }
-        Ok(stored::find(&self.stored, problem).map(|(dir, fit)| (fit, dir.display().to_string())))
+        stored::find(&self.stored, problem).map(|(dir, fit)| (fit, dir.display().to_string()))
     }
 
     pub(super) fn keep(&self, name: &str, problem: &Problem, seed: u64, fit: &Calibration) {
