@@ -180,7 +180,7 @@ impl OdeModel {
             _ => Vec::new(),
         };
         let v = &mut solved.values;
-        *v = self.variables.at(theta);
+        self.variables.set_theta(theta, v);
         v[0] = self.t0;
         solved.y0.clear();
         solved.y0.extend(self.initial.iter().map(|f| f.eval(&v[..])));
