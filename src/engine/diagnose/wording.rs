@@ -147,10 +147,15 @@ pub fn print(d: &Diagnosis) {
         } else {
             String::new()
         };
+        let flag = if c.converged { "" } else { "   not converged" };
         println!(
-            "  {:<width$} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}",
+            "  {:<width$} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}{flag}",
             c.name, c.log_bayes_factor, c.log_bayes_factor_err, c.chi2_per_dof
         );
+    }
+    if d.candidates.iter().any(|c| !c.converged) {
+        println!("  (not converged: its ESS or R̂ missed the check in its summary.json, so its log BF is less sure than its ±;");
+        println!("   parameters the data cannot tell apart keep a fit from converging, else more final moves or particles help)");
     }
     if let Some(r) = &d.discovery {
         println!("Discover ({} terms from the model's own symbols screened in {:.1} s; the best calibrated, log BF above includes their prior odds):", r.searched, r.screening_seconds);

@@ -150,14 +150,17 @@ impl Affine {
         }
         let mut p = [0.0; MAX_SIDE * MAX_SIDE];
         let p = &mut p[..side * side];
-        let finite = match side {
-            _ if nilpotent_exponential(m, side, p) => p.iter().all(|v| v.is_finite()),
-            2 => exponential::<Const<2>>(m, p),
-            3 => exponential::<Const<3>>(m, p),
-            4 => exponential::<Const<4>>(m, p),
-            5 => exponential::<Const<5>>(m, p),
-            6 => exponential::<Const<6>>(m, p),
-            _ => exponential::<Const<7>>(m, p),
+        let finite = if nilpotent_exponential(m, side, p) {
+            p.iter().all(|v| v.is_finite())
+        } else {
+            match side {
+                2 => exponential::<Const<2>>(m, p),
+                3 => exponential::<Const<3>>(m, p),
+                4 => exponential::<Const<4>>(m, p),
+                5 => exponential::<Const<5>>(m, p),
+                6 => exponential::<Const<6>>(m, p),
+                _ => exponential::<Const<7>>(m, p),
+            }
         };
         finite && {
             walk(p, &z0[..side], n, grid.last, states);
