@@ -31,9 +31,11 @@ use rand_distr::StandardNormal;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 
+mod mixture;
 mod moves;
 mod tempering;
 
+use mixture::Mixture;
 use moves::*;
 pub use tempering::log_sum_exp;
 use tempering::*;
@@ -54,6 +56,11 @@ pub struct SmcSettings {
     pub max_steps_per_dim: f64,
     /// Steps after the final resampling, per dimension, to separate copies.
     pub final_steps_per_dim: f64,
+    /// Independent Metropolis–Hastings proposals per particle at each
+    /// tempering step, drawn from a Gaussian mixture fitted to the cloud.
+    pub mixture_proposals: usize,
+    /// The same after the final resampling.
+    pub final_mixture_proposals: usize,
     pub target_acceptance: f64,
 }
 
@@ -66,6 +73,8 @@ impl Default for SmcSettings {
             steps_per_dim: 2.0,
             max_steps_per_dim: 12.0,
             final_steps_per_dim: 15.0,
+            mixture_proposals: 2,
+            final_mixture_proposals: 10,
             target_acceptance: 0.234,
         }
     }
@@ -91,6 +100,9 @@ pub struct SmcStep {
     /// Acceptance per move group: joint, then (with independent likelihood
     /// terms) the shared parameters and each term's own parameters.
     pub group_acceptance: Vec<f64>,
+    /// Acceptance of the independent proposals from the fitted mixture.
+    #[serde(default)]
+    pub mixture_acceptance: f64,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -187,6 +199,11 @@ impl Smc {
         Ok(SmcOutput { chains, log_evidence, log_evidence_err, replicates })
     }
 }
+
+/// The fraction of particles that must have accepted an independent proposal
+/// after the final resampling for the final random-walk sweeps to be cut to
+/// a tempering step's count.
+const MOVED_ENOUGH: f64 = 0.99;
 
 /// Tempering steps after which a replicate that has not reached β = 1 stops
 /// (typical runs take 10–60).
@@ -351,6 +368,7 @@ impl<'a> Kernel<'a> {
         st.cloud.resample(&ancestors);
         st.eve = ancestors.iter().map(|&a| st.eve[a]).collect();
         update_factors(&mut st.groups, &st.cloud.x, self.dim);
+        let mixture_acceptance = self.independent_moves(st, next, self.settings.mixture_proposals).acceptance();
         let steps = ((self.base_steps * (self.settings.target_acceptance / st.last_acceptance.max(1e-3)).max(1.0))
             .ceil() as usize)
             .min(self.max_steps);
@@ -366,9 +384,25 @@ impl<'a> Kernel<'a> {
             mcmc_steps: steps,
             acceptance: counts.acceptance(0),
             group_acceptance: (0..st.groups.len()).map(|gi| counts.acceptance(gi)).collect(),
+            mixture_acceptance,
         });
         st.beta = next;
         Ok(None)
+    }
+
+    /// `proposals` independent moves of every particle from a mixture fitted
+    /// to the cloud (none when the cloud has no spread).
+    fn independent_moves(&self, st: &mut ReplicateState, beta: f64, proposals: usize) -> IndependentCounts {
+        if proposals == 0 {
+            return IndependentCounts::default();
+        }
+        let Some(mixture) = Mixture::fit(&st.cloud.x, self.dim, &mut st.master) else {
+            return IndependentCounts::default();
+        };
+        let counts =
+            independent_moves(&mut st.cloud, &mut st.rngs, &mixture, beta, proposals, self.prior, self.likelihood);
+        st.evaluations += counts.evaluations;
+        counts
     }
 
     /// At β = 1: the evidence's error, then equal-weight draws, moved to
@@ -389,13 +423,18 @@ impl<'a> Kernel<'a> {
         let unique_fraction = unique.len() as f64 / nf;
         st.cloud.resample(&ancestors);
         update_factors(&mut st.groups, &st.cloud.x, self.dim);
-        let counts =
-            mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, self.final_steps, self.prior, self.likelihood);
+        let independent = self.independent_moves(&mut st, 1.0, self.settings.final_mixture_proposals);
+        // Where nearly every copy has already been replaced by an independent
+        // draw, the random walk only refines locally, at a tempering step's count.
+        let sweeps =
+            if independent.moved as f64 >= MOVED_ENOUGH * nf { self.base_steps as usize } else { self.final_steps };
+        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, sweeps, self.prior, self.likelihood);
         st.steps.push(SmcStep {
             beta: 1.0,
-            mcmc_steps: self.final_steps,
+            mcmc_steps: sweeps,
             acceptance: counts.acceptance(0),
             group_acceptance: (0..st.groups.len()).map(|gi| counts.acceptance(gi)).collect(),
+            mixture_acceptance: independent.acceptance(),
         });
         let mut particles = vec![0.0; st.cloud.x.len()];
         for (u, out) in st.cloud.x.chunks(self.dim).zip(particles.chunks_mut(self.dim)) {

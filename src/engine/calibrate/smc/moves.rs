@@ -274,6 +274,104 @@ pub(super) fn mutate(
         .reduce(MoveCounts::default, MoveCounts::merge)
 }
 
+#[derive(Default)]
+pub(super) struct IndependentCounts {
+    pub(super) accepted: u64,
+    pub(super) proposed: u64,
+    /// Whole evaluations: every proposal inside the prior's box.
+    pub(super) evaluations: u64,
+    /// Particles that accepted at least one proposal.
+    pub(super) moved: u64,
+}
+
+impl IndependentCounts {
+    fn merge(self, o: IndependentCounts) -> IndependentCounts {
+        IndependentCounts {
+            accepted: self.accepted + o.accepted,
+            proposed: self.proposed + o.proposed,
+            evaluations: self.evaluations + o.evaluations,
+            moved: self.moved + o.moved,
+        }
+    }
+
+    pub(super) fn acceptance(&self) -> f64 {
+        self.accepted as f64 / self.proposed.max(1) as f64
+    }
+}
+
+/// `proposals` independent Metropolis–Hastings moves of every particle at
+/// inverse temperature β, each proposing a draw of `mixture` (fitted to the
+/// cloud) in place of the whole point: accepted with probability
+/// `min(1, [L(x')^β π_u(u') q(u)] / [L(x)^β π_u(u) q(u')])`. Returns the
+/// counts.
+pub(super) fn independent_moves(
+    cloud: &mut Cloud,
+    rngs: &mut [Xoshiro256PlusPlus],
+    mixture: &Mixture,
+    beta: f64,
+    proposals: usize,
+    prior: &UniformPrior,
+    likelihood: &dyn LogLikelihood,
+) -> IndependentCounts {
+    let (dim, nt) = (cloud.dim, cloud.n_terms);
+    let mut term_chunks: Vec<&mut [f64]> = if nt > 0 {
+        cloud.terms.chunks_mut(nt).collect()
+    } else {
+        (0..cloud.loglik.len()).map(|_| &mut [][..]).collect()
+    };
+    cloud
+        .x
+        .par_chunks_mut(dim)
+        .zip(cloud.loglik.par_iter_mut())
+        .zip(cloud.logprior.par_iter_mut())
+        .zip(term_chunks.par_iter_mut())
+        .zip(rngs.par_iter_mut())
+        .map(|((((ui, li), pi), ti), rng)| {
+            let (mut prop, mut prop_x, mut scratch, mut prop_terms) =
+                (vec![0.0; dim], vec![0.0; dim], vec![0.0; 2 * dim], vec![0.0; nt]);
+            let mut log_q = mixture.log_density(ui, &mut scratch);
+            let (mut accepted, mut evaluated) = (0u64, 0u64);
+            for _ in 0..proposals {
+                mixture.sample(rng, &mut prop, &mut scratch);
+                let lpi = prior.from_unbounded_with_log_density(&prop, &mut prop_x);
+                let log_q_prop = mixture.log_density(&prop, &mut scratch);
+                // Draw the uniform whatever happens, so that the streams do
+                // not depend on which proposals fell outside the box.
+                let uniform: f64 = rng.random();
+                if !prior.contains(&prop_x) {
+                    continue;
+                }
+                evaluated += 1;
+                let lp = if nt > 0 {
+                    likelihood.log_likelihood_terms(&prop_x, &mut prop_terms)
+                } else {
+                    likelihood.log_likelihood(&prop_x)
+                };
+                let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
+                let log_ratio = if li.is_finite() {
+                    beta * (lp - *li) + lpi - *pi + log_q - log_q_prop
+                } else if lp.is_finite() {
+                    f64::INFINITY
+                } else {
+                    f64::NEG_INFINITY
+                };
+                if uniform.ln() < log_ratio {
+                    ui.copy_from_slice(&prop);
+                    (*li, *pi, log_q) = (lp, lpi, log_q_prop);
+                    ti.copy_from_slice(&prop_terms);
+                    accepted += 1;
+                }
+            }
+            IndependentCounts {
+                accepted,
+                proposed: proposals as u64,
+                evaluations: evaluated,
+                moved: (accepted > 0) as u64,
+            }
+        })
+        .reduce(IndependentCounts::default, IndependentCounts::merge)
+}
+
 /// The first stage of a delayed-acceptance move of term `t`'s own parameters
 /// (Christen & Fox 2005): the change of the likelihood's screen from the
 /// current point (`u`, unbounded) to the proposal `prop_x`. A move passes the

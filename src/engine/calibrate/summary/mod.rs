@@ -83,6 +83,9 @@ pub struct SmcStepRecord {
     /// Joint move, then shared parameters, then each observable's own φ.
     #[serde(default)]
     pub group_acceptance: Vec<f64>,
+    /// The independent proposals' acceptance (from a mixture fitted to the cloud).
+    #[serde(default)]
+    pub mixture_acceptance: f64,
 }
 
 impl From<&SmcStep> for SmcStepRecord {
@@ -92,6 +95,7 @@ impl From<&SmcStep> for SmcStepRecord {
             mcmc_steps: s.mcmc_steps,
             acceptance: s.acceptance,
             group_acceptance: s.group_acceptance.clone(),
+            mixture_acceptance: s.mixture_acceptance,
         }
     }
 }
