@@ -156,7 +156,7 @@ pub fn print(d: &Diagnosis) {
     if d.candidates.iter().any(|c| !c.converged) {
         println!("  (not converged: its ESS or R̂ failed the check in its summary.json, so its log BF is less certain than the ± says;");
         println!("   parameters the data cannot tell apart keep a fit from converging; otherwise more particles or more final");
-        println!("   moves ([sampler.smc] particles, final_steps_per_dim) help)");
+        println!("   moves ([sampler.smc] particles, final_mixture_proposals, final_steps_per_dim) help)");
     }
     if let Some(r) = &d.discovery {
         println!("Discover ({} terms from the model's own symbols screened in {:.1} s; the best calibrated, log BF above includes their prior odds):", r.searched, r.screening_seconds);
