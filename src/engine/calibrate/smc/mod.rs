@@ -1,6 +1,8 @@
 //! Adaptive tempered sequential Monte Carlo (Del Moral, Doucet & Jasra 2006;
 //! Jasra et al. 2011), with random-walk Metropolis rejuvenation preconditioned
-//! by the particle covariance.
+//! by the particle covariance and independent Metropolis–Hastings proposals
+//! from a Gaussian mixture fitted to the cloud (`mixture`), which cross thin
+//! curved ridges that the random walk only crawls along.
 //!
 //! Each run tempers `π(θ) L(θ)^β` from β = 0 (prior) to β = 1 (posterior),
 //! choosing every step so that the importance weights keep an effective
@@ -54,7 +56,9 @@ pub struct SmcSettings {
     pub steps_per_dim: f64,
     /// Cap on the adaptive number of steps, per dimension.
     pub max_steps_per_dim: f64,
-    /// Steps after the final resampling, per dimension, to separate copies.
+    /// Steps after the final resampling, per dimension, to separate copies
+    /// (cut to a tempering step's count when the final mixture proposals
+    /// have already moved 99% of the particles).
     pub final_steps_per_dim: f64,
     /// Independent Metropolis–Hastings proposals per particle at each
     /// tempering step, drawn from a Gaussian mixture fitted to the cloud.
@@ -426,8 +430,11 @@ impl<'a> Kernel<'a> {
         let independent = self.independent_moves(&mut st, 1.0, self.settings.final_mixture_proposals);
         // Where nearly every copy has already been replaced by an independent
         // draw, the random walk only refines locally, at a tempering step's count.
-        let sweeps =
-            if independent.moved as f64 >= MOVED_ENOUGH * nf { self.base_steps as usize } else { self.final_steps };
+        let sweeps = if independent.moved as f64 >= MOVED_ENOUGH * nf {
+            (self.base_steps as usize).min(self.final_steps)
+        } else {
+            self.final_steps
+        };
         let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, sweeps, self.prior, self.likelihood);
         st.steps.push(SmcStep {
             beta: 1.0,
