@@ -12,8 +12,9 @@
 //! The fit is made in coordinates whitened by the cloud's own mean and
 //! covariance, where every scale is one, so that one regularisation suits
 //! every problem. A fixed wide component, the cloud's Gaussian itself, keeps
-//! the proposal's tails heavier than the target's where the mixture misses
-//! (a defensive mixture), which bounds the importance ratio.
+//! the proposal from vanishing where the mixture's components miss (a
+//! defensive mixture), so that a particle stranded there is not stuck by a
+//! tiny q(u) in its acceptance ratio.
 
 use super::*;
 
