@@ -150,18 +150,16 @@ impl MoveCounts {
     }
 }
 
-/// `sweeps` rounds of random-walk Metropolis moves, one per group in turn, of
-/// every particle at inverse temperature β (target `L(x(u))^β π_u(u)`).
-#[allow(clippy::too_many_arguments)]
-pub(super) fn mutate(
+/// `move_one` applied to every particle in parallel (its point u, log-
+/// likelihood, log prior density, likelihood terms and own random stream),
+/// the results merged.
+fn each_particle<T: Send>(
     cloud: &mut Cloud,
     rngs: &mut [Xoshiro256PlusPlus],
-    groups: &[MoveGroup],
-    beta: f64,
-    sweeps: usize,
-    prior: &UniformPrior,
-    likelihood: &dyn LogLikelihood,
-) -> MoveCounts {
+    move_one: impl Fn(&mut [f64], &mut f64, &mut f64, &mut [f64], &mut Xoshiro256PlusPlus) -> T + Sync + Send,
+    identity: impl Fn() -> T + Sync + Send,
+    merge: impl Fn(T, T) -> T + Sync + Send,
+) -> T {
     let (dim, nt) = (cloud.dim, cloud.n_terms);
     let mut term_chunks: Vec<&mut [f64]> = if nt > 0 {
         cloud.terms.chunks_mut(nt).collect()
@@ -175,7 +173,27 @@ pub(super) fn mutate(
         .zip(cloud.logprior.par_iter_mut())
         .zip(term_chunks.par_iter_mut())
         .zip(rngs.par_iter_mut())
-        .map(|((((xi, li), pi), ti), rng)| {
+        .map(|((((u, l), p), t), rng)| move_one(u, l, p, t, rng))
+        .reduce(identity, merge)
+}
+
+/// `sweeps` rounds of random-walk Metropolis moves, one per group in turn, of
+/// every particle at inverse temperature β (target `L(x(u))^β π_u(u)`).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn mutate(
+    cloud: &mut Cloud,
+    rngs: &mut [Xoshiro256PlusPlus],
+    groups: &[MoveGroup],
+    beta: f64,
+    sweeps: usize,
+    prior: &UniformPrior,
+    likelihood: &dyn LogLikelihood,
+) -> MoveCounts {
+    let (dim, nt) = (cloud.dim, cloud.n_terms);
+    each_particle(
+        cloud,
+        rngs,
+        |xi, li, pi, ti, rng| {
             let (mut z, mut prop, mut prop_x, mut cur_x, mut prop_terms) =
                 (vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; nt]);
             let mut counts =
@@ -270,8 +288,10 @@ pub(super) fn mutate(
                 }
             }
             counts
-        })
-        .reduce(MoveCounts::default, MoveCounts::merge)
+        },
+        MoveCounts::default,
+        MoveCounts::merge,
+    )
 }
 
 #[derive(Default)]
@@ -314,19 +334,10 @@ pub(super) fn independent_moves(
     likelihood: &dyn LogLikelihood,
 ) -> IndependentCounts {
     let (dim, nt) = (cloud.dim, cloud.n_terms);
-    let mut term_chunks: Vec<&mut [f64]> = if nt > 0 {
-        cloud.terms.chunks_mut(nt).collect()
-    } else {
-        (0..cloud.loglik.len()).map(|_| &mut [][..]).collect()
-    };
-    cloud
-        .x
-        .par_chunks_mut(dim)
-        .zip(cloud.loglik.par_iter_mut())
-        .zip(cloud.logprior.par_iter_mut())
-        .zip(term_chunks.par_iter_mut())
-        .zip(rngs.par_iter_mut())
-        .map(|((((ui, li), pi), ti), rng)| {
+    each_particle(
+        cloud,
+        rngs,
+        |ui, li, pi, ti, rng| {
             let (mut prop, mut prop_x, mut scratch, mut prop_terms) =
                 (vec![0.0; dim], vec![0.0; dim], vec![0.0; 2 * dim], vec![0.0; nt]);
             let mut log_q = mixture.log_density(ui, &mut scratch);
@@ -368,8 +379,10 @@ pub(super) fn independent_moves(
                 evaluations: evaluated,
                 moved: (accepted > 0) as u64,
             }
-        })
-        .reduce(IndependentCounts::default, IndependentCounts::merge)
+        },
+        IndependentCounts::default,
+        IndependentCounts::merge,
+    )
 }
 
 /// The first stage of a delayed-acceptance move of term `t`'s own parameters
