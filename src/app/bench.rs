@@ -289,6 +289,11 @@ pub struct BenchArgs {
     /// Time one full `diagnose` of the config's data instead
     #[arg(long)]
     pub diagnose: bool,
+    /// How the likelihood's cost grows with the data instead: a synthetic
+    /// analysis of 100 to 3 000 points with correlated systematics, setup
+    /// and evaluations per second, structured and dense (writes under --out)
+    #[arg(long)]
+    pub scaling: bool,
     /// Likelihood rates of the bundled declared models instead: the ball
     /// drop, the kinetics and the oscillator (run from the checkout)
     #[arg(long)]
@@ -341,6 +346,9 @@ pub fn command(a: BenchArgs) -> Result<()> {
             b.n_outputs, b.n_outputs, b.full_covariance_predictions_per_second
         );
         return Ok(());
+    }
+    if a.scaling {
+        return super::bench_scaling::print(&a.out.join("scaling"), 2.0);
     }
     if a.declared {
         for (name, config) in DECLARED {

@@ -3,6 +3,7 @@
 //! (`crate::systems::registry`); `main.rs` only parses the arguments.
 
 pub mod bench;
+pub mod bench_scaling;
 pub mod cli;
 pub mod commands;
 pub mod demo;

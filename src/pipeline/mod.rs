@@ -88,7 +88,10 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
-    let study = Study { config, run, emulator, paths: RunPaths { out: opts.out.clone() }, opts };
+    // Absolute from here on: declarations written for later stages (a variant's
+    // emulator folder) are resolved against the config's folder, not the cwd.
+    let paths = RunPaths { out: study::absolute(&opts.out) };
+    let study = Study { config, run, emulator, paths, opts };
     // Every candidate's declaration is checked before anything runs.
     study.variants()?;
     let planned = setup::plan(&study)?;

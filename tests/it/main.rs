@@ -21,4 +21,5 @@ mod pipeline;
 mod readers;
 mod report;
 mod sbc;
+mod structured;
 mod your_simulator;

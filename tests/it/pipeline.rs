@@ -176,6 +176,18 @@ fn check_mock_covariance(out: &Path, config: &Config) {
     assert!(problem.likelihood.blocks.iter().all(|b| b.covariance.is_some()));
 }
 
+/// `path` (an absolute, existing folder) as a path relative to the working folder, through `..`.
+fn relative_to_cwd(path: &Path) -> PathBuf {
+    let cwd = std::env::current_dir().unwrap();
+    let mut rel = PathBuf::new();
+    for _ in cwd.components().skip(1) {
+        rel.push("..");
+    }
+    rel.push(path.strip_prefix("/").unwrap());
+    assert!(rel.is_relative() && rel.canonicalize().unwrap() == path.canonicalize().unwrap());
+    rel
+}
+
 fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
     RunOptions {
         out: out.to_path_buf(),
@@ -199,7 +211,10 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let out = dir.join("out");
     let config = Config::load(&write_config(&dir, 300, 12)).unwrap();
 
-    let first = run(&config, &opts(&out, None, false)).unwrap();
+    // `--out` relative to the working folder, which is not the config's: the
+    // study must find what it wrote (the variant emulators, at its diagnose
+    // stage) where it wrote it, not relative to the config.
+    let first = run(&config, &opts(&relative_to_cwd(&dir).join("out"), None, false)).unwrap();
     assert_eq!(ran(&first), stages());
     for p in [
         "design/design.parquet",

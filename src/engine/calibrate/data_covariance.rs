@@ -12,6 +12,7 @@ use crate::base::artifacts::Measurement;
 use crate::base::covariance::{read_covariance, CovarianceEntry};
 use crate::engine::gp::CholeskyWorkspace;
 use anyhow::{bail, Result};
+use std::collections::HashMap;
 use std::path::Path;
 
 pub fn read(path: &Path) -> Result<Vec<CovarianceEntry>> {
@@ -20,6 +21,38 @@ pub fn read(path: &Path) -> Result<Vec<CovarianceEntry>> {
 
 fn same_x(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0)
+}
+
+/// Where each measured point is: per observable, its x values sorted, and
+/// for a calibrated observable its block. Lookups are a hash of the name and
+/// a binary search of x (within `same_x`'s tolerance), so attaching a
+/// covariance file takes time linear in its entries (times a log), not the
+/// product of entries and measurements.
+struct PointIndex<'a> {
+    measured: HashMap<&'a str, Vec<f64>>,
+    block_of: HashMap<String, usize>,
+}
+
+impl<'a> PointIndex<'a> {
+    fn new(blocks: &[ObservableBlock], measurements: &'a [Measurement]) -> Self {
+        let mut measured: HashMap<&str, Vec<f64>> = HashMap::new();
+        for m in measurements {
+            measured.entry(m.observable.as_str()).or_default().push(m.x);
+        }
+        measured.values_mut().for_each(|xs| xs.sort_by(f64::total_cmp));
+        let block_of = blocks.iter().enumerate().map(|(b, block)| (block.name.clone(), b)).collect();
+        PointIndex { measured, block_of }
+    }
+
+    fn is_measured(&self, observable: &str, x: f64) -> bool {
+        self.measured.get(observable).is_some_and(|xs| position_of(xs, x).is_some())
+    }
+}
+
+/// Index of `x` in `sorted` within `same_x`'s tolerance.
+fn position_of(sorted: &[f64], x: f64) -> Option<usize> {
+    let i = sorted.partition_point(|&v| v < x);
+    [i.checked_sub(1), Some(i)].into_iter().flatten().find(|&k| k < sorted.len() && same_x(sorted[k], x))
 }
 
 /// Sets each block's `covariance` from `entries`, and returns the entries
@@ -31,11 +64,14 @@ pub fn attach(
     path: &Path,
     data_path: &Path,
 ) -> Result<Vec<CrossEntry>> {
-    let mut across: Vec<(CrossEntry, &CovarianceEntry)> = Vec::new();
+    let xs: Vec<Vec<f64>> = blocks.iter().map(|b| b.x.clone()).collect();
+    let index = PointIndex::new(blocks, measurements);
+    // Cross entries by their pair (lower point first), for duplicates.
+    let mut across: HashMap<(usize, usize, usize, usize), (CrossEntry, usize)> = HashMap::new();
     let mut set: Vec<Vec<bool>> = blocks.iter().map(|b| vec![false; b.len() * b.len()]).collect();
-    for e in entries {
+    for (k, e) in entries.iter().enumerate() {
         for (obs, x, field) in [(&e.observable_a, e.x_a, "a"), (&e.observable_b, e.x_b, "b")] {
-            if !measurements.iter().any(|m| &m.observable == obs && same_x(m.x, x)) {
+            if !index.is_measured(obs, x) {
                 bail!(
                     "{}, fields 'observable_{field}', 'x_{field}': {} has no measurement of '{obs}' at x = {x}",
                     e.location(path),
@@ -43,16 +79,25 @@ pub fn attach(
                 );
             }
         }
-        let find = |obs: &str| blocks.iter().position(|b| b.name == obs);
-        let (Some(ba), Some(bb)) = (find(&e.observable_a), find(&e.observable_b)) else { continue };
-        let index = |b: usize, x: f64| {
-            blocks[b].x.iter().position(|&bx| same_x(bx, x)).expect("checked against the measurements")
+        let (Some(&ba), Some(&bb)) = (index.block_of.get(&e.observable_a), index.block_of.get(&e.observable_b)) else {
+            continue;
         };
-        let (i, j) = (index(ba, e.x_a), index(bb, e.x_b));
+        let at = |b: usize, x: f64| position_of(&xs[b], x).expect("checked against the measurements");
+        let (i, j) = (at(ba, e.x_a), at(bb, e.x_b));
         if ba != bb {
             let cross = CrossEntry { block_a: ba, index_a: i, block_b: bb, index_b: j, covariance: e.covariance };
-            if !already_given(&across, &cross, e, path)? {
-                across.push((cross, e));
+            let key = if (ba, i) <= (bb, j) { (ba, i, bb, j) } else { (bb, j, ba, i) };
+            match across.get(&key) {
+                Some((c, _)) if !same_x(c.covariance, e.covariance) => bail!(
+                    "{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})",
+                    e.location(path),
+                    e.covariance,
+                    c.covariance
+                ),
+                Some(_) => {}
+                None => {
+                    across.insert(key, (cross, k));
+                }
             }
             continue;
         }
@@ -84,6 +129,9 @@ pub fn attach(
             );
         }
     }
+    // In the file's order, so the joint covariance is built the same way whatever the hashing.
+    let mut across: Vec<(CrossEntry, usize)> = across.into_values().collect();
+    across.sort_by_key(|(_, k)| *k);
     let across: Vec<CrossEntry> = across.into_iter().map(|(c, _)| c).collect();
     if !across.is_empty() {
         let whole = super::joint::JointLayout::new(blocks, &across, false);
@@ -94,29 +142,6 @@ pub fn attach(
         }
     }
     Ok(across)
-}
-
-/// Whether the pair was given before (in either order); if so, it must agree.
-fn already_given(
-    seen: &[(CrossEntry, &CovarianceEntry)],
-    new: &CrossEntry,
-    e: &CovarianceEntry,
-    path: &Path,
-) -> Result<bool> {
-    let same_pair = |c: &CrossEntry| {
-        (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_a, new.index_a, new.block_b, new.index_b)
-            || (c.block_a, c.index_a, c.block_b, c.index_b) == (new.block_b, new.index_b, new.block_a, new.index_a)
-    };
-    match seen.iter().find(|(c, _)| same_pair(c)) {
-        Some((c, _)) if !same_x(c.covariance, new.covariance) => bail!(
-            "{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})",
-            e.location(path),
-            e.covariance,
-            c.covariance
-        ),
-        Some(_) => Ok(true),
-        None => Ok(false),
-    }
 }
 
 #[cfg(test)]

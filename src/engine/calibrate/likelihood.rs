@@ -16,6 +16,7 @@
 
 use super::block::ObservableBlock;
 use super::joint::{add_lower_block, JointLayout};
+use super::structured::{self, Structure};
 use crate::engine::gp::{copy_lower, gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
 use crate::engine::model::Simulator;
 use std::cell::RefCell;
@@ -35,6 +36,8 @@ struct Workspace {
     /// The θ-dependent part of the joint covariance at the last θs seen.
     joint_bases: Vec<JointBase>,
     clock: u64,
+    /// Scratch of the structured joint evaluation (`structured`).
+    structured: Option<structured::Scratch>,
 }
 
 /// The joint covariance without δ (the data's and the model's parts) and the
@@ -70,6 +73,9 @@ pub struct MdLikelihood {
     model_covariance: bool,
     /// One Gaussian over all points instead of independent blocks.
     pub joint: Option<JointLayout>,
+    /// The joint covariance as blocks plus a low-rank term, when it is so
+    /// (`structured`); `None`: the dense factorization.
+    pub structure: Option<Structure>,
     /// Factorizations of this likelihood's covariances that needed jitter.
     jitter_events: AtomicUsize,
 }
@@ -104,6 +110,7 @@ impl MdLikelihood {
             model_covariance,
             jitter_events: AtomicUsize::new(0),
             joint: None,
+            structure: None,
         }
     }
 
@@ -112,8 +119,22 @@ impl MdLikelihood {
     /// observables, when it has one).
     pub fn joint(mut self, across: &[super::joint::CrossEntry]) -> Self {
         let spans = self.model_covariance && self.simulator.model_covariance_spans_observables();
-        self.joint = Some(JointLayout::new(&self.blocks, across, spans));
+        let layout = JointLayout::new(&self.blocks, across, spans);
+        // The structure is exact algebra on the same covariance; a model
+        // covariance across observables (an emulator's) keeps the dense form.
+        let fixed = self.kernel.is_none() && !self.model_covariance;
+        self.structure = (!spans).then(|| Structure::find(&layout, &self.blocks, fixed)).flatten();
+        self.joint = Some(layout);
         // A new id: workspaces of the block form must not be reused.
+        self.id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
+        self
+    }
+
+    /// This joint likelihood with the dense factorization of the whole
+    /// covariance, whatever its structure: the reference the structured
+    /// evaluation is tested and benchmarked against.
+    pub fn dense(mut self) -> Self {
+        self.structure = None;
         self.id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
         self
     }
@@ -153,10 +174,15 @@ impl MdLikelihood {
             resid: vec![0.0; nmax],
             xr: vec![0.0; nmax],
             corr: vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)],
-            joint_chol: self.joint.as_ref().map(|j| CholeskyWorkspace::new(j.len())),
+            joint_chol: self
+                .joint
+                .as_ref()
+                .filter(|_| self.structure.is_none())
+                .map(|j| CholeskyWorkspace::new(j.len())),
             joint_resid: vec![0.0; self.joint.as_ref().map_or(0, |j| j.len())],
             joint_bases: Vec::new(),
             clock: 0,
+            structured: self.structure.as_ref().map(structured::Scratch::new),
         }
     }
 
@@ -306,6 +332,9 @@ impl MdLikelihood {
 
     /// The joint form's Gaussian over all points (without the Jacobian).
     fn joint_log_likelihood(&self, joint: &JointLayout, params: &[f64], ws: &mut Workspace) -> f64 {
+        if let Some(structure) = &self.structure {
+            return self.structured_log_likelihood(structure, joint, params, ws);
+        }
         let mut chol = ws.joint_chol.take().expect("a joint likelihood's workspace has its factor");
         let mut resid = std::mem::take(&mut ws.joint_resid);
         self.fill_joint(joint, params, true, ws, &mut chol.factor, &mut resid);
@@ -318,6 +347,58 @@ impl MdLikelihood {
         };
         ws.joint_chol = Some(chol);
         ws.joint_resid = resid;
+        if total.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            total
+        }
+    }
+
+    /// The joint Gaussian by the covariance's structure (`structured`): per
+    /// block, δ and the model's own covariance added to the block's data part.
+    fn structured_log_likelihood(
+        &self,
+        structure: &Structure,
+        joint: &JointLayout,
+        params: &[f64],
+        ws: &mut Workspace,
+    ) -> f64 {
+        let theta = &params[..self.n_theta];
+        let Workspace { chol, eta, xr, corr, joint_resid: resid, structured: scratch, .. } = ws;
+        let scratch = scratch.as_mut().expect("a structured likelihood's workspace has its scratch");
+        for (b, block) in self.blocks.iter().enumerate() {
+            let n = block.len();
+            self.simulator.predict(block.model_index, &block.x, theta, &mut eta[..n]);
+            for (i, r) in resid[joint.rows(b)].iter_mut().enumerate() {
+                *r = (block.y[i] - eta[i]) / block.scale;
+            }
+        }
+        let total = match &structure.fixed {
+            Some(fixed) => structure.fixed_log_pdf(fixed, resid, scratch),
+            None => {
+                let fill = |b: usize, lower: &mut [f64]| {
+                    let block = &self.blocks[b];
+                    let n = block.len();
+                    match self.kernel {
+                        Some(kernel) => {
+                            block.gram.fill_lower(kernel, self.hyper_of(params, b), lower, &mut xr[..n], corr)
+                        }
+                        None => lower.iter_mut().for_each(|v| *v = 0.0),
+                    }
+                    if self.model_covariance {
+                        let inv2 = 1.0 / (block.scale * block.scale);
+                        self.simulator.add_model_covariance(block.model_index, &block.x, theta, inv2, lower);
+                    }
+                };
+                match structure.log_pdf(resid, scratch, chol, fill) {
+                    Some((value, jitter)) => {
+                        self.note_jitter(jitter, joint.len());
+                        value
+                    }
+                    None => f64::NEG_INFINITY,
+                }
+            }
+        };
         if total.is_nan() {
             f64::NEG_INFINITY
         } else {

@@ -5,6 +5,7 @@
 //! [`LogLikelihood`]; [`Problem`] builds both from an [`Analysis`] (a config
 //! resolved once) and data.
 
+pub mod across;
 pub mod analysis;
 pub mod block;
 pub mod checkpoint;
@@ -19,6 +20,7 @@ pub mod prior;
 pub mod settings;
 pub mod smc;
 pub mod stored;
+pub mod structured;
 pub mod summary;
 
 use crate::base::artifacts::{self, Measurement, Provenance};

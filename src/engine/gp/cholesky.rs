@@ -257,6 +257,13 @@ impl CholeskyWorkspace {
         faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, rhs, Par::Seq);
     }
 
+    /// Solves `L Z = B` in place for the `cols` columns of `b` (column-major n × cols).
+    pub fn solve_lower_columns_in_place(&self, b: &mut [f64], cols: usize) {
+        let l = MatRef::from_column_major_slice(&self.factor, self.n, self.n);
+        let rhs = MatMut::from_column_major_slice_mut(b, self.n, cols);
+        faer::linalg::triangular_solve::solve_lower_triangular_in_place(l, rhs, Par::Seq);
+    }
+
     /// Solves `Lᵀ z = b` in place (backward substitution).
     pub fn solve_upper_in_place(&self, b: &mut [f64]) {
         let l = MatRef::from_column_major_slice(&self.factor, self.n, self.n);

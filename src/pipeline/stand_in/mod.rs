@@ -138,7 +138,7 @@ impl Study<'_> {
                 let seed = self.opts.seed.wrapping_add(1_000 * (k as u64 + 1));
                 let simulator = self.stand_in_simulator(delta_f, seed)?;
                 Ok(Variant {
-                    declaration: c.declaration(self.paths.candidate(name).join("emulator")).to_table()?,
+                    declaration: c.declaration(absolute(&self.paths.candidate(name).join("emulator"))).to_table()?,
                     name: c.name.into(),
                     parameters: c.design_parameter().into_iter().collect(),
                     parameter_file: Default::default(),

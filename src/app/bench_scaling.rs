@@ -1,0 +1,181 @@
+//! `mdpipe bench --scaling`: how the likelihood's cost grows with the data.
+//!
+//! A synthetic analysis in files, as a user would bring it: observables of
+//! 25 points each (an expression model with four parameters), each table with
+//! its own correlated systematic (5% of the value, fully correlated across
+//! its bins) and one normalization systematic (2%) across every table, all
+//! of it written as the full covariance file `[data] covariance` reads
+//! (N² rows). For each N it times the setup (reading the measurements and the
+//! covariance, attaching it, finding its structure) and Kernel II
+//! evaluations per second on one core, structured and dense, and fits the
+//! exponent of the cost per evaluation against N.
+
+use crate::base::progress::Silent;
+use crate::engine::calibrate::{Overrides, Problem};
+use crate::engine::gp::DiscrepancyKernel;
+use anyhow::{Context, Result};
+use rand::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Points per observable (per table).
+const TABLE: usize = 25;
+/// The sizes measured, from 100 to 3 000 points.
+pub const SIZES: [usize; 6] = [100, 200, 400, 1000, 2000, 3000];
+/// Dense evaluations stop at this size (one at 3 000 points takes seconds).
+const DENSE_UP_TO: usize = 3000;
+
+/// One size's measurements.
+#[derive(Debug, serde::Serialize)]
+pub struct ScalingRow {
+    pub points: usize,
+    pub observables: usize,
+    pub covariance_rows: usize,
+    /// Reading the data and covariance, attaching it, and the likelihood's setup.
+    pub setup_seconds: f64,
+    /// Rank of the low-rank term across tables (`None`: the dense form).
+    pub rank: Option<usize>,
+    pub structured_per_second: f64,
+    pub dense_per_second: Option<f64>,
+}
+
+/// Writes the synthetic analysis of `n` points under `dir`; returns its config.
+pub fn write_problem(dir: &Path, n: usize) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let observables = n.div_ceil(TABLE);
+    let value = |o: usize, x: f64| 2.0 + 0.5 * x + 0.3 * x * x + 0.2 * (o as f64 + x).sin();
+    let mut data = std::io::BufWriter::new(std::fs::File::create(dir.join("data.csv"))?);
+    writeln!(data, "observable,x,value,error")?;
+    let mut points = Vec::with_capacity(n);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(n as u64);
+    for o in 0..observables {
+        for k in 0..TABLE.min(n - o * TABLE) {
+            let x = (k as f64 + 0.5) / TABLE as f64;
+            let y = value(o, x)
+                * (1.0 + 0.01 * rand_distr::Distribution::<f64>::sample(&rand_distr::StandardNormal, &mut rng));
+            writeln!(data, "o{o:04},{x},{y},{}", 0.01 * y)?;
+            points.push((o, x, y));
+        }
+    }
+    data.flush()?;
+    let mut cov = std::io::BufWriter::new(std::fs::File::create(dir.join("covariance.csv"))?);
+    writeln!(cov, "observable_a,x_a,observable_b,x_b,covariance")?;
+    for &(oa, xa, ya) in &points {
+        for &(ob, xb, yb) in &points {
+            let table = if oa == ob { 0.05 * ya * 0.05 * yb } else { 0.0 };
+            writeln!(cov, "o{oa:04},{xa},o{ob:04},{xb},{:e}", table + 0.02 * ya * 0.02 * yb)?;
+        }
+    }
+    cov.flush()?;
+    let formulas: Vec<String> =
+        (0..observables).map(|o| format!("o{o:04} = \"a + b*x + c*x^2 + d*sin({o} + x)\"")).collect();
+    let config = format!(
+        "name = \"scaling_{n}\"\n[model]\nkind = \"expression\"\n[model.observables]\n{}\n[data]\nmeasurements = \"data.csv\"\ncovariance = \"covariance.csv\"\n\
+         [parameters.a]\nmin = 0.0\nmax = 4.0\n[parameters.b]\nmin = 0.0\nmax = 1.0\n[parameters.c]\nmin = 0.0\nmax = 1.0\n[parameters.d]\nmin = 0.0\nmax = 0.5\n\
+         [discrepancy]\nkernel = \"II\"\n",
+        formulas.join("\n")
+    );
+    let path = dir.join("analysis.toml");
+    std::fs::write(&path, config)?;
+    Ok(path)
+}
+
+/// Evaluations per second on this thread, over at least `seconds` and 3 evaluations.
+fn rate(problem: &Problem, seconds: f64) -> f64 {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+    let dim = problem.prior.dim();
+    let draws: Vec<Vec<f64>> = (0..64)
+        .map(|_| {
+            let mut x = vec![0.0; dim];
+            problem.prior.sample(&mut rng, &mut x);
+            x
+        })
+        .collect();
+    let mut sink = problem.likelihood.log_likelihood(&draws[0]);
+    let start = Instant::now();
+    let mut done = 0;
+    while done < 3 || start.elapsed().as_secs_f64() < seconds {
+        sink += problem.likelihood.log_likelihood(&draws[done % draws.len()]);
+        done += 1;
+    }
+    std::hint::black_box(sink);
+    done as f64 / start.elapsed().as_secs_f64()
+}
+
+/// Measures every size in `sizes`, writing the problems under `out`.
+pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingRow>> {
+    let mut rows = Vec::new();
+    for &n in sizes {
+        let config = write_problem(&out.join(format!("n{n}")), n)?;
+        let start = Instant::now();
+        let analysis = crate::systems::load(&config)?;
+        let overrides = Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() };
+        let mut problem = Problem::new(&analysis, &overrides)?;
+        let setup_seconds = start.elapsed().as_secs_f64();
+        let rank = problem.likelihood.structure.as_ref().map(|s| s.rank);
+        let structured_per_second = rate(&problem, seconds);
+        let dense_per_second = (n <= DENSE_UP_TO).then(|| {
+            problem.likelihood = problem.likelihood.dense();
+            rate(&problem, seconds)
+        });
+        let _ = Silent;
+        rows.push(ScalingRow {
+            points: n,
+            observables: n.div_ceil(TABLE),
+            covariance_rows: n * n,
+            setup_seconds,
+            rank,
+            structured_per_second,
+            dense_per_second,
+        });
+        let _ = std::fs::remove_file(out.join(format!("n{n}")).join("covariance.csv"));
+    }
+    Ok(rows)
+}
+
+/// The exponent p of cost ∝ N^p, least squares on logs.
+pub fn exponent(points: &[(usize, f64)]) -> f64 {
+    let xy: Vec<(f64, f64)> = points.iter().map(|&(n, rate)| ((n as f64).ln(), -rate.ln())).collect();
+    let k = xy.len() as f64;
+    let (mx, my) = (xy.iter().map(|p| p.0).sum::<f64>() / k, xy.iter().map(|p| p.1).sum::<f64>() / k);
+    let sxy: f64 = xy.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+    let sxx: f64 = xy.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
+    sxy / sxx
+}
+
+/// `mdpipe bench --scaling`, printed.
+pub fn print(out: &Path, seconds: f64) -> Result<()> {
+    println!(
+        "likelihood scaling: Kernel II, observables of {TABLE} points, a 5% systematic per table and a 2% one across all \
+         (full covariance files of N² rows); one core, {seconds} s per rate"
+    );
+    println!(
+        "{:>6} {:>5} {:>10} {:>9} {:>5} {:>16} {:>14}",
+        "N", "obs", "cov rows", "setup s", "rank", "structured /s", "dense /s"
+    );
+    let rows = measure(out, &SIZES, seconds)?;
+    for r in &rows {
+        println!(
+            "{:>6} {:>5} {:>10} {:>9.2} {:>5} {:>16.0} {:>14}",
+            r.points,
+            r.observables,
+            r.covariance_rows,
+            r.setup_seconds,
+            r.rank.map_or("dense".into(), |k| k.to_string()),
+            r.structured_per_second,
+            r.dense_per_second.map_or("-".into(), |v| format!("{v:.1}"))
+        );
+    }
+    let fast: Vec<(usize, f64)> = rows.iter().map(|r| (r.points, r.structured_per_second)).collect();
+    let dense: Vec<(usize, f64)> = rows.iter().filter_map(|r| r.dense_per_second.map(|d| (r.points, d))).collect();
+    println!(
+        "cost per evaluation ∝ N^{:.2} structured, N^{:.2} dense (least squares over the sizes above)",
+        exponent(&fast),
+        exponent(&dense)
+    );
+    crate::base::artifacts::write_json_atomic(&out.join("scaling.json"), &rows)?;
+    println!("{}", out.join("scaling.json").display());
+    Ok(())
+}

@@ -1,0 +1,307 @@
+//! The joint likelihood by the structure of its covariance, exactly.
+//!
+//! The joint covariance (`joint`) is, in standardized units,
+//!
+//! `Σ(θ, φ) = blockdiag_b(K_δb(φ_b) + C_model,b(θ) + A_b) + V Vᵀ`
+//!
+//! where δ and the model's own covariance live inside each observable's
+//! block and the data's covariance `C_data` beyond the errors is what links
+//! the blocks. A correlated systematic is a rank-one term `s sᵀ` across the
+//! points it affects, so `C_data` is usually a few such terms: this module
+//! finds a `V` (N × r, r small) whose `V Vᵀ` carries every entry of
+//! `C_data` between two blocks, leaving the rest inside the blocks (`A_b`,
+//! errors² included). Then, with `B = blockdiag(…)` factorized block by block
+//! (`L_b`), Woodbury's identity and the matrix determinant lemma give
+//!
+//! `rᵀ Σ⁻¹ r = ‖z‖² − ‖L_M⁻¹ Wᵀ z‖²`, `log det Σ = Σ_b log det B_b + log det M`,
+//!
+//! with `z = L⁻¹ r`, `W = L⁻¹ V` and `M = I + Wᵀ W` (r × r): the cost is
+//! linear in the number of blocks instead of cubic in N. When nothing
+//! depends on the parameters (no δ, no model covariance), every factor is
+//! made once and an evaluation is forward substitutions only.
+//!
+//! The structure is found from the covariance itself when the likelihood is
+//! built (`across`); where it is not low-rank across blocks (or a block's
+//! remainder is not positive definite) the dense factorization of
+//! `likelihood` stays, as it does for a model whose covariance spans
+//! observables (an emulator's). The dense path is the reference: the two
+//! agree to rounding (`tests/it/structured.rs`).
+
+use super::across::low_rank_across;
+use super::block::ObservableBlock;
+use super::joint::JointLayout;
+use crate::engine::gp::CholeskyWorkspace;
+
+/// At most this many low-rank columns: beyond that the dense factorization
+/// is as cheap at the sizes where it matters.
+const MAX_RANK: usize = 256;
+
+/// The data's covariance split into blocks plus a low-rank term across them.
+#[derive(Clone)]
+pub struct Structure {
+    /// Block b's rows of `V` (column-major n_b × rank each).
+    pub v_rows: Vec<Vec<f64>>,
+    pub rank: usize,
+    /// Points per block.
+    sizes: Vec<usize>,
+    /// Block b's part of the data's covariance that `V Vᵀ` leaves
+    /// (errors² included; standardized, lower triangle, column-major).
+    pub block_data: Vec<Vec<f64>>,
+    /// Every factor, when the covariance does not depend on the parameters.
+    pub fixed: Option<FixedFactors>,
+}
+
+/// Factors of a covariance that does not change: each block's, `W = L⁻¹ V`
+/// and `M`'s.
+pub struct FixedFactors {
+    pub blocks: Vec<CholeskyWorkspace>,
+    pub w_rows: Vec<Vec<f64>>,
+    pub capacitance: CholeskyWorkspace,
+    pub log_det: f64,
+}
+
+impl Clone for FixedFactors {
+    fn clone(&self) -> Self {
+        let copy = |c: &CholeskyWorkspace| {
+            let mut new = CholeskyWorkspace::new(c.n());
+            new.factor.copy_from_slice(&c.factor);
+            new
+        };
+        FixedFactors {
+            blocks: self.blocks.iter().map(copy).collect(),
+            w_rows: self.w_rows.clone(),
+            capacitance: copy(&self.capacitance),
+            log_det: self.log_det,
+        }
+    }
+}
+
+impl Structure {
+    /// The structure of `joint`'s data covariance, or `None` when it is not
+    /// low-rank across blocks (then the dense path is as good). `fixed`: the
+    /// covariance is all there is (no δ, no model covariance), so factorize now.
+    pub fn find(joint: &JointLayout, blocks: &[ObservableBlock], fixed: bool) -> Option<Structure> {
+        let n = joint.len();
+        if blocks.len() < 2 || n < 8 {
+            return None;
+        }
+        let mut beyond = joint.data.clone();
+        for (b, block) in blocks.iter().enumerate() {
+            let s2 = 1.0 / (block.scale * block.scale);
+            for (k, i) in joint.rows(b).enumerate() {
+                beyond[i + i * n] -= s2 * block.error[k] * block.error[k];
+            }
+        }
+        mirror_lower(&mut beyond, n);
+        let remainders = |v: &[f64], rank: usize| block_remainders(&beyond, joint, blocks, v, rank);
+        let (v, rank, block_data) = low_rank_across(&beyond, &joint.offsets, MAX_RANK, remainders)?;
+        let v_rows = (0..blocks.len())
+            .map(|b| {
+                let rows = joint.rows(b);
+                (0..rank).flat_map(|k| v[k * n + rows.start..k * n + rows.end].iter().copied()).collect()
+            })
+            .collect();
+        let sizes = (0..blocks.len()).map(|b| joint.rows(b).len()).collect();
+        let mut structure = Structure { v_rows, rank, sizes, block_data, fixed: None };
+        if fixed {
+            structure.fixed = Some(structure.factorize_fixed()?);
+        }
+        Some(structure)
+    }
+
+    fn factorize_fixed(&self) -> Option<FixedFactors> {
+        let mut scratch = Scratch::new(self);
+        let mut blocks = Vec::with_capacity(self.block_data.len());
+        let mut w_rows = Vec::with_capacity(self.block_data.len());
+        let mut log_det = 0.0;
+        for (b, own) in self.block_data.iter().enumerate() {
+            let nb = self.nb(b);
+            let mut chol = CholeskyWorkspace::new(nb);
+            chol.factor.copy_from_slice(own);
+            if !chol.factorize_exact() {
+                return None;
+            }
+            log_det += chol.log_det();
+            let mut w = self.v_rows[b].clone();
+            chol.solve_lower_columns_in_place(&mut w, self.rank);
+            add_gram(&w, nb, self.rank, &mut scratch.capacitance.factor);
+            blocks.push(chol);
+            w_rows.push(w);
+        }
+        add_identity(&mut scratch.capacitance.factor, self.rank);
+        if self.rank > 0 {
+            if !scratch.capacitance.factorize_exact() {
+                return None;
+            }
+            log_det += scratch.capacitance.log_det();
+        }
+        Some(FixedFactors { blocks, w_rows, capacitance: scratch.capacitance, log_det })
+    }
+
+    fn nb(&self, b: usize) -> usize {
+        self.sizes[b]
+    }
+
+    /// `log N(r | 0, Σ)` when every factor is fixed; `resid` (standardized,
+    /// all points in block order) is overwritten.
+    pub fn fixed_log_pdf(&self, fixed: &FixedFactors, resid: &mut [f64], scratch: &mut Scratch) -> f64 {
+        let c = &mut scratch.c;
+        c.iter_mut().for_each(|v| *v = 0.0);
+        let mut at = 0;
+        let mut quad = 0.0;
+        for (b, chol) in fixed.blocks.iter().enumerate() {
+            let nb = chol.n();
+            let z = &mut resid[at..at + nb];
+            chol.solve_lower_in_place(z);
+            quad += z.iter().map(|v| v * v).sum::<f64>();
+            add_transposed_product(&fixed.w_rows[b], nb, self.rank, z, c);
+            at += nb;
+        }
+        if self.rank > 0 {
+            fixed.capacitance.solve_lower_in_place(c);
+            quad -= c.iter().map(|v| v * v).sum::<f64>();
+        }
+        -0.5 * (quad + fixed.log_det + resid.len() as f64 * LN_2PI)
+    }
+
+    /// `log N(r | 0, Σ)` with each block's covariance beyond the data
+    /// (δ, the model's own) written by `fill_block(b, lower)` (lower
+    /// triangle, overwritten), to which the block's data part is added; `None` when a block (or M) is not positive definite even
+    /// with jitter. Returns the log-density and the largest jitter used.
+    pub fn log_pdf(
+        &self,
+        resid: &mut [f64],
+        scratch: &mut Scratch,
+        chols: &mut [CholeskyWorkspace],
+        mut fill_block: impl FnMut(usize, &mut [f64]),
+    ) -> Option<(f64, f64)> {
+        let r = self.rank;
+        scratch.capacitance.factor.iter_mut().for_each(|v| *v = 0.0);
+        scratch.c.iter_mut().for_each(|v| *v = 0.0);
+        let (mut quad, mut log_det, mut jitter) = (0.0, 0.0, 0.0f64);
+        let mut at = 0;
+        for (b, own) in self.block_data.iter().enumerate() {
+            let chol = &mut chols[b];
+            let nb = chol.n();
+            let mut refill = |lower: &mut [f64]| {
+                fill_block(b, lower);
+                for j in 0..nb {
+                    for i in j..nb {
+                        lower[i + j * nb] += own[i + j * nb];
+                    }
+                }
+            };
+            refill(&mut chol.factor);
+            jitter = jitter.max(chol.factorize_refilling(&mut refill).ok()?);
+            log_det += chol.log_det();
+            let z = &mut resid[at..at + nb];
+            chol.solve_lower_in_place(z);
+            quad += z.iter().map(|v| v * v).sum::<f64>();
+            if r > 0 {
+                let w = &mut scratch.w[..nb * r];
+                w.copy_from_slice(&self.v_rows[b]);
+                chol.solve_lower_columns_in_place(w, r);
+                add_gram(w, nb, r, &mut scratch.capacitance.factor);
+                add_transposed_product(w, nb, r, z, &mut scratch.c);
+            }
+            at += nb;
+        }
+        if r > 0 {
+            add_identity(&mut scratch.capacitance.factor, r);
+            if !scratch.capacitance.factorize_exact() {
+                return None;
+            }
+            log_det += scratch.capacitance.log_det();
+            scratch.capacitance.solve_lower_in_place(&mut scratch.c);
+            quad -= scratch.c.iter().map(|v| v * v).sum::<f64>();
+        }
+        Some((-0.5 * (quad + log_det + resid.len() as f64 * LN_2PI), jitter))
+    }
+}
+
+/// Per-thread scratch of the structured evaluation (allocated once).
+pub struct Scratch {
+    w: Vec<f64>,
+    c: Vec<f64>,
+    capacitance: CholeskyWorkspace,
+}
+
+impl Scratch {
+    pub fn new(s: &Structure) -> Self {
+        let nmax = (0..s.block_data.len()).map(|b| s.nb(b)).max().unwrap_or(0);
+        Scratch { w: vec![0.0; nmax * s.rank], c: vec![0.0; s.rank], capacitance: CholeskyWorkspace::new(s.rank) }
+    }
+}
+
+/// Each block's data covariance once `V Vᵀ` is taken out of it (errors²
+/// plus `beyond` minus `V Vᵀ`, standardized, lower triangle), or `None` if
+/// one of them is not positive definite.
+fn block_remainders(
+    beyond: &[f64],
+    joint: &JointLayout,
+    blocks: &[ObservableBlock],
+    v: &[f64],
+    rank: usize,
+) -> Option<Vec<Vec<f64>>> {
+    let n = joint.len();
+    let mut out = Vec::with_capacity(blocks.len());
+    for (b, block) in blocks.iter().enumerate() {
+        let rows = joint.rows(b);
+        let nb = rows.len();
+        let s2 = 1.0 / (block.scale * block.scale);
+        let mut own = vec![0.0; nb * nb];
+        for j in 0..nb {
+            own[j + j * nb] = s2 * block.error[j] * block.error[j];
+            let (gj, gi0) = (rows.start + j, rows.start);
+            for i in j..nb {
+                let shared: f64 = (0..rank).map(|k| v[k * n + gi0 + i] * v[k * n + gj]).sum();
+                own[i + j * nb] += beyond[(gi0 + i) + gj * n] - shared;
+            }
+        }
+        if !positive_definite(&own, nb) {
+            return None;
+        }
+        out.push(own);
+    }
+    Some(out)
+}
+
+fn positive_definite(lower: &[f64], n: usize) -> bool {
+    let mut chol = CholeskyWorkspace::new(n);
+    chol.factor.copy_from_slice(lower);
+    chol.factorize_exact()
+}
+
+fn mirror_lower(m: &mut [f64], n: usize) {
+    for j in 0..n {
+        for i in j + 1..n {
+            m[j + i * n] = m[i + j * n];
+        }
+    }
+}
+
+/// `lower += Wᵀ W` (lower triangle of r × r), W column-major n × r.
+fn add_gram(w: &[f64], n: usize, r: usize, lower: &mut [f64]) {
+    for q in 0..r {
+        let wq = &w[q * n..(q + 1) * n];
+        for p in q..r {
+            let wp = &w[p * n..(p + 1) * n];
+            lower[p + q * r] += wp.iter().zip(wq).map(|(a, b)| a * b).sum::<f64>();
+        }
+    }
+}
+
+/// `c += Wᵀ z`, W column-major n × r.
+fn add_transposed_product(w: &[f64], n: usize, r: usize, z: &[f64], c: &mut [f64]) {
+    for (p, cp) in c.iter_mut().enumerate().take(r) {
+        *cp += w[p * n..(p + 1) * n].iter().zip(z).map(|(a, b)| a * b).sum::<f64>();
+    }
+}
+
+fn add_identity(lower: &mut [f64], r: usize) {
+    for p in 0..r {
+        lower[p + p * r] += 1.0;
+    }
+}
+
+const LN_2PI: f64 = 1.837_877_066_409_345_5;
