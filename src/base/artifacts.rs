@@ -221,6 +221,7 @@ pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     let rows = match ext.as_str() {
         "dat" => super::paper_table::read(path)?,
+        "yaml" | "yml" => super::hepdata::read(path, &Default::default())?.measurements(),
         _ => read_measurements_table(path)?,
     };
     if rows.is_empty() {

@@ -46,7 +46,8 @@ pub struct Config {
 #[derive(Clone, Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DataConfig {
-    /// Measurements file (CSV or Parquet), relative to the config file.
+    /// Measurements file (CSV, Parquet, or HEPData YAML: a table file or a
+    /// record's submission.yaml), relative to the config file.
     pub measurements: PathBuf,
     /// Observables to calibrate on; all of the model's by default.
     pub observables: Option<Vec<String>>,
@@ -56,6 +57,10 @@ pub struct DataConfig {
     /// Whether the likelihood carries correlations between observables.
     #[serde(default)]
     pub between_observables: BetweenObservables,
+    /// With HEPData YAML measurements: which tables, x, how the systematics
+    /// correlate, observable names (`base::hepdata`).
+    #[serde(default)]
+    pub hepdata: super::hepdata::HepdataOptions,
 }
 
 /// How the likelihood treats correlations between observables.

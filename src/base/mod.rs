@@ -5,6 +5,7 @@ pub mod artifacts;
 pub mod columns;
 pub mod config;
 pub mod covariance;
+pub mod hepdata;
 pub mod measurement;
 pub mod paper_table;
 pub mod progress;

@@ -15,6 +15,7 @@ mod family;
 mod faults;
 mod guard;
 mod heavy_ion;
+mod hepdata;
 mod ingest;
 mod layers;
 mod pipeline;

@@ -38,6 +38,8 @@ pub struct Analysis {
     pub covariance: Option<PathBuf>,
     /// Whether the likelihood carries correlations between observables (`[data] between_observables`).
     pub between_observables: BetweenObservables,
+    /// How HEPData measurements are read (`[data.hepdata]`).
+    pub hepdata: crate::base::hepdata::HepdataOptions,
     /// Observables to calibrate on; all of the model's by default.
     pub observables: Option<Vec<String>>,
 }
@@ -89,6 +91,7 @@ impl Analysis {
             data: config.resolve(&config.data.measurements),
             covariance: config.data.covariance.as_ref().map(|c| config.resolve(c)),
             between_observables: config.data.between_observables,
+            hepdata: config.data.hepdata.clone(),
             observables: config.data.observables.clone(),
         })
     }

@@ -155,11 +155,55 @@ pub struct Problem {
     pub sampler: SamplerKind,
 }
 
+/// The HEPData record `data_path` names, read as `[data.hepdata]` says
+/// (bins without a value skipped, and said so); `None` for other formats.
+fn hepdata_record(analysis: &Analysis, data_path: &Path) -> Result<Option<crate::base::hepdata::Record>> {
+    if !crate::base::hepdata::is_hepdata(data_path) {
+        return Ok(None);
+    }
+    if let Some(covariance) = &analysis.covariance {
+        bail!(
+            "{}: [data] covariance ({}) with HEPData measurements: their systematics already make the covariance; give one or the other",
+            analysis.config_path.display(),
+            covariance.display()
+        );
+    }
+    let mut record = crate::base::hepdata::read(data_path, &analysis.hepdata)?;
+    // A published record holds every class; the model predicts some of them.
+    let predicted = analysis.simulator.observable_names();
+    let mut unused: Vec<String> =
+        record.points.iter().map(|p| p.observable.clone()).filter(|o| !predicted.contains(o)).collect();
+    unused.dedup();
+    if !unused.is_empty() {
+        record.points.retain(|p| predicted.contains(&p.observable));
+        eprintln!(
+            "note: {}: not predicted by the model, so not used: {} (name them in [data.hepdata] observables to use them)",
+            data_path.display(),
+            unused.join(", ")
+        );
+    }
+    if record.points.is_empty() {
+        bail!("{}: none of its dependent variables is an observable of the model", data_path.display());
+    }
+    if !record.skipped.is_empty() {
+        eprintln!(
+            "note: {}: {} bin(s) without a value (null or '-') skipped",
+            data_path.display(),
+            record.skipped.len()
+        );
+    }
+    Ok(Some(record))
+}
+
 impl Problem {
     pub fn new(analysis: &Analysis, overrides: &Overrides) -> Result<Problem> {
         let simulator = analysis.simulator.clone();
         let data_path = overrides.data.clone().unwrap_or_else(|| analysis.data.clone());
-        let measurements = artifacts::read_measurements(&data_path)?;
+        let hepdata = hepdata_record(analysis, &data_path)?;
+        let measurements = match &hepdata {
+            Some(record) => record.measurements(),
+            None => artifacts::read_measurements(&data_path)?,
+        };
         let kernel = overrides.kernel.unwrap_or(analysis.kernel);
         check_observables_known(analysis, &simulator, &measurements, &data_path)?;
         let selected: Vec<String> = match (&overrides.observables, &analysis.observables) {
@@ -178,6 +222,10 @@ impl Problem {
             })
             .collect();
         let across = match (&analysis.covariance, &overrides.data) {
+            _ if hepdata.is_some() => {
+                let entries = hepdata.as_ref().map(|r| r.covariance(&analysis.hepdata)).unwrap_or_default();
+                data_covariance::attach(&mut blocks, &entries, &measurements, &data_path, &data_path)?
+            }
             (Some(path), None) => {
                 let entries = data_covariance::read(path)
                     .with_context(|| format!("{}: [data] covariance", analysis.config_path.display()))?;
