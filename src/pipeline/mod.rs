@@ -90,7 +90,9 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
     // Absolute from here on: declarations written for later stages (a variant's
     // emulator folder) are resolved against the config's folder, not the cwd.
-    let paths = RunPaths { out: study::absolute(&opts.out) };
+    // Canonical, so that `--out ../x` and `--out /abs/x` key their stages alike.
+    let out = std::fs::canonicalize(&opts.out).unwrap_or_else(|_| study::absolute(&opts.out));
+    let paths = RunPaths { out };
     let study = Study { config, run, emulator, paths, opts };
     // Every candidate's declaration is checked before anything runs.
     study.variants()?;
