@@ -10,7 +10,6 @@
 //! evaluations per second on one core, structured and dense, and fits the
 //! exponent of the cost per evaluation against N.
 
-use crate::base::progress::Silent;
 use crate::engine::calibrate::{Overrides, Problem};
 use crate::engine::gp::DiscrepancyKernel;
 use anyhow::{Context, Result};
@@ -84,15 +83,7 @@ pub fn write_problem(dir: &Path, n: usize) -> Result<PathBuf> {
 
 /// Evaluations per second on this thread, over at least `seconds` and 3 evaluations.
 fn rate(problem: &Problem, seconds: f64) -> f64 {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
-    let dim = problem.prior.dim();
-    let draws: Vec<Vec<f64>> = (0..64)
-        .map(|_| {
-            let mut x = vec![0.0; dim];
-            problem.prior.sample(&mut rng, &mut x);
-            x
-        })
-        .collect();
+    let draws = super::bench::prior_draws(problem, 64);
     let mut sink = problem.likelihood.log_likelihood(&draws[0]);
     let start = Instant::now();
     let mut done = 0;
@@ -120,7 +111,6 @@ pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingR
             problem.likelihood = problem.likelihood.dense();
             rate(&problem, seconds)
         });
-        let _ = Silent;
         rows.push(ScalingRow {
             points: n,
             observables: n.div_ceil(TABLE),
