@@ -1,12 +1,17 @@
 //! mdpipe: Bayesian calibration of simulators with a Kennedy–O'Hagan
 //! model-discrepancy term (Jaiswal, Shen, Furnstahl, Heinz & Pratola 2025).
 //!
-//! Four layers, each importing only from the layers below it (ARCHITECTURE.md):
-//! - [`base`]: artifacts I/O, the TOML config as plain data, progress observers;
-//! - [`engine`]: GP, calibration, emulator, design, ingest, compare, diagnose,
-//!   report; it knows no particular system, only the [`model::ModelFamily`] trait;
-//! - [`systems`]: the model families (ball drop, heavy-ion stand-in with its
-//!   study runner) and the registry that names them;
+//! Five layers, each importing only from the layers below it (ARCHITECTURE.md;
+//! `tests/it/layers.rs` checks it):
+//! - [`base`]: artifacts I/O, the TOML config as plain data, measurement and
+//!   covariance readers (HEPData's YAML among them), progress observers;
+//! - [`engine`]: GP, calibration, emulator, design, execute, ingest, compare,
+//!   diagnose, refine, report; it knows no particular system, only the
+//!   [`model::ModelFamily`] trait;
+//! - [`systems`]: the model families (declared formulas and ODEs, the
+//!   heavy-ion stand-in, the Rust ball drop) and the registry that names them;
+//! - [`pipeline`]: `mdpipe run`, the staged study for any simulator, with the
+//!   hook through which a system adds what it brings;
 //! - [`app`]: the command line's commands, the demo and the benchmarks.
 
 pub mod app;

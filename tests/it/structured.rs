@@ -228,3 +228,40 @@ fn a_fixed_covariance_is_factorized_once() {
         assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{a} vs {b}");
     }
 }
+
+/// The summaries' solves (δ's conditional bands): `Σ⁻¹ r` and `kᵀ Σ⁻¹ k`
+/// for a k on one block, from the structured factors, equal the dense
+/// factorization's of the same covariance (`joint_system`).
+#[test]
+fn structured_solves_equal_the_dense_ones() {
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+    let mut checked = 0;
+    for seed in 0..40u64 {
+        let p = problem(seed);
+        let kernel = Some(DiscrepancyKernel::KernelII);
+        let lik = likelihood(&p, kernel);
+        let params = parameters(kernel, p.blocks.len(), &mut rng);
+        let Some((factored, mut alpha)) = lik.structured_system(&params) else { continue };
+        let (lower, mut dense_alpha) = lik.joint_system(&params).unwrap();
+        let n = dense_alpha.len();
+        let mut chol = mdpipe::gp::CholeskyWorkspace::new(n);
+        chol.factor.copy_from_slice(&lower);
+        chol.factorize().unwrap();
+        chol.solve_in_place(&mut dense_alpha);
+        factored.solve_in_place(&mut alpha);
+        let scale = dense_alpha.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (a, d) in alpha.iter().zip(&dense_alpha) {
+            assert!((a - d).abs() <= 1e-9 * scale, "seed {seed}: Σ⁻¹r {a} vs {d}");
+        }
+        let (b, rows) = (p.blocks.len() - 1, lik.joint.as_ref().unwrap().rows(p.blocks.len() - 1));
+        let k: Vec<f64> = (0..rows.len()).map(|i| 0.3 + 0.1 * i as f64).collect();
+        let mut whole = vec![0.0; n];
+        whole[rows.clone()].copy_from_slice(&k);
+        chol.solve_lower_in_place(&mut whole);
+        let dense_quad: f64 = whole.iter().map(|v| v * v).sum();
+        let quad = factored.block_quadratic(b, &mut k.clone());
+        assert!((quad - dense_quad).abs() <= 1e-9 * dense_quad.abs().max(1.0), "seed {seed}: {quad} vs {dense_quad}");
+        checked += 1;
+    }
+    assert!(checked >= 30, "only {checked} of 40 problems had a structure");
+}

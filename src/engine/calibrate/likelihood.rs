@@ -16,7 +16,7 @@
 
 use super::block::ObservableBlock;
 use super::joint::{add_lower_block, JointLayout};
-use super::structured::{self, Structure};
+use super::structured::{self, Structure, LN_2PI};
 use crate::engine::gp::{copy_lower, gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
 use crate::engine::model::Simulator;
 use std::cell::RefCell;
@@ -76,6 +76,10 @@ pub struct MdLikelihood {
     /// The joint covariance as blocks plus a low-rank term, when it is so
     /// (`structured`); `None`: the dense factorization.
     pub structure: Option<Structure>,
+    /// Each block's data covariance factorized once, when nothing in it
+    /// depends on the parameters (no MD, no model covariance); `None` for a
+    /// block of errors alone (no factorization needed) or otherwise.
+    fixed_blocks: Vec<Option<CholeskyWorkspace>>,
     /// Factorizations of this likelihood's covariances that needed jitter.
     jitter_events: AtomicUsize,
 }
@@ -100,6 +104,8 @@ impl MdLikelihood {
         let n_theta = simulator.parameter_names().len();
         let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
         let model_covariance = simulator.has_model_covariance();
+        let fixed = kernel.is_none() && !model_covariance;
+        let fixed_blocks = blocks.iter().map(|b| fixed.then(|| structured::fixed_block_factor(b)).flatten()).collect();
         MdLikelihood {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             simulator,
@@ -111,6 +117,7 @@ impl MdLikelihood {
             jitter_events: AtomicUsize::new(0),
             joint: None,
             structure: None,
+            fixed_blocks,
         }
     }
 
@@ -366,6 +373,27 @@ impl MdLikelihood {
         let theta = &params[..self.n_theta];
         let Workspace { chol, eta, xr, corr, joint_resid: resid, structured: scratch, .. } = ws;
         let scratch = scratch.as_mut().expect("a structured likelihood's workspace has its scratch");
+        self.fill_residuals(joint, theta, eta, resid);
+        let total = match &structure.fixed {
+            Some(fixed) => structure.fixed_log_pdf(fixed, resid, scratch),
+            None => match structure.log_pdf(resid, scratch, chol, |b, lower| self.fill_own(params, b, lower, xr, corr))
+            {
+                Some((value, jitter)) => {
+                    self.note_jitter(jitter, joint.len());
+                    value
+                }
+                None => f64::NEG_INFINITY,
+            },
+        };
+        if total.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            total
+        }
+    }
+
+    /// Standardized residuals of every point at θ, in the joint order.
+    fn fill_residuals(&self, joint: &JointLayout, theta: &[f64], eta: &mut [f64], resid: &mut [f64]) {
         for (b, block) in self.blocks.iter().enumerate() {
             let n = block.len();
             self.simulator.predict(block.model_index, &block.x, theta, &mut eta[..n]);
@@ -373,37 +401,33 @@ impl MdLikelihood {
                 *r = (block.y[i] - eta[i]) / block.scale;
             }
         }
-        let total = match &structure.fixed {
-            Some(fixed) => structure.fixed_log_pdf(fixed, resid, scratch),
-            None => {
-                let fill = |b: usize, lower: &mut [f64]| {
-                    let block = &self.blocks[b];
-                    let n = block.len();
-                    match self.kernel {
-                        Some(kernel) => {
-                            block.gram.fill_lower(kernel, self.hyper_of(params, b), lower, &mut xr[..n], corr)
-                        }
-                        None => lower.iter_mut().for_each(|v| *v = 0.0),
-                    }
-                    if self.model_covariance {
-                        let inv2 = 1.0 / (block.scale * block.scale);
-                        self.simulator.add_model_covariance(block.model_index, &block.x, theta, inv2, lower);
-                    }
-                };
-                match structure.log_pdf(resid, scratch, chol, fill) {
-                    Some((value, jitter)) => {
-                        self.note_jitter(jitter, joint.len());
-                        value
-                    }
-                    None => f64::NEG_INFINITY,
-                }
-            }
-        };
-        if total.is_nan() {
-            f64::NEG_INFINITY
-        } else {
-            total
+    }
+
+    /// Block b's covariance beyond the data (δ, the model's own) into `lower`.
+    fn fill_own(&self, params: &[f64], b: usize, lower: &mut [f64], xr: &mut [f64], corr: &mut [f64]) {
+        let block = &self.blocks[b];
+        let n = block.len();
+        match self.kernel {
+            Some(kernel) => block.gram.fill_lower(kernel, self.hyper_of(params, b), lower, &mut xr[..n], corr),
+            None => lower.iter_mut().for_each(|v| *v = 0.0),
         }
+        if self.model_covariance {
+            let inv2 = 1.0 / (block.scale * block.scale);
+            self.simulator.add_model_covariance(block.model_index, &block.x, &params[..self.n_theta], inv2, lower);
+        }
+    }
+
+    /// The structured joint covariance factorized at `params` and the residuals,
+    /// for summaries (allocates); `None` for the other forms or a failed factor.
+    pub fn structured_system(&self, params: &[f64]) -> Option<(structured::Factored, Vec<f64>)> {
+        let (structure, joint) = (self.structure.as_ref()?, self.joint.as_ref()?);
+        let nmax = self.blocks.iter().map(|b| b.len()).max().unwrap_or(0);
+        let (mut eta, mut resid) = (vec![0.0; nmax], vec![0.0; joint.len()]);
+        self.fill_residuals(joint, &params[..self.n_theta], &mut eta, &mut resid);
+        let mut xr = vec![0.0; nmax];
+        let mut corr = vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)];
+        let factored = structure.factor_at(|b, lower| self.fill_own(params, b, lower, &mut xr, &mut corr))?;
+        Some((factored, resid))
     }
 
     /// The joint covariance's lower triangle (column-major N × N) and the
@@ -519,7 +543,9 @@ impl MdLikelihood {
             resid[i] = (block.y[i] - eta[i]) * inv_scale;
         }
         let mut total = 0.0;
-        if self.kernel.is_none() && !self.model_covariance && block.diagonal_data() {
+        if let Some(chol) = &self.fixed_blocks[b] {
+            total = gaussian_logpdf_factored(chol, resid);
+        } else if self.kernel.is_none() && !self.model_covariance && block.diagonal_data() {
             // Diagonal covariance: no factorization needed.
             for i in 0..n {
                 let s = block.error[i] * inv_scale;
@@ -571,5 +597,3 @@ fn whiten(lower: Vec<f64>, n: usize, mut jac: Vec<f64>, d: usize) -> Option<Vec<
     }
     Some(jac)
 }
-
-const LN_2PI: f64 = 1.837_877_066_409_345_5;

@@ -219,6 +219,90 @@ impl Structure {
     }
 }
 
+impl Structure {
+    /// Σ factorized with each block's own covariance from `fill_block` (as
+    /// in `log_pdf`), for solves; allocates (summaries, not the sampler).
+    pub fn factor_at(&self, mut fill_block: impl FnMut(usize, &mut [f64])) -> Option<Factored> {
+        let r = self.rank;
+        let mut capacitance = CholeskyWorkspace::new(r);
+        capacitance.factor.iter_mut().for_each(|v| *v = 0.0);
+        let mut blocks = Vec::with_capacity(self.sizes.len());
+        let mut w_rows = Vec::with_capacity(self.sizes.len());
+        for (b, own) in self.block_data.iter().enumerate() {
+            let nb = self.sizes[b];
+            let mut chol = CholeskyWorkspace::new(nb);
+            let mut refill = |lower: &mut [f64]| {
+                fill_block(b, lower);
+                lower.iter_mut().zip(own).for_each(|(l, o)| *l += o);
+            };
+            refill(&mut chol.factor);
+            chol.factorize_refilling(&mut refill).ok()?;
+            let mut w = self.v_rows[b].clone();
+            if r > 0 {
+                chol.solve_lower_columns_in_place(&mut w, r);
+                add_gram(&w, nb, r, &mut capacitance.factor);
+            }
+            blocks.push(chol);
+            w_rows.push(w);
+        }
+        add_identity(&mut capacitance.factor, r);
+        if r > 0 && !capacitance.factorize_exact() {
+            return None;
+        }
+        Some(Factored { blocks, w_rows, capacitance, rank: r })
+    }
+}
+
+/// Σ = blockdiag(L_b L_bᵀ) + V Vᵀ factorized (`Structure::factor_at`).
+pub struct Factored {
+    blocks: Vec<CholeskyWorkspace>,
+    w_rows: Vec<Vec<f64>>,
+    capacitance: CholeskyWorkspace,
+    rank: usize,
+}
+
+impl Factored {
+    /// `Σ⁻¹ r` in place (all points, block order): `L⁻ᵀ (z − W M⁻¹ Wᵀ z)`, z = L⁻¹ r.
+    pub fn solve_in_place(&self, r: &mut [f64]) {
+        let mut c = vec![0.0; self.rank];
+        let mut at = 0;
+        for (chol, w) in self.blocks.iter().zip(&self.w_rows) {
+            let nb = chol.n();
+            chol.solve_lower_in_place(&mut r[at..at + nb]);
+            add_transposed_product(w, nb, self.rank, &r[at..at + nb], &mut c);
+            at += nb;
+        }
+        if self.rank > 0 {
+            self.capacitance.solve_in_place(&mut c);
+        }
+        let mut at = 0;
+        for (chol, w) in self.blocks.iter().zip(&self.w_rows) {
+            let nb = chol.n();
+            let z = &mut r[at..at + nb];
+            for (p, cp) in c.iter().enumerate() {
+                z.iter_mut().zip(&w[p * nb..(p + 1) * nb]).for_each(|(zi, wi)| *zi -= wi * cp);
+            }
+            chol.solve_upper_in_place(z);
+            at += nb;
+        }
+    }
+
+    /// `kᵀ Σ⁻¹ k` for a vector nonzero only on block b's points (`k_b`,
+    /// overwritten): `‖L_b⁻¹ k_b‖² − ‖L_M⁻¹ W_bᵀ L_b⁻¹ k_b‖²`.
+    pub fn block_quadratic(&self, b: usize, k_b: &mut [f64]) -> f64 {
+        let chol = &self.blocks[b];
+        chol.solve_lower_in_place(k_b);
+        let mut quad: f64 = k_b.iter().map(|v| v * v).sum();
+        if self.rank > 0 {
+            let mut c = vec![0.0; self.rank];
+            add_transposed_product(&self.w_rows[b], chol.n(), self.rank, k_b, &mut c);
+            self.capacitance.solve_lower_in_place(&mut c);
+            quad -= c.iter().map(|v| v * v).sum::<f64>();
+        }
+        quad
+    }
+}
+
 /// Per-thread scratch of the structured evaluation (allocated once).
 pub struct Scratch {
     w: Vec<f64>,
@@ -231,6 +315,23 @@ impl Scratch {
         let nmax = (0..s.block_data.len()).map(|b| s.nb(b)).max().unwrap_or(0);
         Scratch { w: vec![0.0; nmax * s.rank], c: vec![0.0; s.rank], capacitance: CholeskyWorkspace::new(s.rank) }
     }
+}
+
+/// The factor of a block's data covariance (errors² and any covariance
+/// beyond them, standardized), made once for a likelihood in which nothing
+/// depends on the parameters: the block form's counterpart of
+/// `FixedFactors`. `None` for errors alone (no factorization needed) or a
+/// covariance that needs jitter (then it is factorized, with the jitter
+/// counted, at each evaluation as before).
+pub fn fixed_block_factor(block: &ObservableBlock) -> Option<CholeskyWorkspace> {
+    if block.diagonal_data() {
+        return None;
+    }
+    let n = block.len();
+    let mut chol = CholeskyWorkspace::new(n);
+    chol.factor.iter_mut().for_each(|v| *v = 0.0);
+    block.add_data_covariance(1.0 / (block.scale * block.scale), &mut chol.factor);
+    chol.factorize_exact().then_some(chol)
 }
 
 /// Each block's data covariance once `V Vᵀ` is taken out of it (errors²
@@ -304,4 +405,5 @@ fn add_identity(lower: &mut [f64], r: usize) {
     }
 }
 
-const LN_2PI: f64 = 1.837_877_066_409_345_5;
+/// ln 2π.
+pub(super) const LN_2PI: f64 = 1.837_877_066_409_345_5;

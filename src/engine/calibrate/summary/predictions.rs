@@ -104,6 +104,53 @@ pub(super) fn conditional_delta(
     let lik = &problem.likelihood;
     let (block, hyper) = (&lik.blocks[b], lik.hyper_of(params, b));
     let m = xq.len();
+    let (mut draw, mut mean) = (vec![0.0; m], vec![0.0; m]);
+    // Per query point: the conditional mean kᵀ Σ⁻¹ r and kᵀ Σ⁻¹ k (standardized).
+    let Some(solved) = conditional_moments(kernel, params, b, xq, problem) else {
+        return (vec![f64::NAN; m], vec![f64::NAN; m]);
+    };
+    for (q, (mu, explained)) in solved.into_iter().enumerate() {
+        let prior_var = {
+            let p = pow_r(block.input.apply(xq[q]), hyper[2]);
+            let s2 = if kernel == DiscrepancyKernel::KernelI { hyper[3] * hyper[3] } else { 0.0 };
+            s2 + hyper[0] * hyper[0] * p * p
+        };
+        let var = (prior_var - explained).max(0.0);
+        let z: f64 = StandardNormal.sample(rng);
+        mean[q] = mu * block.scale;
+        draw[q] = (mu + var.sqrt() * z) * block.scale;
+    }
+    (draw, mean)
+}
+
+/// `(kᵀ Σ⁻¹ r, kᵀ Σ⁻¹ k)` at each query point, k the covariance of δ_b there
+/// with block b's points (zero elsewhere): by the structured factors when the
+/// joint likelihood has them (no N × N factorization), else densely.
+fn conditional_moments(
+    kernel: DiscrepancyKernel,
+    params: &[f64],
+    b: usize,
+    xq: &[f64],
+    problem: &Problem,
+) -> Option<Vec<(f64, f64)>> {
+    let lik = &problem.likelihood;
+    let (block, hyper) = (&lik.blocks[b], lik.hyper_of(params, b));
+    let cross =
+        |x: f64, out: &mut [f64]| discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &[block.input.apply(x)], out);
+    if let Some((factored, mut alpha)) = lik.structured_system(params) {
+        factored.solve_in_place(&mut alpha);
+        let rows = lik.joint.as_ref()?.rows(b);
+        let mut k = vec![0.0; block.len()];
+        return Some(
+            xq.iter()
+                .map(|&x| {
+                    cross(x, &mut k);
+                    let mu: f64 = k.iter().zip(&alpha[rows.clone()]).map(|(a, b)| a * b).sum();
+                    (mu, factored.block_quadratic(b, &mut k))
+                })
+                .collect(),
+        );
+    }
     // The covariance of the standardized residuals, and where block b sits in it.
     let (lower, mut alpha, rows) = match lik.joint_system(params) {
         Some((lower, resid)) => (lower, resid, lik.joint.as_ref().map(|j| j.rows(b)).unwrap_or_default()),
@@ -128,31 +175,21 @@ pub(super) fn conditional_delta(
     let n = alpha.len();
     let mut ws = CholeskyWorkspace::new(n);
     ws.factor.copy_from_slice(&lower);
-    if ws.factorize().is_err() {
-        return (vec![f64::NAN; m], vec![f64::NAN; m]);
-    }
+    ws.factorize().ok()?;
     ws.solve_in_place(&mut alpha);
     // δ_b is correlated with block b's residuals only: zero elsewhere.
     let mut kq = vec![0.0; n];
-    let mut draw = vec![0.0; m];
-    let mut mean = vec![0.0; m];
-    for q in 0..m {
-        let kx = block.input.apply(xq[q]);
-        kq.fill(0.0);
-        discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &[kx], &mut kq[rows.clone()]);
-        let mu: f64 = kq.iter().zip(&alpha).map(|(a, b)| a * b).sum();
-        ws.solve_lower_in_place(&mut kq);
-        let prior_var = {
-            let p = pow_r(kx, hyper[2]);
-            let s2 = if kernel == DiscrepancyKernel::KernelI { hyper[3] * hyper[3] } else { 0.0 };
-            s2 + hyper[0] * hyper[0] * p * p
-        };
-        let var = (prior_var - kq.iter().map(|v| v * v).sum::<f64>()).max(0.0);
-        let z: f64 = StandardNormal.sample(rng);
-        mean[q] = mu * block.scale;
-        draw[q] = (mu + var.sqrt() * z) * block.scale;
-    }
-    (draw, mean)
+    Some(
+        xq.iter()
+            .map(|&x| {
+                kq.fill(0.0);
+                cross(x, &mut kq[rows.clone()]);
+                let mu: f64 = kq.iter().zip(&alpha).map(|(a, b)| a * b).sum();
+                ws.solve_lower_in_place(&mut kq);
+                (mu, kq.iter().map(|v| v * v).sum::<f64>())
+            })
+            .collect(),
+    )
 }
 
 pub fn predictions_frame(rows: &[PredictionRow]) -> Result<DataFrame> {
