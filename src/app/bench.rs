@@ -24,18 +24,6 @@ pub struct LikelihoodBench {
     pub evaluations_per_second_one_core: f64,
 }
 
-/// `n` draws from the problem's prior, the same for every benchmark run.
-pub(super) fn prior_draws(problem: &Problem, n: usize) -> Vec<Vec<f64>> {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
-    (0..n)
-        .map(|_| {
-            let mut x = vec![0.0; problem.prior.dim()];
-            problem.prior.sample(&mut rng, &mut x);
-            x
-        })
-        .collect()
-}
-
 /// Single-threaded evaluations per second at prior draws (all observables).
 pub fn likelihood_throughput(
     analysis: &Analysis,
@@ -44,7 +32,7 @@ pub fn likelihood_throughput(
 ) -> Result<LikelihoodBench> {
     let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..Default::default() })?;
     let dim = problem.prior.dim();
-    let points = prior_draws(&problem, 1024);
+    let points = problem.prior.draws(&mut Xoshiro256PlusPlus::seed_from_u64(7), 1024);
     let mut sink = 0.0;
     for p in points.iter().take(100) {
         sink += problem.likelihood.log_likelihood(p);

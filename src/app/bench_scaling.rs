@@ -83,7 +83,7 @@ pub fn write_problem(dir: &Path, n: usize) -> Result<PathBuf> {
 
 /// Evaluations per second on this thread, over at least `seconds` and 3 evaluations.
 fn rate(problem: &Problem, seconds: f64) -> f64 {
-    let draws = super::bench::prior_draws(problem, 64);
+    let draws = problem.prior.draws(&mut Xoshiro256PlusPlus::seed_from_u64(7), 64);
     let mut sink = problem.likelihood.log_likelihood(&draws[0]);
     let start = Instant::now();
     let mut done = 0;

@@ -26,24 +26,7 @@ pub fn noise_correlation_path(table: &Path) -> std::path::PathBuf {
     table.with_extension("noise_correlation.csv")
 }
 
-/// One entry of a covariance file.
-#[derive(Clone, Debug, PartialEq)]
-pub struct CovarianceEntry {
-    pub observable_a: String,
-    pub x_a: f64,
-    pub observable_b: String,
-    pub x_b: f64,
-    pub covariance: f64,
-    /// CSV line or Parquet row (1-based), for messages.
-    pub line: usize,
-}
-
-impl CovarianceEntry {
-    pub fn location(&self, path: &Path) -> String {
-        let is_parquet = path.extension().is_some_and(|e| e == "parquet" || e == "pq");
-        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
-    }
-}
+pub use super::measurement::CovarianceEntry;
 
 pub fn read_covariance(path: &Path) -> Result<Vec<CovarianceEntry>> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();

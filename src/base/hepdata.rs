@@ -20,8 +20,7 @@
 //! enters with the mean of its two magnitudes. Bins whose value is `null`
 //! or `-` are skipped and counted (`Record::skipped`).
 
-use super::artifacts::Measurement;
-use super::covariance::CovarianceEntry;
+use super::measurement::{CovarianceEntry, Measurement};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

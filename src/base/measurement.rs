@@ -1,4 +1,5 @@
-//! One measured value, and the checks every reader applies to it.
+//! One measured value, and the checks every reader applies to it; one
+//! entry of a covariance between two measured values.
 
 use anyhow::{bail, Result};
 use std::path::Path;
@@ -47,4 +48,23 @@ pub(super) fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result
         bail!("{file}: {where_}, field 'error': {} is not a positive 1-sigma error", m.error);
     }
     Ok(())
+}
+
+/// One entry of a covariance file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CovarianceEntry {
+    pub observable_a: String,
+    pub x_a: f64,
+    pub observable_b: String,
+    pub x_b: f64,
+    pub covariance: f64,
+    /// CSV line or Parquet row (1-based), for messages.
+    pub line: usize,
+}
+
+impl CovarianceEntry {
+    pub fn location(&self, path: &Path) -> String {
+        let is_parquet = path.extension().is_some_and(|e| e == "parquet" || e == "pq");
+        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
+    }
 }

@@ -94,6 +94,17 @@ impl UniformPrior {
         u.iter().map(|v| -v.abs() - 2.0 * (-v.abs()).exp().ln_1p()).sum()
     }
 
+    /// `n` independent draws (benchmarks' evaluation points).
+    pub fn draws<R: Rng + ?Sized>(&self, rng: &mut R, n: usize) -> Vec<Vec<f64>> {
+        (0..n)
+            .map(|_| {
+                let mut x = vec![0.0; self.dim()];
+                self.sample(rng, &mut x);
+                x
+            })
+            .collect()
+    }
+
     pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R, out: &mut [f64]) {
         for i in 0..self.dim() {
             loop {
