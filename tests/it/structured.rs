@@ -265,3 +265,27 @@ fn structured_solves_equal_the_dense_ones() {
     }
     assert!(checked >= 30, "only {checked} of 40 problems had a structure");
 }
+
+/// A joint likelihood asked for (`between_observables = "joint"`) with
+/// nothing between the blocks: the structure has no low-rank term, and the
+/// likelihood is the sum of the blocks', with and without δ.
+#[test]
+fn nothing_between_the_blocks_is_a_structure_of_rank_zero() {
+    let mut p = problem(3);
+    p.across.clear();
+    p.simulator = Arc::new(Wave { observables: p.blocks.len(), own_covariance: false });
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(9);
+    for kernel in [None, Some(DiscrepancyKernel::KernelII)] {
+        let joint = likelihood(&p, kernel);
+        assert_eq!(joint.structure.as_ref().map(|s| s.rank), Some(0));
+        let blocks = MdLikelihood::new(p.simulator.clone(), p.blocks.clone(), kernel);
+        let params = parameters(kernel, p.blocks.len(), &mut rng);
+        let (a, b) = (joint.log_likelihood(&params), blocks.log_likelihood(&params));
+        assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{kernel:?}: {a} vs {b}");
+        if kernel.is_some() {
+            let (factored, mut r) = joint.structured_system(&params).unwrap();
+            factored.solve_in_place(&mut r);
+            assert!(r.iter().all(|v| v.is_finite()));
+        }
+    }
+}
