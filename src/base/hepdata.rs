@@ -293,6 +293,10 @@ fn read_table(table: &Value, label: &str, options: &HepdataOptions, record: &mut
                 record.skipped.push((label.to_string(), observable.clone(), i));
                 continue;
             };
+            // `.inf` or `.nan` in YAML would make a likelihood that is never finite.
+            if !(value.is_finite() && x.is_finite()) {
+                bail!("{at}: value {value} at x = {x} is not a finite number");
+            }
             let (stat, systematics) = errors(entry, value, &at)?;
             record.points.push(Point {
                 observable: observable.clone(),

@@ -180,7 +180,7 @@ fn a_submission_chooses_tables_by_name() {
 #[test]
 fn malformed_records_are_refused_with_the_entry_named() {
     let good = "independent_variables:\n- header: {name: PT}\n  values:\n  - {low: 0.0, high: 1.0}\n  - {low: 1.0, high: 2.0}\ndependent_variables:\n- header: {name: Y}\n  qualifiers:\n  - {name: CENT, value: 0-5%}\n  values:\n  - value: 1.0\n    errors:\n    - {symerror: 0.1, label: stat}\n    - {symerror: 0.2, label: sys}\n  - value: 2.0\n    errors:\n    - {symerror: 0.1, label: stat}\n";
-    let cases: [(&str, String, &str); 12] = [
+    let cases: [(&str, String, &str); 14] = [
         ("not yaml", "independent_variables: [\n".into(), "not valid YAML"),
         ("no dependents", good.replace("\ndependent_variables", "\ndependents"), "no `dependent_variables` list"),
         ("no independents", good.replace("independent_variables", "independents"), "no `independent_variables` list"),
@@ -208,6 +208,12 @@ fn malformed_records_are_refused_with_the_entry_named() {
             good.replace("    - {symerror: 0.1, label: stat}\n    - {symerror: 0.2", "    - {symerror: 0.2"),
             "value 1: no statistical",
         ),
+        (
+            "infinite value",
+            good.replace("value: 2.0", "value: .inf"),
+            "value 2: value inf at x = 1.5 is not a finite number",
+        ),
+        ("infinite edge", good.replace("high: 2.0", "high: .inf"), "is not a finite number"),
         (
             "all null",
             good.replace("value: 1.0", "value: 'null'").replace("value: 2.0", "value: '-'"),
