@@ -84,6 +84,17 @@ pub enum Command {
         #[arg(long)]
         png: Option<PathBuf>,
     },
+    /// A calibration's folder as one NetCDF or Zarr file for ArviZ (`from_netcdf`, `from_zarr`); needs the
+    /// Python package (`pip install .`)
+    Export {
+        /// Calibration folder (calibrate --out, a study's calibrate/<case>, a diagnosis's fit)
+        run_dir: PathBuf,
+        #[arg(long, value_enum, default_value = "netcdf")]
+        format: super::export::ExportFormat,
+        /// File to write (default: RUN_DIR/posterior.nc or RUN_DIR/posterior.zarr)
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Maximin Latin-hypercube design with iEBE-MUSIC parameter files and a SLURM array script
     Design {
         /// Parameter-space spec, e.g. design/heavy_ion_2param.toml
@@ -247,6 +258,7 @@ impl Command {
                 commands::validate_emulator(&emulator, validation.as_deref(), folds, seed)
             }
             Command::Report { dirs, out, png } => commands::report(&dirs, &out, png.as_deref()),
+            Command::Export { run_dir, format, out } => super::export::run(&run_dir, format, out.as_deref()),
             Command::Run { config, stage, force, seed, out, executor, case } => {
                 commands::run_study(&config, stage, force, seed, out, &executor, case)
             }

@@ -7,6 +7,7 @@ pub mod bench_scaling;
 pub mod cli;
 pub mod commands;
 pub mod demo;
+pub mod export;
 pub mod simulate;
 
 use anyhow::Result;

@@ -17,6 +17,7 @@ mod faults;
 mod guard;
 mod heavy_ion;
 mod hepdata;
+mod inference_data;
 mod ingest;
 mod layers;
 mod pipeline;

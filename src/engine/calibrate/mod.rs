@@ -494,7 +494,8 @@ fn run_ensemble(
     Ok(Sampled { chains: out.chains, evidence: None, details, evaluations: out.likelihood_evaluations })
 }
 
-/// Writes `posterior.parquet`, `summary.json` and `predictions.parquet` into `dir`.
+/// Writes `posterior.parquet`, `summary.json`, `predictions.parquet` and
+/// `posterior_predictive.parquet` into `dir`.
 pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let prov = &cal.summary.provenance;
@@ -509,6 +510,7 @@ pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result
         .flat_map(|(k, c)| std::iter::repeat_n(k as f64, c.len() / cal.chains.dim))
         .collect();
     cols.push(("chain".into(), chain_ids));
+    cols.extend(summary::log_density_columns(problem, &cal.chains));
     let mut df = artifacts::f64_frame(cols)?;
     // All four or none: a full disk must not leave a new posterior beside an old summary.
     let mut staged = artifacts::StagedWrites::new();
@@ -517,6 +519,8 @@ pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result
     staged.text(&dir.join(stored::KEY_FILE), &stored::problem_key(problem))?;
     let mut pred = summary::predictions_frame(&cal.predictions)?;
     staged.parquet(&dir.join("predictions.parquet"), &mut pred, Some(prov))?;
+    let mut replicates = summary::replicates_frame(problem, &cal.chains, prov.seed)?;
+    staged.parquet(&dir.join("posterior_predictive.parquet"), &mut replicates, Some(prov))?;
     // The measurements fitted, so that reports and re-analyses need nothing else.
     let used: Vec<Measurement> =
         problem.measurements.iter().filter(|m| problem.observables().contains(&m.observable)).cloned().collect();

@@ -17,9 +17,11 @@ use std::collections::BTreeMap;
 
 mod fit;
 mod predictions;
+mod replicates;
 
 pub use fit::*;
 pub use predictions::*;
+pub use replicates::*;
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize, PartialEq)]
 pub struct ParamSummary {
