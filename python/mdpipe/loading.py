@@ -230,7 +230,7 @@ def load_study(out_dir) -> Study:
     """`mdpipe run`'s output folder: its cases (`calibrate/cases.json`) as a
     table, one row per case, and, for a system that assesses its own cases
     (the heavy-ion stand-in's `study.json`), those checks as tables."""
-    out = Path(out_dir)
+    out = Path(out_dir).resolve()
     cases = _read_json(out / "calibrate" / "cases.json")
     assessed = out / "study.json"
     study = json.loads(assessed.read_text()) if assessed.is_file() else {}
