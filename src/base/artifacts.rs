@@ -133,10 +133,15 @@ impl StagedWrites {
 
     /// A DataFrame as Parquet, with provenance in the file's key-value metadata.
     pub fn parquet(&mut self, path: &Path, df: &mut DataFrame, provenance: Option<&Provenance>) -> Result<()> {
+        // Encoded in memory, then written: the Parquet writer reports a
+        // failed write as a malformed file ("Invalid thrift"), which would
+        // hide a full disk from the user; `write_all` keeps the OS's reason.
+        let kv = provenance.map(|p| KeyValueMetadata::from_static(p.key_values()));
+        let mut bytes = Vec::new();
+        ParquetWriter::new(&mut bytes).with_key_value_metadata(kv).finish(df)?;
         self.write(path, |f| {
-            let kv = provenance.map(|p| KeyValueMetadata::from_static(p.key_values()));
-            ParquetWriter::new(f).with_key_value_metadata(kv).finish(df)?;
-            Ok(())
+            use std::io::Write;
+            Ok(f.write_all(&bytes)?)
         })
     }
 
