@@ -72,7 +72,10 @@ pub fn calibrate(
     );
     let cal = calibrate::run_and_write(&problem, args.seed, &Bars::default(), &checkpoint, &args.out)?;
     print_summary(&cal.summary);
-    println!("wrote {}/{{posterior.parquet, summary.json, predictions.parquet}}", args.out.display());
+    println!(
+        "wrote {}/{{posterior.parquet, summary.json, predictions.parquet, posterior_predictive.parquet}}",
+        args.out.display()
+    );
     Ok(())
 }
 

@@ -199,7 +199,10 @@ pub fn quality(x: &[f64], d: usize) -> DesignQuality {
     }
 }
 
-/// Maximin-optimized Latin hypercube (ESE with column swaps).
+/// Maximin-optimized Latin hypercube: column swaps by the enhanced
+/// stochastic evolutionary algorithm on φ_p (Jin, Chen & Sudjianto 2005),
+/// then swaps at the closest pair until the minimum distance stops rising
+/// (`maximin::refine_closest_pairs`).
 pub fn maximin_lhs(n: usize, d: usize, seed: u64) -> Vec<f64> {
     const P: i32 = 50;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
@@ -281,6 +284,8 @@ pub fn maximin_lhs(n: usize, d: usize, seed: u64) -> Vec<f64> {
             }
         }
     }
+    let proposals = (200 * n * d).min(200_000);
+    super::maximin::refine_closest_pairs(&mut best, d, proposals, &mut rng);
     best
 }
 

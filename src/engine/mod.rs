@@ -12,6 +12,7 @@ pub mod emulator;
 pub mod execute;
 pub mod gp;
 pub mod ingest;
+pub mod maximin;
 pub mod model;
 pub mod refine;
 pub mod report;
