@@ -133,3 +133,25 @@ fn each_draw_carries_its_log_likelihood_and_log_prior_and_replicates_follow_the_
     let from0 = rc.iter().filter(|&&c| c == 0.0).count();
     assert_eq!(2 * from0, rc.len());
 }
+
+/// `mdpipe export` without the Python package, or of a folder that holds no
+/// calibration, stops with an error that says what to do.
+#[test]
+fn export_says_what_it_needs() {
+    let dir = std::env::temp_dir().join(format!("mdpipe-export-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = |python: &str| {
+        Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+            .args(["export", dir.to_str().unwrap(), "--format", "zarr"])
+            .env("MDPIPE_PYTHON", python)
+            .output()
+            .unwrap()
+    };
+    let empty = run("python3");
+    assert!(!empty.status.success());
+    assert!(String::from_utf8_lossy(&empty.stderr).contains("no posterior.parquet"), "{empty:?}");
+    std::fs::write(dir.join("posterior.parquet"), b"").unwrap();
+    let no_python = run(dir.join("no-such-python").to_str().unwrap());
+    assert!(!no_python.status.success());
+    assert!(String::from_utf8_lossy(&no_python.stderr).contains("pip install ."), "{no_python:?}");
+}
