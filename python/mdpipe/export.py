@@ -50,5 +50,8 @@ def main(argv=None) -> int:
     except (FileNotFoundError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except Exception as err:  # a damaged Parquet or JSON file: say which folder, not a traceback
+        print(f"error: {args.run_dir}: cannot be read as a calibration ({type(err).__name__}: {err})", file=sys.stderr)
+        return 2
     print(f"wrote {written}")
     return 0

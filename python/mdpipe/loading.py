@@ -26,6 +26,8 @@ def _read_json(path: Path) -> dict:
         return json.loads(path.read_text())
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: not found (is {path.parent} an mdpipe output folder?)") from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
 
 
 def _chain_draw(frame: pd.DataFrame, column: str) -> np.ndarray:

@@ -141,6 +141,10 @@ def test_calibrate_from_python(tmp_path):
 def test_errors_name_what_is_wrong(tmp_path):
     with pytest.raises(FileNotFoundError, match="summary.json"):
         mdpipe.load(tmp_path)
+    (tmp_path / "summary.json").write_text("{")
+    with pytest.raises(ValueError, match="summary.json: not valid JSON at line 1"):
+        mdpipe.load(tmp_path)
+    (tmp_path / "summary.json").unlink()
     with pytest.raises(mdpipe.MdpipeError, match="exit code"):
         mdpipe.calibrate(tmp_path / "missing.toml", tmp_path / "out", quiet=True)
     done = subprocess.run([mdpipe.binary(), "export", str(tmp_path)], capture_output=True, text=True)
