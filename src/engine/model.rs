@@ -68,6 +68,51 @@ pub trait Simulator: Send + Sync {
         _lower: &mut [f64],
     ) {
     }
+    /// The covariance of `add_joint_model_covariance` in a form exact
+    /// algebra can use (see [`LowRankModelCovariance`]); `None` when the
+    /// model has no such form, and the likelihood factorizes it densely.
+    /// `offsets`: block b holds points `offsets[b]..offsets[b + 1]`.
+    fn joint_model_low_rank(&self, _points: &[(usize, f64)], _offsets: &[usize]) -> Option<LowRankModelCovariance> {
+        None
+    }
+    /// The θ-dependent factors of `joint_model_low_rank` at `points`: the
+    /// diagonal `g` (N, `inv_scales` included) and the weights `w` (K).
+    fn joint_model_factors(
+        &self,
+        _points: &[(usize, f64)],
+        _inv_scales: &[f64],
+        _theta: &[f64],
+        _g: &mut [f64],
+        _w: &mut [f64],
+    ) {
+    }
+}
+
+/// A model's covariance across observables at N points as
+/// `G(θ) [blockdiag(D_b) + F S(θ) Fᵀ] G(θ)`: `D_b` within each block of
+/// points, `F` (N × p) fixed, `S` a small symmetric p × p matrix (not
+/// necessarily positive) whose diagonal entries at `weighted` get the
+/// θ-dependent weights `w(θ)`, and `G` diagonal; `G` and `w` come from
+/// `Simulator::joint_model_factors`. An emulator's is so: its kept principal
+/// components are the weighted columns, its truncation and the noise left in
+/// its PCA are `D_b` and the rest of `F S Fᵀ`.
+#[derive(Clone, Debug)]
+pub struct LowRankModelCovariance {
+    /// Per block (in the order of `offsets`), `D_b` (full, column-major).
+    pub blocks: Vec<Vec<f64>>,
+    /// `F`, column-major N × p.
+    pub columns: Vec<f64>,
+    /// `S` without the weights, column-major p × p.
+    pub weights: Vec<f64>,
+    /// The column of `F` each weight `w_k` belongs to.
+    pub weighted: Vec<usize>,
+}
+
+impl LowRankModelCovariance {
+    /// p, the number of columns of `F`.
+    pub fn rank(&self) -> usize {
+        (self.weights.len() as f64).sqrt().round() as usize
+    }
 }
 
 /// Units of the discrepancy input x, of each observable and of each parameter,

@@ -26,4 +26,5 @@ mod readme;
 mod report;
 mod sbc;
 mod structured;
+mod structured_emulator;
 mod your_simulator;

@@ -70,7 +70,7 @@ pub struct MdLikelihood {
     pub n_theta: usize,
     log_jacobian: f64,
     /// The model adds its own predictive covariance (an emulator).
-    model_covariance: bool,
+    pub(super) model_covariance: bool,
     /// One Gaussian over all points instead of independent blocks.
     pub joint: Option<JointLayout>,
     /// The joint covariance as blocks plus a low-rank term, when it is so
@@ -128,9 +128,15 @@ impl MdLikelihood {
         let spans = self.model_covariance && self.simulator.model_covariance_spans_observables();
         let layout = JointLayout::new(&self.blocks, across, spans);
         // The structure is exact algebra on the same covariance; a model
-        // covariance across observables (an emulator's) keeps the dense form.
+        // covariance across observables joins it when the model gives it in
+        // low-rank form (an emulator's), and keeps the dense form otherwise.
         let fixed = self.kernel.is_none() && !self.model_covariance;
-        self.structure = (!spans).then(|| Structure::find(&layout, &self.blocks, fixed)).flatten();
+        let model = spans.then(|| self.simulator.joint_model_low_rank(&layout.points, &layout.offsets));
+        self.structure = match model {
+            Some(None) => None,
+            Some(model) => Structure::find(&layout, &self.blocks, fixed, model).filter(|s| s.cheaper_than_dense()),
+            None => Structure::find(&layout, &self.blocks, fixed, None),
+        };
         self.joint = Some(layout);
         // A new id: workspaces of the block form must not be reused.
         self.id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
@@ -253,90 +259,6 @@ impl MdLikelihood {
             .then(|| self.with_workspace(|ws| self.block_log_likelihood(params, b, ws)))
     }
 
-    /// Fisher information of θ for the model without MD at `theta`,
-    /// `F = Jᵀ C⁻¹ J` (column-major d × d) with C the data's covariance (per
-    /// block, or joint), in standardized units (the scales cancel), with the
-    /// Jacobian by central differences of step `steps[k]` in θ_k. `None` when
-    /// the model carries its own θ-dependent covariance (an emulator): that
-    /// dependence carries information this form leaves out, so it would be no bound.
-    pub fn fisher_information(&self, theta: &[f64], steps: &[f64]) -> Option<Vec<f64>> {
-        if self.model_covariance {
-            return None;
-        }
-        let d = self.n_theta;
-        let jacobians: Vec<Vec<f64>> =
-            self.blocks.iter().map(|b| self.standardized_jacobian(b, theta, steps)).collect();
-        let whitened: Vec<(Vec<f64>, usize)> = match &self.joint {
-            Some(joint) => {
-                let n = joint.len();
-                let mut whole = vec![0.0; n * d];
-                for (b, jac) in jacobians.iter().enumerate() {
-                    let nb = self.blocks[b].len();
-                    for k in 0..d {
-                        whole[k * n + joint.offsets[b]..k * n + joint.offsets[b] + nb]
-                            .copy_from_slice(&jac[k * nb..(k + 1) * nb]);
-                    }
-                }
-                vec![(whiten(joint.data.clone(), n, whole, d)?, n)]
-            }
-            None => {
-                let mut out = Vec::new();
-                for (block, jac) in self.blocks.iter().zip(jacobians) {
-                    let nb = block.len();
-                    let mut lower = vec![0.0; nb * nb];
-                    block.add_data_covariance(1.0 / (block.scale * block.scale), &mut lower);
-                    out.push((whiten(lower, nb, jac, d)?, nb));
-                }
-                out
-            }
-        };
-        let mut fisher = vec![0.0; d * d];
-        for (w, n) in &whitened {
-            for a in 0..d {
-                for b in 0..d {
-                    fisher[a + b * d] += (0..*n).map(|i| w[i + a * n] * w[i + b * n]).sum::<f64>();
-                }
-            }
-        }
-        Some(fisher)
-    }
-
-    /// `∂η/∂θ_k / scale` at the block's points, column-major n × d.
-    fn standardized_jacobian(&self, block: &ObservableBlock, theta: &[f64], steps: &[f64]) -> Vec<f64> {
-        let (n, d) = (block.len(), self.n_theta);
-        let (mut up, mut down) = (vec![0.0; n], vec![0.0; n]);
-        let mut jac = vec![0.0; n * d];
-        let mut shifted = theta.to_vec();
-        for k in 0..d {
-            shifted[k] = theta[k] + steps[k];
-            self.simulator.predict(block.model_index, &block.x, &shifted, &mut up);
-            shifted[k] = theta[k] - steps[k];
-            self.simulator.predict(block.model_index, &block.x, &shifted, &mut down);
-            shifted[k] = theta[k];
-            for i in 0..n {
-                jac[i + k * n] = (up[i] - down[i]) / (2.0 * steps[k] * block.scale);
-            }
-        }
-        jac
-    }
-
-    /// Cramér–Rao standard deviations of θ at `theta`: the smallest spread any
-    /// unbiased analysis of these data can reach with this model, `sqrt(diag F⁻¹)`.
-    /// `None` as for `fisher_information`, or when F is singular (parameters
-    /// the data cannot tell apart, such as g and a constant extra force).
-    pub fn cramer_rao_sd(&self, theta: &[f64], steps: &[f64]) -> Option<Vec<f64>> {
-        let d = self.n_theta;
-        let fisher = self.fisher_information(theta, steps)?;
-        let mut chol = CholeskyWorkspace::new(d);
-        chol.factor.copy_from_slice(&fisher);
-        if !chol.factorize_exact() {
-            return None;
-        }
-        let inv = chol.inverse();
-        let sd: Vec<f64> = (0..d).map(|k| inv[k + k * d].sqrt()).collect();
-        sd.iter().all(|v| v.is_finite()).then_some(sd)
-    }
-
     /// The joint form's Gaussian over all points (without the Jacobian).
     fn joint_log_likelihood(&self, joint: &JointLayout, params: &[f64], ws: &mut Workspace) -> f64 {
         if let Some(structure) = &self.structure {
@@ -374,22 +296,27 @@ impl MdLikelihood {
         let Workspace { chol, eta, xr, corr, joint_resid: resid, structured: scratch, .. } = ws;
         let scratch = scratch.as_mut().expect("a structured likelihood's workspace has its scratch");
         self.fill_residuals(joint, theta, eta, resid);
-        let total = match &structure.fixed {
-            Some(fixed) => structure.fixed_log_pdf(fixed, resid, scratch),
-            None => match structure.log_pdf(resid, scratch, chol, |b, lower| self.fill_own(params, b, lower, xr, corr))
-            {
-                Some((value, jitter)) => {
-                    self.note_jitter(jitter, joint.len());
-                    value
-                }
-                None => f64::NEG_INFINITY,
-            },
-        };
-        if total.is_nan() {
-            f64::NEG_INFINITY
-        } else {
-            total
+        if let Some(fixed) = &structure.fixed {
+            return finite_or_neg_inf(structure.fixed_log_pdf(fixed, resid, scratch));
         }
+        let fill = |b: usize, lower: &mut [f64]| self.fill_own(params, b, lower, xr, corr);
+        let evaluated = match &structure.model {
+            Some(model) => {
+                let ms = scratch.model.as_mut().expect("a structure with a model term has its scratch");
+                let (points, inv_scales) = (&joint.points, &joint.inv_scales);
+                self.simulator.joint_model_factors(points, inv_scales, theta, &mut ms.g, &mut ms.theta_weights);
+                structure.log_pdf_with_model(model, resid, scratch, chol, fill)
+            }
+            None => structure.log_pdf(resid, scratch, chol, fill),
+        };
+        let total = match evaluated {
+            Some((value, jitter)) => {
+                self.note_jitter(jitter, joint.len());
+                value
+            }
+            None => f64::NEG_INFINITY,
+        };
+        finite_or_neg_inf(total)
     }
 
     /// Standardized residuals of every point at θ, in the joint order.
@@ -411,7 +338,8 @@ impl MdLikelihood {
             Some(kernel) => block.gram.fill_lower(kernel, self.hyper_of(params, b), lower, &mut xr[..n], corr),
             None => lower.iter_mut().for_each(|v| *v = 0.0),
         }
-        if self.model_covariance {
+        // A model covariance across observables is the structure's own term.
+        if self.model_covariance && !self.joint.as_ref().is_some_and(|j| j.model_spans) {
             let inv2 = 1.0 / (block.scale * block.scale);
             self.simulator.add_model_covariance(block.model_index, &block.x, &params[..self.n_theta], inv2, lower);
         }
@@ -426,7 +354,14 @@ impl MdLikelihood {
         self.fill_residuals(joint, &params[..self.n_theta], &mut eta, &mut resid);
         let mut xr = vec![0.0; nmax];
         let mut corr = vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)];
-        let factored = structure.factor_at(|b, lower| self.fill_own(params, b, lower, &mut xr, &mut corr))?;
+        let (mut g, mut theta_weights) = (vec![0.0; joint.len()], Vec::new());
+        if let Some(model) = &structure.model {
+            theta_weights.resize(model.weighted.len(), 0.0);
+            let theta = &params[..self.n_theta];
+            self.simulator.joint_model_factors(&joint.points, &joint.inv_scales, theta, &mut g, &mut theta_weights);
+        }
+        let factors = structure.model.as_ref().map(|_| (g.as_slice(), theta_weights.as_slice()));
+        let factored = structure.factor_at(factors, |b, lower| self.fill_own(params, b, lower, &mut xr, &mut corr))?;
         Some((factored, resid))
     }
 
@@ -583,17 +518,11 @@ impl MdLikelihood {
     }
 }
 
-/// `L⁻¹ J` for the d columns of `jac` (column-major n × d), with `L Lᵀ` the
-/// covariance whose lower triangle is `lower`: then `Σ_i` of the products of
-/// two columns is `Jᵀ C⁻¹ J`. `None` if the covariance is not positive definite.
-fn whiten(lower: Vec<f64>, n: usize, mut jac: Vec<f64>, d: usize) -> Option<Vec<f64>> {
-    let mut chol = CholeskyWorkspace::new(n);
-    chol.factor.copy_from_slice(&lower);
-    if !chol.factorize_exact() {
-        return None;
+/// NaN (an overflow in a factorization) as zero likelihood.
+fn finite_or_neg_inf(total: f64) -> f64 {
+    if total.is_nan() {
+        f64::NEG_INFINITY
+    } else {
+        total
     }
-    for k in 0..d {
-        chol.solve_lower_in_place(&mut jac[k * n..(k + 1) * n]);
-    }
-    Some(jac)
 }

@@ -12,6 +12,7 @@ pub mod checkpoint;
 pub mod data_covariance;
 pub mod diagnostics;
 pub mod ensemble;
+pub mod fisher;
 pub mod guard;
 pub mod joint;
 pub mod kernel;
@@ -21,6 +22,7 @@ pub mod settings;
 pub mod smc;
 pub mod stored;
 pub mod structured;
+pub mod structured_model;
 pub mod summary;
 
 use crate::base::artifacts::{self, Measurement, Provenance};

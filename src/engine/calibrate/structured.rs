@@ -30,7 +30,9 @@
 use super::across::low_rank_across;
 use super::block::ObservableBlock;
 use super::joint::JointLayout;
+use super::structured_model::{self as model_term, ModelScratch, ModelTerm, SmallLu};
 use crate::engine::gp::CholeskyWorkspace;
+use crate::engine::model::LowRankModelCovariance;
 
 /// At most this many low-rank columns: beyond that the dense factorization
 /// is as cheap at the sizes where it matters.
@@ -43,12 +45,14 @@ pub struct Structure {
     pub v_rows: Vec<Vec<f64>>,
     pub rank: usize,
     /// Points per block.
-    sizes: Vec<usize>,
+    pub(super) sizes: Vec<usize>,
     /// Block b's part of the data's covariance that `V Vᵀ` leaves
     /// (errors² included; standardized, lower triangle, column-major).
     pub block_data: Vec<Vec<f64>>,
     /// Every factor, when the covariance does not depend on the parameters.
     pub fixed: Option<FixedFactors>,
+    /// The model's covariance across observables (`structured_model`).
+    pub model: Option<ModelTerm>,
 }
 
 /// Factors of a covariance that does not change: each block's, `W = L⁻¹ V`
@@ -80,7 +84,13 @@ impl Structure {
     /// The structure of `joint`'s data covariance, or `None` when it is not
     /// low-rank across blocks (then the dense path is as good). `fixed`: the
     /// covariance is all there is (no δ, no model covariance), so factorize now.
-    pub fn find(joint: &JointLayout, blocks: &[ObservableBlock], fixed: bool) -> Option<Structure> {
+    /// `model`: the model's covariance across observables, when it has one.
+    pub fn find(
+        joint: &JointLayout,
+        blocks: &[ObservableBlock],
+        fixed: bool,
+        model: Option<LowRankModelCovariance>,
+    ) -> Option<Structure> {
         let n = joint.len();
         if blocks.len() < 2 || n < 8 {
             return None;
@@ -102,7 +112,8 @@ impl Structure {
             })
             .collect();
         let sizes = (0..blocks.len()).map(|b| joint.rows(b).len()).collect();
-        let mut structure = Structure { v_rows, rank, sizes, block_data, fixed: None };
+        let model = model.map(|m| ModelTerm::new(m, &joint.offsets));
+        let mut structure = Structure { v_rows, rank, sizes, block_data, fixed: None, model };
         if fixed {
             structure.fixed = Some(structure.factorize_fixed()?);
         }
@@ -221,48 +232,91 @@ impl Structure {
 
 impl Structure {
     /// Σ factorized with each block's own covariance from `fill_block` (as
-    /// in `log_pdf`), for solves; allocates (summaries, not the sampler).
-    pub fn factor_at(&self, mut fill_block: impl FnMut(usize, &mut [f64])) -> Option<Factored> {
-        let r = self.rank;
-        let mut capacitance = CholeskyWorkspace::new(r);
-        capacitance.factor.iter_mut().for_each(|v| *v = 0.0);
+    /// in `log_pdf`) and, with a model term, its `G` and θ weights
+    /// (`model_factors`), for solves; allocates (summaries, not the sampler).
+    pub fn factor_at(
+        &self,
+        model_factors: Option<(&[f64], &[f64])>,
+        mut fill_block: impl FnMut(usize, &mut [f64]),
+    ) -> Option<Factored> {
+        let model = self.model.as_ref().zip(model_factors);
+        let r = self.rank + model.map_or(0, |(m, _)| m.rank);
+        let mut gram = vec![0.0; r * r];
         let mut blocks = Vec::with_capacity(self.sizes.len());
         let mut w_rows = Vec::with_capacity(self.sizes.len());
+        let mut at = 0;
         for (b, own) in self.block_data.iter().enumerate() {
             let nb = self.sizes[b];
             let mut chol = CholeskyWorkspace::new(nb);
             let mut refill = |lower: &mut [f64]| {
                 fill_block(b, lower);
                 lower.iter_mut().zip(own).for_each(|(l, o)| *l += o);
+                if let Some((m, (g, _))) = model {
+                    let (g, d) = (&g[at..at + nb], &m.blocks[b]);
+                    for j in 0..nb {
+                        for i in j..nb {
+                            lower[i + j * nb] += g[i] * g[j] * d[i + j * nb];
+                        }
+                    }
+                }
             };
             refill(&mut chol.factor);
             chol.factorize_refilling(&mut refill).ok()?;
-            let mut w = self.v_rows[b].clone();
+            let mut w = vec![0.0; nb * r];
+            match model {
+                Some((m, (g, _))) => self.fill_u_rows(m, b, nb, &g[at..at + nb], &mut w),
+                None => w.copy_from_slice(&self.v_rows[b]),
+            }
             if r > 0 {
                 chol.solve_lower_columns_in_place(&mut w, r);
-                add_gram(&w, nb, r, &mut capacitance.factor);
+                add_gram(&w, nb, r, &mut gram);
             }
             blocks.push(chol);
             w_rows.push(w);
+            at += nb;
         }
-        add_identity(&mut capacitance.factor, r);
-        if r > 0 && !capacitance.factorize_exact() {
-            return None;
-        }
+        let capacitance = match model {
+            None => {
+                let mut capacitance = CholeskyWorkspace::new(r);
+                capacitance.factor.copy_from_slice(&gram);
+                add_identity(&mut capacitance.factor, r);
+                if r > 0 && !capacitance.factorize_exact() {
+                    return None;
+                }
+                Capacitance::Cholesky(capacitance)
+            }
+            Some((m, (_, theta_weights))) => {
+                let mut s = vec![0.0; m.rank * m.rank];
+                m.weights_at(theta_weights, &mut s);
+                let mut lu = SmallLu::new(r);
+                if !model_term::capacitance_matrix(&mut gram, &s, self.rank, r, &mut lu.m) {
+                    return None;
+                }
+                lu.factorize()?;
+                Capacitance::General { lu, s, data_rank: self.rank }
+            }
+        };
         Some(Factored { blocks, w_rows, capacitance, rank: r })
     }
 }
 
-/// Σ = blockdiag(L_b L_bᵀ) + V Vᵀ factorized (`Structure::factor_at`).
+/// `M = I + Wᵀ W` (Cholesky) without a model term; `I + H C` (LU) with one.
+enum Capacitance {
+    Cholesky(CholeskyWorkspace),
+    General { lu: SmallLu, s: Vec<f64>, data_rank: usize },
+}
+
+/// Σ = blockdiag(L_b L_bᵀ) + U C Uᵀ factorized (`Structure::factor_at`).
 pub struct Factored {
     blocks: Vec<CholeskyWorkspace>,
     w_rows: Vec<Vec<f64>>,
-    capacitance: CholeskyWorkspace,
+    capacitance: Capacitance,
     rank: usize,
 }
 
 impl Factored {
-    /// `Σ⁻¹ r` in place (all points, block order): `L⁻ᵀ (z − W M⁻¹ Wᵀ z)`, z = L⁻¹ r.
+    /// `Σ⁻¹ r` in place (all points, block order): `L⁻ᵀ (z − W C (I + H C)⁻¹ Wᵀ z)`,
+    /// z = L⁻¹ r (C = I without a model term: `(I + Wᵀ W)⁻¹`).
     pub fn solve_in_place(&self, r: &mut [f64]) {
         let mut c = vec![0.0; self.rank];
         let mut at = 0;
@@ -273,7 +327,14 @@ impl Factored {
             at += nb;
         }
         if self.rank > 0 {
-            self.capacitance.solve_in_place(&mut c);
+            match &self.capacitance {
+                Capacitance::Cholesky(chol) => chol.solve_in_place(&mut c),
+                Capacitance::General { lu, s, data_rank } => {
+                    lu.solve_in_place(&mut c);
+                    let y = c.clone();
+                    model_term::weighted(s, *data_rank, &y, &mut c);
+                }
+            }
         }
         let mut at = 0;
         for (chol, w) in self.blocks.iter().zip(&self.w_rows) {
@@ -288,7 +349,7 @@ impl Factored {
     }
 
     /// `kᵀ Σ⁻¹ k` for a vector nonzero only on block b's points (`k_b`,
-    /// overwritten): `‖L_b⁻¹ k_b‖² − ‖L_M⁻¹ W_bᵀ L_b⁻¹ k_b‖²`.
+    /// overwritten): `‖L_b⁻¹ k_b‖² − aᵀ C (I + H C)⁻¹ a`, `a = W_bᵀ L_b⁻¹ k_b`.
     pub fn block_quadratic(&self, b: usize, k_b: &mut [f64]) -> f64 {
         let chol = &self.blocks[b];
         chol.solve_lower_in_place(k_b);
@@ -296,8 +357,17 @@ impl Factored {
         if self.rank > 0 {
             let mut c = vec![0.0; self.rank];
             add_transposed_product(&self.w_rows[b], chol.n(), self.rank, k_b, &mut c);
-            self.capacitance.solve_lower_in_place(&mut c);
-            quad -= c.iter().map(|v| v * v).sum::<f64>();
+            match &self.capacitance {
+                Capacitance::Cholesky(m) => {
+                    m.solve_lower_in_place(&mut c);
+                    quad -= c.iter().map(|v| v * v).sum::<f64>();
+                }
+                Capacitance::General { lu, s, data_rank } => {
+                    let mut y = c.clone();
+                    lu.solve_in_place(&mut y);
+                    quad -= model_term::weighted_dot(&c, s, *data_rank, &y);
+                }
+            }
         }
         quad
     }
@@ -305,15 +375,24 @@ impl Factored {
 
 /// Per-thread scratch of the structured evaluation (allocated once).
 pub struct Scratch {
-    w: Vec<f64>,
+    pub(super) w: Vec<f64>,
     c: Vec<f64>,
     capacitance: CholeskyWorkspace,
+    /// The model term's buffers, when the structure has one.
+    pub model: Option<ModelScratch>,
 }
 
 impl Scratch {
     pub fn new(s: &Structure) -> Self {
         let nmax = (0..s.block_data.len()).map(|b| s.nb(b)).max().unwrap_or(0);
-        Scratch { w: vec![0.0; nmax * s.rank], c: vec![0.0; s.rank], capacitance: CholeskyWorkspace::new(s.rank) }
+        let all = s.rank + s.model.as_ref().map_or(0, |m| m.rank);
+        let n = s.sizes.iter().sum();
+        Scratch {
+            w: vec![0.0; nmax * all],
+            c: vec![0.0; s.rank],
+            capacitance: CholeskyWorkspace::new(s.rank),
+            model: s.model.as_ref().map(|m| ModelScratch::new(n, s.rank, m)),
+        }
     }
 }
 
@@ -382,7 +461,7 @@ fn mirror_lower(m: &mut [f64], n: usize) {
 }
 
 /// `lower += Wᵀ W` (lower triangle of r × r), W column-major n × r.
-fn add_gram(w: &[f64], n: usize, r: usize, lower: &mut [f64]) {
+pub(super) fn add_gram(w: &[f64], n: usize, r: usize, lower: &mut [f64]) {
     for q in 0..r {
         let wq = &w[q * n..(q + 1) * n];
         for p in q..r {
@@ -393,7 +472,7 @@ fn add_gram(w: &[f64], n: usize, r: usize, lower: &mut [f64]) {
 }
 
 /// `c += Wᵀ z`, W column-major n × r.
-fn add_transposed_product(w: &[f64], n: usize, r: usize, z: &[f64], c: &mut [f64]) {
+pub(super) fn add_transposed_product(w: &[f64], n: usize, r: usize, z: &[f64], c: &mut [f64]) {
     for (p, cp) in c.iter_mut().enumerate().take(r) {
         *cp += w[p * n..(p + 1) * n].iter().zip(z).map(|(a, b)| a * b).sum::<f64>();
     }

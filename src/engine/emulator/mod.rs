@@ -26,6 +26,7 @@ pub mod run_noise;
 pub mod budget;
 pub mod family;
 pub mod latent;
+pub mod low_rank;
 pub mod model;
 pub mod nugget;
 pub mod panels;
@@ -99,6 +100,9 @@ pub struct Emulator {
     /// Covariance of the dropped components in standardized space, run
     /// noise removed, m × m.
     truncation_cov: Vec<f64>,
+    /// Per dropped component (index K.. of the basis), its part of
+    /// `truncation_cov`: `(1 − removed_k) σ_k²` (`low_rank`).
+    dropped_weights: Vec<f64>,
     /// Per kept component, the run-noise variance taken out of its GP's
     /// white-noise term (whitened units).
     run_noise: Vec<f64>,
@@ -178,12 +182,14 @@ impl Emulator {
         let kept_noise: Vec<f64> = gps.iter().map(|g| g.noise_var).collect();
         let removed = run_noise::removed_per_component(&parts, &component_sd, &kept_noise);
         let (mut truncation_cov, mut run_noise_cov) = (vec![0.0; m * m], vec![0.0; m * m]);
+        let mut dropped_weights = Vec::with_capacity(r.saturating_sub(parts.n_components));
         for k in 0..r {
             let v2 = component_sd[k] * component_sd[k];
             let dropped = k >= parts.n_components;
             add_outer(&mut run_noise_cov, &parts.basis[k * m..(k + 1) * m], removed[k] * v2);
             if dropped {
                 add_outer(&mut truncation_cov, &parts.basis[k * m..(k + 1) * m], (1.0 - removed[k]) * v2);
+                dropped_weights.push((1.0 - removed[k]) * v2);
             }
         }
         // The PCA's mean and directions are themselves estimated from noisy runs.
@@ -191,7 +197,16 @@ impl Emulator {
             *t += v;
         }
         let run_noise = removed[..parts.n_components].to_vec();
-        Ok(Emulator { parts, unit_inputs, gps, component_sd, truncation_cov, run_noise, run_noise_cov })
+        Ok(Emulator {
+            parts,
+            unit_inputs,
+            gps,
+            component_sd,
+            truncation_cov,
+            dropped_weights,
+            run_noise,
+            run_noise_cov,
+        })
     }
 
     pub fn n_parameters(&self) -> usize {

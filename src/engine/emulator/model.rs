@@ -3,7 +3,7 @@
 //! carries its own predictive covariance into the likelihood.
 
 use super::{Emulator, PredictScratch};
-use crate::engine::model::Simulator;
+use crate::engine::model::{LowRankModelCovariance, Simulator};
 use anyhow::{bail, Result};
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -174,6 +174,25 @@ impl Simulator for EmulatedModel {
                 }
                 self.emulator.add_points_covariance(vars, idx, g, lower, loading);
             })
+        })
+    }
+    fn joint_model_low_rank(&self, points: &[(usize, f64)], offsets: &[usize]) -> Option<LowRankModelCovariance> {
+        let idx: Vec<usize> = points.iter().map(|&(o, x)| self.output(o, x)).collect();
+        self.emulator.low_rank_covariance(&idx, offsets)
+    }
+    fn joint_model_factors(
+        &self,
+        points: &[(usize, f64)],
+        inv_scales: &[f64],
+        theta: &[f64],
+        g: &mut [f64],
+        w: &mut [f64],
+    ) {
+        self.with_components(theta, |means, vars| {
+            for (i, &(observable, xi)) in points.iter().enumerate() {
+                g[i] = inv_scales[i] * self.emulator.output_mean_from_components(means, self.output(observable, xi)).1;
+            }
+            self.emulator.component_weights(vars, w);
         })
     }
 }

@@ -128,20 +128,7 @@ pub fn pca_noise_cov(parts: &super::EmulatorParts) -> Vec<f64> {
     if noise.iter().all(|v| *v == 0.0) {
         return cov;
     }
-    let signal_weight: f64 = parts
-        .basis
-        .chunks(m)
-        .zip(&parts.singular_values)
-        .take(kept)
-        .map(|(v, s)| {
-            let var = s * s / n;
-            if var > 0.0 {
-                (1.0 - finite_or_zero(projected(v, &noise) / var)).max(0.0)
-            } else {
-                0.0
-            }
-        })
-        .sum();
+    let signal_weight = pca_noise_signal_weight(parts, &noise);
     // P = I − Σ_kept v vᵀ, then P N P.
     let mut p = vec![0.0; m * m];
     for a in 0..m {
@@ -167,6 +154,26 @@ pub fn pca_noise_cov(parts: &super::EmulatorParts) -> Vec<f64> {
         }
     }
     cov
+}
+
+/// `w = Σ_kept (1 − ν_k)₊` of [`pca_noise_cov`], for the runs' noise
+/// covariance `noise`: the kept components' signal fractions.
+pub fn pca_noise_signal_weight(parts: &super::EmulatorParts, noise: &[f64]) -> f64 {
+    let (n, m, kept) = (parts.design_ids.len().max(1) as f64, parts.outputs.len(), parts.n_components);
+    parts
+        .basis
+        .chunks(m)
+        .zip(&parts.singular_values)
+        .take(kept)
+        .map(|(v, s)| {
+            let var = s * s / n;
+            if var > 0.0 {
+                (1.0 - finite_or_zero(projected(v, noise) / var)).max(0.0)
+            } else {
+                0.0
+            }
+        })
+        .sum()
 }
 
 /// Per component (kept, then dropped), the run-noise variance removed from
