@@ -9,14 +9,23 @@
 //! covariance, attaching it, finding its structure) and Kernel II
 //! evaluations per second on one core, structured and dense, and fits the
 //! exponent of the cost per evaluation against N.
+//!
+//! The same data then meet an emulated model: an emulator of 20 principal
+//! components trained on 24 noise-free runs of a model nonlinear in its four
+//! parameters at every one of the N points, so the likelihood carries the
+//! emulator's predictive covariance across all observables (the kept
+//! components with θ-dependent weights, the 4 dropped ones as its
+//! truncation: rank 24) besides the systematics.
 
 use crate::engine::calibrate::{Overrides, Problem};
+use crate::engine::emulator::{train, EmulatedModel, EmulatorSettings, OutputKey, TrainingTable};
 use crate::engine::gp::DiscrepancyKernel;
 use anyhow::{Context, Result};
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Points per observable (per table).
@@ -25,6 +34,9 @@ const TABLE: usize = 25;
 pub const SIZES: [usize; 6] = [100, 200, 400, 1000, 2000, 3000];
 /// Dense evaluations stop at this size (one at 3 000 points takes seconds).
 const DENSE_UP_TO: usize = 3000;
+/// The emulated model's training runs and kept components.
+const RUNS: usize = 24;
+const COMPONENTS: usize = 20;
 
 /// One size's measurements.
 #[derive(Debug, serde::Serialize)]
@@ -38,6 +50,11 @@ pub struct ScalingRow {
     pub rank: Option<usize>,
     pub structured_per_second: f64,
     pub dense_per_second: Option<f64>,
+    /// The same data with the emulated model: its covariance's rank in the
+    /// structured form (`None`: dense), and the two rates.
+    pub emulator_rank: Option<usize>,
+    pub emulated_structured_per_second: f64,
+    pub emulated_dense_per_second: Option<f64>,
 }
 
 /// Writes the synthetic analysis of `n` points under `dir`; returns its config.
@@ -106,8 +123,17 @@ pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingR
         let mut problem = Problem::new(&analysis, &overrides)?;
         let setup_seconds = start.elapsed().as_secs_f64();
         let rank = problem.likelihood.structure.as_ref().map(|s| s.rank);
+        let mut emulated = analysis.clone();
+        emulated.simulator = Arc::new(EmulatedModel::new(emulator_of(&problem)?));
         let structured_per_second = rate(&problem, seconds);
         let dense_per_second = (n <= DENSE_UP_TO).then(|| {
+            problem.likelihood = problem.likelihood.dense();
+            rate(&problem, seconds)
+        });
+        let mut problem = Problem::new(&emulated, &overrides)?;
+        let emulator_rank = problem.likelihood.structure.as_ref().and_then(|s| s.model.as_ref()).map(|m| m.rank);
+        let emulated_structured_per_second = rate(&problem, seconds);
+        let emulated_dense_per_second = (n <= DENSE_UP_TO).then(|| {
             problem.likelihood = problem.likelihood.dense();
             rate(&problem, seconds)
         });
@@ -119,10 +145,49 @@ pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingR
             rank,
             structured_per_second,
             dense_per_second,
+            emulator_rank,
+            emulated_structured_per_second,
+            emulated_dense_per_second,
         });
         let _ = std::fs::remove_file(out.join(format!("n{n}")).join("covariance.csv"));
     }
     Ok(rows)
+}
+
+/// An emulator of `problem`'s observables at their points, trained on
+/// `RUNS` noise-free runs of a model nonlinear in θ at uniform draws of
+/// the prior (the data are the expression model's; only the cost matters).
+fn emulator_of(problem: &Problem) -> Result<crate::engine::emulator::Emulator> {
+    let names = problem.likelihood.simulator.parameter_names();
+    let draws = problem.prior.draws(&mut Xoshiro256PlusPlus::seed_from_u64(11), RUNS);
+    let blocks = &problem.likelihood.blocks;
+    let outputs: Vec<OutputKey> =
+        blocks.iter().flat_map(|b| b.x.iter().map(|&x| OutputKey { observable: b.name.clone(), x })).collect();
+    let mut values = Vec::with_capacity(RUNS * outputs.len());
+    for t in &draws {
+        for (o, b) in blocks.iter().enumerate() {
+            let tilt = 1.0 + 0.1 * (o % 7) as f64;
+            values.extend(
+                b.x.iter().map(|&x| {
+                    t[0] * (-t[1] * x * tilt).exp() + t[2] * x * x + t[3] * (o as f64 + t[2] * x + t[1]).sin()
+                }),
+            );
+        }
+    }
+    let table = TrainingTable {
+        path: "synthetic runs".into(),
+        parameter_names: names.clone(),
+        design_ids: (0..RUNS as i64).collect(),
+        inputs: draws.iter().flat_map(|t| t[..names.len()].iter().copied()).collect(),
+        errors: vec![0.0; values.len()],
+        outputs,
+        noise_correlation: None,
+        values,
+    };
+    let quoted: Vec<String> = names.iter().map(|n| format!("\"{n}\"")).collect();
+    let settings: EmulatorSettings =
+        toml::from_str(&format!("parameters = [{}]\ncomponents = {COMPONENTS}\nrestarts = 1", quoted.join(", ")))?;
+    Ok(train(&table, &settings, 1)?.0)
 }
 
 /// The exponent p of cost ∝ N^p, least squares on logs.
@@ -139,31 +204,41 @@ pub fn exponent(points: &[(usize, f64)]) -> f64 {
 pub fn print(out: &Path, seconds: f64) -> Result<()> {
     println!(
         "likelihood scaling: Kernel II, observables of {TABLE} points, a 5% systematic per table and a 2% one across all \
-         (full covariance files of N² rows); one core, {seconds} s per rate"
+         (full covariance files of N² rows); then the same data with an emulator of {COMPONENTS} components from {RUNS} \
+         runs; one core, {seconds} s per rate"
     );
     println!(
-        "{:>6} {:>5} {:>10} {:>9} {:>5} {:>16} {:>14}",
-        "N", "obs", "cov rows", "setup s", "rank", "structured /s", "dense /s"
+        "{:>6} {:>5} {:>10} {:>9} {:>5} {:>14} {:>10} {:>9} {:>14} {:>10}",
+        "N", "obs", "cov rows", "setup s", "rank", "structured /s", "dense /s", "emu rank", "emulated /s", "dense /s"
     );
     let rows = measure(out, &SIZES, seconds)?;
+    let rank = |r: Option<usize>| r.map_or("dense".into(), |k| k.to_string());
+    let per_second = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.1}"));
     for r in &rows {
         println!(
-            "{:>6} {:>5} {:>10} {:>9.2} {:>5} {:>16.0} {:>14}",
+            "{:>6} {:>5} {:>10} {:>9.2} {:>5} {:>14.0} {:>10} {:>9} {:>14.0} {:>10}",
             r.points,
             r.observables,
             r.covariance_rows,
             r.setup_seconds,
-            r.rank.map_or("dense".into(), |k| k.to_string()),
+            rank(r.rank),
             r.structured_per_second,
-            r.dense_per_second.map_or("-".into(), |v| format!("{v:.1}"))
+            per_second(r.dense_per_second),
+            rank(r.emulator_rank),
+            r.emulated_structured_per_second,
+            per_second(r.emulated_dense_per_second),
         );
     }
-    let fast: Vec<(usize, f64)> = rows.iter().map(|r| (r.points, r.structured_per_second)).collect();
-    let dense: Vec<(usize, f64)> = rows.iter().filter_map(|r| r.dense_per_second.map(|d| (r.points, d))).collect();
+    let fit = |rate: &dyn Fn(&ScalingRow) -> Option<f64>| {
+        exponent(&rows.iter().filter_map(|r| rate(r).map(|v| (r.points, v))).collect::<Vec<_>>())
+    };
     println!(
-        "cost per evaluation ∝ N^{:.2} structured, N^{:.2} dense (least squares over the sizes above)",
-        exponent(&fast),
-        exponent(&dense)
+        "cost per evaluation ∝ N^{:.2} structured, N^{:.2} dense; with the emulator N^{:.2} structured, N^{:.2} dense \
+         (least squares over the sizes above)",
+        fit(&|r| Some(r.structured_per_second)),
+        fit(&|r| r.dense_per_second),
+        fit(&|r| Some(r.emulated_structured_per_second)),
+        fit(&|r| r.emulated_dense_per_second),
     );
     crate::base::artifacts::write_json_atomic(&out.join("scaling.json"), &rows)?;
     println!("{}", out.join("scaling.json").display());
