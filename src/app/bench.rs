@@ -268,7 +268,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub likelihood_only: bool,
     #[arg(long)]
-    pub sampler: Option<String>,
+    pub sampler: Option<crate::engine::calibrate::SamplerKind>,
     #[arg(long, default_value = "outputs/bench")]
     pub out: PathBuf,
     #[arg(long, default_value_t = 1)]

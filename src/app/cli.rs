@@ -3,6 +3,8 @@
 
 use super::commands::CalibrationArgs;
 use super::{bench, commands, demo, simulate};
+use crate::base::choices::{Executor, Kernel};
+use crate::engine::calibrate::SamplerKind;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -25,13 +27,13 @@ pub enum Command {
         args: CalibrationArgs,
         /// Discrepancy kernel: none, I or II (default: the config's)
         #[arg(long)]
-        kernel: Option<String>,
+        kernel: Option<Kernel>,
         /// Comma-separated observables to use (default: the config's)
         #[arg(long, value_delimiter = ',')]
         observables: Option<Vec<String>>,
         /// Sampler: smc or ensemble (default: the config's)
         #[arg(long)]
-        sampler: Option<String>,
+        sampler: Option<SamplerKind>,
         /// Stop cleanly after this many seconds with the sampler's state saved
         /// in OUT/.checkpoint (e.g. before a SLURM time limit); the same command
         /// resumes it. The state is saved as the run goes either way.
@@ -43,7 +45,7 @@ pub enum Command {
         #[command(flatten)]
         args: CalibrationArgs,
         #[arg(long)]
-        sampler: Option<String>,
+        sampler: Option<SamplerKind>,
         /// Run the grid on this many independent mock data sets drawn from the config's
         /// [truth] (ball drop) and tabulate how often each case covers the truth
         #[arg(long)]
@@ -177,7 +179,7 @@ pub enum Command {
         /// Where the simulate stage runs the design points: local (parallel processes) or
         /// slurm (a job array submitted with sbatch and followed with squeue)
         #[arg(long, default_value = "local")]
-        executor: String,
+        executor: Executor,
         /// With --stage calibrate: only this calibration case, by index (what each
         /// array task runs when the cases go out to Slurm)
         #[arg(long)]
@@ -196,7 +198,7 @@ pub enum Command {
         out: Option<PathBuf>,
         /// Where the new runs go: local or slurm
         #[arg(long, default_value = "local")]
-        executor: String,
+        executor: Executor,
     },
     /// Generate mock measurements from a built-in truth
     Simulate {
@@ -260,10 +262,10 @@ impl Command {
             Command::Report { dirs, out, png } => commands::report(&dirs, &out, png.as_deref()),
             Command::Export { run_dir, format, out } => super::export::run(&run_dir, format, out.as_deref()),
             Command::Run { config, stage, force, seed, out, executor, case } => {
-                commands::run_study(&config, stage, force, seed, out, &executor, case)
+                commands::run_study(&config, stage, force, seed, out, executor, case)
             }
             Command::Refine { config, seed, out, executor } => {
-                commands::run_study(&config, Some("refine".into()), false, seed, out, &executor, None)
+                commands::run_study(&config, Some("refine".into()), false, seed, out, executor, None)
             }
             Command::Demo { seed, full, out } => demo::run(seed, full, &out),
             Command::Bench(args) => bench::command(args),

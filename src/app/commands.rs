@@ -2,6 +2,7 @@
 //! engine and saying what it wrote.
 
 use crate::base::artifacts;
+use crate::base::choices::{Executor, Kernel};
 use crate::base::config::Config;
 use crate::base::progress::Bars;
 use crate::engine::calibrate::{self, summary::Summary, Overrides, Problem, SamplerKind};
@@ -29,32 +30,18 @@ pub struct CalibrationArgs {
 
 pub fn parse_overrides(
     data: Option<PathBuf>,
-    kernel: Option<String>,
+    kernel: Option<Kernel>,
     observables: Option<Vec<String>>,
-    sampler: Option<String>,
+    sampler: Option<SamplerKind>,
 ) -> Result<Overrides> {
-    let kernel = match kernel {
-        None => None,
-        Some(k) => Some(
-            DiscrepancyKernel::parse(&k)
-                .with_context(|| format!("--kernel: unknown kernel {k:?} (use none, I or II)"))?,
-        ),
-    };
-    let sampler = match sampler {
-        None => None,
-        Some(s) => Some(
-            SamplerKind::parse(&s)
-                .with_context(|| format!("--sampler: unknown sampler {s:?} (use smc or ensemble)"))?,
-        ),
-    };
-    Ok(Overrides { data, kernel, observables, sampler })
+    Ok(Overrides { data, kernel: kernel.map(DiscrepancyKernel::of), observables, sampler })
 }
 
 pub fn calibrate(
     args: CalibrationArgs,
-    kernel: Option<String>,
+    kernel: Option<Kernel>,
     observables: Option<Vec<String>>,
-    sampler: Option<String>,
+    sampler: Option<SamplerKind>,
     time_limit: Option<f64>,
 ) -> Result<()> {
     let analysis = crate::pipeline::load(&args.config)?;
@@ -79,7 +66,7 @@ pub fn calibrate(
     Ok(())
 }
 
-pub fn compare(args: CalibrationArgs, sampler: Option<String>, replicates: Option<usize>) -> Result<()> {
+pub fn compare(args: CalibrationArgs, sampler: Option<SamplerKind>, replicates: Option<usize>) -> Result<()> {
     let analysis = crate::pipeline::load(&args.config)?;
     artifacts::check_writable(&args.out)?;
     if let Some(n) = replicates {
@@ -187,7 +174,7 @@ pub fn run_study(
     force: bool,
     seed: u64,
     out: Option<PathBuf>,
-    executor: &str,
+    executor: Executor,
     case: Option<usize>,
 ) -> Result<()> {
     let config = Config::load(config)?;
@@ -206,7 +193,7 @@ pub fn run_study(
         stage,
         force,
         show_progress: true,
-        executor: executor.parse()?,
+        executor,
         mdpipe: std::env::current_exe()?,
         case,
     };

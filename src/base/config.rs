@@ -103,8 +103,8 @@ impl ParamSpec {
 #[derive(Clone, Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DiscrepancyConfig {
-    /// "none", "I" or "II".
-    pub kernel: String,
+    /// none, I or II.
+    pub kernel: crate::base::choices::Kernel,
     /// Uniform prior bounds per hyperparameter name (cbar, ell, r, s); the
     /// paper's (0, 10) for each when not given.
     #[serde(default = "paper_bounds")]
@@ -122,7 +122,7 @@ fn paper_bounds() -> BTreeMap<String, [f64; 2]> {
 
 impl Default for DiscrepancyConfig {
     fn default() -> Self {
-        DiscrepancyConfig { kernel: "II".into(), bounds: paper_bounds(), inputs: BTreeMap::new() }
+        DiscrepancyConfig { kernel: crate::base::choices::Kernel::II, bounds: paper_bounds(), inputs: BTreeMap::new() }
     }
 }
 

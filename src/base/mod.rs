@@ -2,11 +2,13 @@
 //! of the crate beyond itself.
 
 pub mod artifacts;
+pub mod choices;
 pub mod columns;
 pub mod config;
 pub mod covariance;
 pub mod hepdata;
 pub mod measurement;
+pub mod messages;
 pub mod paper_table;
 pub mod progress;
 pub mod table;

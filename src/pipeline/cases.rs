@@ -10,7 +10,7 @@ use crate::engine::calibrate::{self, Analysis, Overrides, Problem};
 use crate::engine::compare;
 use crate::engine::execute::{self, Executor, OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -32,8 +32,7 @@ impl Study<'_> {
         let mut cases = Vec::new();
         for (i, set) in self.run.observable_sets.iter().enumerate() {
             for (j, k) in self.run.kernels.iter().enumerate() {
-                let kernel = DiscrepancyKernel::parse(k)
-                    .ok_or_else(|| anyhow!("[run] kernels: unknown kernel {k:?} (use none, I or II)"))?;
+                let kernel = DiscrepancyKernel::of(*k);
                 let name = compare::case_dir_name(set, kernel);
                 let seed = self.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
                 let material = serde_json::json!({"config": self.analysis_hash()?, "data": self.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": keys.upstream.get("emulator"), "mock": keys.upstream.get("mock"), "refine": keys.upstream.get("refine")});
@@ -96,7 +95,7 @@ impl Study<'_> {
                 provenance: prov,
             },
         )?;
-        println!("  {:<60} {seconds:>6.1} s{whence}", c.name);
+        crate::say!("  {:<60} {seconds:>6.1} s{whence}", c.name);
         Ok(())
     }
 
@@ -145,12 +144,12 @@ impl Study<'_> {
             Ok(report) if report.failed.is_empty() => {}
             Ok(report) => {
                 report.print_failures();
-                println!(
+                crate::say!(
                     "  warning: {} calibration task(s) failed under Slurm; those cases run here",
                     report.failed.len()
                 );
             }
-            Err(e) => println!("  warning: {e:#}; the cases run here"),
+            Err(e) => crate::say!("  warning: {e:#}; the cases run here"),
         }
         Ok(())
     }

@@ -102,7 +102,7 @@ impl Study<'_> {
         staged.json(&dir.join("rounds.json"), &result)?;
         staged.text(&dir.join("rounds.md"), &result.markdown())?;
         staged.commit()?;
-        println!("  stopped: {}; the calibrations use {}", result.stopped, dir.join(&result.emulator).display());
+        crate::say!("  stopped: {}; the calibrations use {}", result.stopped, dir.join(&result.emulator).display());
         Ok(())
     }
 
@@ -126,7 +126,7 @@ impl Study<'_> {
     ) -> Result<(Vec<f64>, std::collections::BTreeMap<String, std::collections::BTreeMap<String, [f64; 3]>>)> {
         let config = self.study_config_with(emulator);
         let analysis = self.analysis(&config)?;
-        let md_kernel = self.run.kernels.iter().rev().find_map(|k| DiscrepancyKernel::parse(k).flatten());
+        let md_kernel = self.run.kernels.iter().rev().find_map(|k| DiscrepancyKernel::of(*k));
         let mut kernels = vec![None];
         kernels.extend(md_kernel.map(Some));
         let mut draws = Vec::new();
@@ -211,7 +211,7 @@ impl Study<'_> {
             &out,
             seed,
         )?;
-        println!("  retrained: {} points x {} outputs -> {} components", r.n_points, r.n_outputs, r.n_components);
+        crate::say!("  retrained: {} points x {} outputs -> {} components", r.n_points, r.n_outputs, r.n_components);
         let v = crate::engine::emulator::validate::run(&out, Some(&self.paths.validation()), 5, seed)?;
         if let Some(h) = &v.holdout {
             crate::engine::emulator::validate::print("  held-out design", h);
@@ -225,7 +225,7 @@ fn print_round(r: usize, runs: usize, ratios: &[ObservableRatio]) {
         .iter()
         .map(|o| format!("{} {:.2} (latent {:.2}, floor {:.2})", o.observable, o.predictive, o.latent, o.floor))
         .collect();
-    println!("  round {r} ({runs} training runs): emulator predictive sd / data error: {}", parts.join(", "));
+    crate::say!("  round {r} ({runs} training runs): emulator predictive sd / data error: {}", parts.join(", "));
 }
 
 /// Why refinement stops at these ratios, if it does: the predictive sd is

@@ -1,10 +1,10 @@
 //! The `[run]` table of an analysis config, checked before any stage runs.
 
+use crate::base::choices::Kernel;
 use crate::base::config::Config;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
-use crate::engine::gp::DiscrepancyKernel;
 use crate::systems::heavy_ion::{self, DeltaF};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::path::PathBuf;
@@ -47,9 +47,9 @@ pub struct RunConfig {
     pub mock_events: Option<usize>,
     /// Observable sets to calibrate on, in order (each should extend the last).
     pub observable_sets: Vec<Vec<String>>,
-    /// Discrepancy kernels: "none", "I", "II".
+    /// Discrepancy kernels: none, I, II.
     #[serde(default = "default_kernels")]
-    pub kernels: Vec<String>,
+    pub kernels: Vec<Kernel>,
     /// Wall-time limit of one calibration case when cases go out as Slurm array tasks.
     #[serde(default = "default_calibration_time_limit")]
     pub calibration_time_limit: String,
@@ -73,8 +73,8 @@ fn default_model_delta_f() -> String {
 fn default_calibration_time_limit() -> String {
     "12h".into()
 }
-fn default_kernels() -> Vec<String> {
-    vec!["none".into(), "I".into(), "II".into()]
+fn default_kernels() -> Vec<Kernel> {
+    vec![Kernel::None, Kernel::I, Kernel::II]
 }
 
 impl RunConfig {
@@ -107,9 +107,6 @@ impl RunConfig {
             if self.mock_events.is_none() {
                 bail!("mock_delta_f needs mock_events (the events of the stand-in's mock data)");
             }
-        }
-        for k in &self.kernels {
-            DiscrepancyKernel::parse(k).ok_or_else(|| anyhow!("kernels: unknown kernel {k:?} (use none, I or II)"))?;
         }
         if self.observable_sets.is_empty() || self.observable_sets.iter().any(|s| s.is_empty()) {
             bail!("observable_sets: give one or more non-empty sets");

@@ -1,6 +1,6 @@
-//! Bad input, command by command: each gets a clear error (exit code 1, not
-//! a panic's 101), says what is wrong, ends within 30 s, and writes no
-//! artifact. The test prints the README's table of what each input gets.
+//! Bad input, command by command: each gets a clear error (exit code 1, or 2
+//! for a command line the argument parser refuses; never a panic's 101),
+//! says what is wrong, ends within 30 s, and writes no artifact. The test prints the README's table of what each input gets.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -18,6 +18,9 @@ struct Case {
     args: &'static str,
     says: &'static str,
     no_output: &'static str,
+    /// 1 for a bad input, 2 for a command line the argument parser refuses
+    /// (the usage-error convention of clap, getopt and argparse).
+    exit: i32,
 }
 
 fn ball_drop_toml() -> String {
@@ -43,8 +46,15 @@ fn shifted_data() -> String {
 fn cases() -> Vec<Case> {
     let cfg = ball_drop_toml();
     let with = |from: &str, to: &str| cfg.replace(from, to);
-    let c =
-        |what, files: Vec<(&'static str, String)>, args, says, no_output| Case { what, files, args, says, no_output };
+    let c = |what, files: Vec<(&'static str, String)>, args, says, no_output| Case {
+        what,
+        files,
+        args,
+        says,
+        no_output,
+        exit: 1,
+    };
+    let usage = |what, args, says| Case { what, files: vec![], args, says, no_output: "out", exit: 2 };
     vec![
         c("config file missing", vec![], "calibrate {d}/none.toml --out {d}/out", "reading config", "out"),
         c(
@@ -86,22 +96,18 @@ fn cases() -> Vec<Case> {
             "unknown kernel in config",
             vec![("c.toml", with("kernel = \"II\"", "kernel = \"III\""))],
             "calibrate {d}/c.toml --out {d}/out",
-            "unknown kernel",
+            "unknown kernel \"III\" (use none, I or II)",
             "out",
         ),
-        c(
+        usage(
             "unknown --kernel",
-            vec![],
             "calibrate pipeline/ball_drop.toml --kernel III --out {d}/out",
-            "--kernel",
-            "out",
+            "[possible values: none, I, II]",
         ),
-        c(
+        usage(
             "unknown --sampler",
-            vec![],
             "calibrate pipeline/ball_drop.toml --sampler gibbs --out {d}/out",
-            "--sampler",
-            "out",
+            "[possible values: smc, ensemble]",
         ),
         c(
             "ess_fraction = 1",
@@ -367,7 +373,7 @@ fn every_bad_input_gets_a_clear_error_and_writes_nothing() {
             case.what,
             message.trim_start_matches("error: ").replace('|', "\\|").replace(&d.display().to_string(), "…")
         ));
-        if code != 1 || !stderr.contains(case.says) || written || took > Duration::from_secs(30) {
+        if code != case.exit || !stderr.contains(case.says) || written || took > Duration::from_secs(30) {
             failures
                 .push(format!("{}: exit {code}, {took:?}, artifact written: {written}, stderr: {stderr}", case.what));
         }

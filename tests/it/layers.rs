@@ -2,6 +2,7 @@
 //! path a file names must belong to its own unit or to a unit below it.
 //! (Units of one rank, such as `compare` and `diagnose`, may not use each
 //! other.) This keeps import cycles between units and upward imports out.
+//! And the library does not print (`base::messages`).
 
 use std::path::{Path, PathBuf};
 
@@ -112,4 +113,47 @@ fn no_file_imports_from_a_layer_above_or_a_sibling_unit() {
     }
     assert!(checked > 100, "only {checked} crate paths found: is the source where the test looks?");
     assert!(violations.is_empty(), "imports against the layering:\n{}", violations.join("\n"));
+}
+
+/// The engine and the pipeline never print: what they say goes through
+/// `base::messages` (`say!`, `note!`), whose sink a caller that is not the
+/// terminal replaces.
+#[test]
+fn the_engine_and_the_pipeline_never_print() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src.join("engine"), &mut files);
+    rust_files(&src.join("pipeline"), &mut files);
+    assert!(files.len() > 50, "only {} files found", files.len());
+    let mut prints = Vec::new();
+    for file in &files {
+        let text = std::fs::read_to_string(file).unwrap();
+        for (line_no, line) in text.lines().enumerate().filter(|(_, l)| !l.trim_start().starts_with("//")) {
+            if ["println!", "eprintln!", "print!", "eprint!", "dbg!"].iter().any(|m| line.contains(m)) {
+                prints.push(format!("{}:{}: {}", file.display(), line_no + 1, line.trim()));
+            }
+        }
+    }
+    assert!(prints.is_empty(), "printing in the library:\n{}", prints.join("\n"));
+}
+
+/// A caller captures what the library says by installing a sink.
+#[test]
+fn what_the_library_says_can_be_captured() {
+    use mdpipe::base::messages::{self, Channel, Sink};
+    use std::sync::{Arc, Mutex};
+    #[derive(Default)]
+    struct Capture(Mutex<Vec<(Channel, String)>>);
+    impl Sink for Capture {
+        fn emit(&self, channel: Channel, text: &str) {
+            self.0.lock().unwrap().push((channel, text.to_string()));
+        }
+    }
+    let capture = Arc::new(Capture::default());
+    let before = messages::set_sink(capture.clone());
+    mdpipe::emulator::validate::print("captured validation table", &[]);
+    messages::set_sink(before.unwrap_or_else(|| Arc::new(messages::Terminal)));
+    let said = capture.0.lock().unwrap();
+    assert!(said.contains(&(Channel::Result, "captured validation table:".to_string())), "{said:?}");
+    assert!(said.iter().any(|(c, t)| *c == Channel::Result && t.contains("RMSE/spr")), "{said:?}");
 }

@@ -19,6 +19,7 @@ mod heavy_ion;
 mod hepdata;
 mod inference_data;
 mod ingest;
+mod large_analysis;
 mod layers;
 mod pipeline;
 mod readers;

@@ -62,9 +62,7 @@ impl Analysis {
         if let Some(t) = &truth_setup {
             units = units.or(&t.units());
         }
-        let kernel = DiscrepancyKernel::parse(&config.discrepancy.kernel).ok_or_else(|| {
-            anyhow!("{file}: discrepancy.kernel: unknown kernel {:?} (use none, I or II)", config.discrepancy.kernel)
-        })?;
+        let kernel = DiscrepancyKernel::of(config.discrepancy.kernel);
         let observables = simulator.observable_names();
         if let Some(name) = config.discrepancy.inputs.keys().find(|n| !observables.contains(n)) {
             bail!(

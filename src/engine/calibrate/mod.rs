@@ -178,7 +178,7 @@ fn hepdata_record(analysis: &Analysis, data_path: &Path) -> Result<Option<crate:
     unused.dedup();
     if !unused.is_empty() {
         record.points.retain(|p| predicted.contains(&p.observable));
-        eprintln!(
+        crate::note!(
             "note: {}: not predicted by the model, so not used: {} (name them in [data.hepdata] observables to use them)",
             data_path.display(),
             unused.join(", ")
@@ -188,7 +188,7 @@ fn hepdata_record(analysis: &Analysis, data_path: &Path) -> Result<Option<crate:
         bail!("{}: none of its dependent variables is an observable of the model", data_path.display());
     }
     if !record.skipped.is_empty() {
-        eprintln!(
+        crate::note!(
             "note: {}: {} bin(s) without a value (null or '-') skipped",
             data_path.display(),
             record.skipped.len()
@@ -234,14 +234,14 @@ impl Problem {
                 data_covariance::attach(&mut blocks, &entries, &measurements, path, &data_path)?
             }
             (Some(path), Some(_)) => {
-                eprintln!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display());
+                crate::note!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display());
                 Vec::new()
             }
             (None, _) => Vec::new(),
         };
         let spans = simulator.has_model_covariance() && simulator.model_covariance_spans_observables();
         if !across.is_empty() && analysis.between_observables == crate::base::config::BetweenObservables::Independent {
-            eprintln!("warning: {} covariance entries between observables are not used: [data] between_observables = \"independent\"", across.len());
+            crate::note!("warning: {} covariance entries between observables are not used: [data] between_observables = \"independent\"", across.len());
         }
         let mut likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
         if joint::wanted(analysis.between_observables, likelihood.blocks.len(), across.len(), spans) {

@@ -3,21 +3,19 @@
 use super::ensemble::EnsembleSettings;
 use super::smc::SmcSettings;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum SamplerKind {
+    /// Sequential Monte Carlo (tempering), with the evidence.
+    #[value(name = "smc")]
     Smc,
+    /// The affine-invariant ensemble sampler (emcee's stretch move).
+    #[value(name = "ensemble", alias = "emcee")]
     Ensemble,
 }
 
+crate::choice_by_name!(SamplerKind, "sampler");
+
 impl SamplerKind {
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "smc" => Some(SamplerKind::Smc),
-            "ensemble" | "emcee" => Some(SamplerKind::Ensemble),
-            _ => None,
-        }
-    }
     pub fn label(self) -> &'static str {
         match self {
             SamplerKind::Smc => "smc",
@@ -42,7 +40,7 @@ impl Default for SamplerConfig {
 
 impl SamplerConfig {
     /// Checks every setting a sampler would trip on; the message names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), BadSetting> {
         let s = &self.smc;
         let checks: [(bool, &str, String); 8] = [
             (s.particles >= 2, "smc.particles", format!("{} (need at least 2)", s.particles)),
@@ -85,8 +83,23 @@ impl SamplerConfig {
             ),
         ];
         match checks.into_iter().find(|(ok, _, _)| !ok) {
-            Some((_, field, got)) => Err(format!("{field} = {got}")),
+            Some((_, field, got)) => Err(BadSetting { field, got }),
             None => Ok(()),
         }
     }
 }
+
+/// A `[sampler]` setting a sampler would trip on: the field and what it holds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BadSetting {
+    pub field: &'static str,
+    pub got: String,
+}
+
+impl std::fmt::Display for BadSetting {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} = {}", self.field, self.got)
+    }
+}
+
+impl std::error::Error for BadSetting {}

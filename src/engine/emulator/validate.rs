@@ -214,15 +214,27 @@ pub fn run(
 
 /// Console table of one validation set.
 pub fn print(label: &str, rows: &[ObservableValidation]) {
-    println!("{label}:");
-    println!(
+    crate::say!("{label}:");
+    crate::say!(
         "  {:<14} {:>6} {:>11} {:>11} {:>9} {:>8} {:>8}",
-        "observable", "n", "RMSE", "spread", "RMSE/spr", "cov68", "cov95"
+        "observable",
+        "n",
+        "RMSE",
+        "spread",
+        "RMSE/spr",
+        "cov68",
+        "cov95"
     );
     for r in rows {
-        println!(
+        crate::say!(
             "  {:<14} {:>6} {:>11.4e} {:>11.4e} {:>9.4} {:>8.3} {:>8.3}",
-            r.observable, r.n, r.rmse, r.spread, r.relative_rmse, r.coverage_68, r.coverage_95
+            r.observable,
+            r.n,
+            r.rmse,
+            r.spread,
+            r.relative_rmse,
+            r.coverage_68,
+            r.coverage_95
         );
     }
 }

@@ -20,24 +20,8 @@ use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
-/// Where attempts run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Executor {
-    Local,
-    Slurm,
-}
-
-impl std::str::FromStr for Executor {
-    type Err = anyhow::Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "local" => Ok(Executor::Local),
-            "slurm" => Ok(Executor::Slurm),
-            other => bail!("--executor {other}: use local or slurm"),
-        }
-    }
-}
+/// Where the design points run (parsed once, in `base::choices`).
+pub use crate::base::choices::Executor;
 
 /// One design point: its id, parameter values and iEBE-MUSIC parameter file.
 pub struct Point {
@@ -105,11 +89,11 @@ impl ExecutionReport {
     /// Prints the failures with their exit codes and log tails.
     pub fn print_failures(&self) {
         for f in &self.failed {
-            println!("  point {:04} failed {} attempt(s):", f.id, f.attempts.len());
+            crate::say!("  point {:04} failed {} attempt(s):", f.id, f.attempts.len());
             for a in &f.attempts {
-                println!("    {}: {}", a.tag, a.describe());
+                crate::say!("    {}: {}", a.tag, a.describe());
                 for line in a.stderr_tail.lines() {
-                    println!("      | {line}");
+                    crate::say!("      | {line}");
                 }
             }
         }
@@ -250,8 +234,9 @@ impl Tracker {
     pub fn ended(&mut self, id: i64, record: AttemptRecord) -> bool {
         let ok = record.succeeded();
         if !ok {
-            self.bar
-                .suspend(|| println!("  {}: point {:04} attempt {} {}", self.label, id, record.tag, record.describe()));
+            self.bar.suspend(|| {
+                crate::say!("  {}: point {:04} attempt {} {}", self.label, id, record.tag, record.describe())
+            });
         }
         self.records.entry(id).or_default().push(record);
         if ok {
@@ -290,7 +275,7 @@ impl Tracker {
             self.records.values().filter(|r| r.len() > 1).count()
         );
         if self.plain && self.last_line.elapsed().as_secs() >= 30 {
-            println!("  {msg} (of {})", self.total);
+            crate::say!("  {msg} (of {})", self.total);
             self.last_line = std::time::Instant::now();
         }
         self.bar.set_message(msg);

@@ -1,6 +1,8 @@
 //! The paper's discrepancy kernels and the Gram matrix of one observable's
 //! inputs, filled fast inside a sampler.
 
+use crate::base::choices::Kernel;
+
 /// The paper's two discrepancy kernels (Jaiswal et al. 2025, eqs. for Kernel I/II).
 ///
 /// Kernel I:  `s² + c̄² (x x')^r exp(-|x-x'|²/2ℓ²)`;
@@ -28,12 +30,12 @@ impl DiscrepancyKernel {
         self.hyper_names().len()
     }
 
-    pub fn parse(s: &str) -> Option<Option<DiscrepancyKernel>> {
-        match s.trim() {
-            "none" | "None" | "no-md" | "nomd" => Some(None),
-            "I" | "1" | "i" => Some(Some(DiscrepancyKernel::KernelI)),
-            "II" | "2" | "ii" => Some(Some(DiscrepancyKernel::KernelII)),
-            _ => None,
+    /// The kernel of a user's choice (`None`: the fit without MD).
+    pub fn of(choice: Kernel) -> Option<DiscrepancyKernel> {
+        match choice {
+            Kernel::None => None,
+            Kernel::I => Some(DiscrepancyKernel::KernelI),
+            Kernel::II => Some(DiscrepancyKernel::KernelII),
         }
     }
 

@@ -28,7 +28,7 @@ fn emulator(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         &study.paths.emulator(),
         study.opts.seed,
     )?;
-    println!(
+    crate::say!(
         "  {} points x {} outputs -> {} components in {:.1} s",
         r.n_points, r.n_outputs, r.n_components, r.training_seconds
     );

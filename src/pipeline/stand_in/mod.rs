@@ -80,7 +80,7 @@ impl StudySystem for StandIn {
             md.push_str(&rounds.study_section());
         }
         artifacts::write_text_atomic(&study.paths.out.join("study.md"), &md)?;
-        println!("{md}");
+        crate::say!("{md}");
         Ok(())
     }
 
