@@ -109,7 +109,8 @@ pub struct DiscrepancyConfig {
     /// paper's (0, 10) for each when not given.
     #[serde(default = "paper_bounds")]
     pub bounds: BTreeMap<String, [f64; 2]>,
-    /// Per observable, how x becomes the kernel's input (default: x itself).
+    /// Per observable, how x becomes the kernel's input (default: x over the
+    /// largest |x| measured for that observable, `KernelInput::scaled_to`).
     #[serde(default)]
     pub inputs: BTreeMap<String, KernelInput>,
 }
@@ -128,7 +129,11 @@ impl Default for DiscrepancyConfig {
 
 /// The discrepancy kernel's input for one observable, `(x + shift) / scale`.
 /// The `(x·x')^r` factor needs it ≥ 0, so signed inputs (rapidity, a centred
-/// variable) are shifted; the paper's convention, x itself, is the default.
+/// variable) are shifted. Unless the config says otherwise each observable's
+/// x is divided by the largest |x| measured (`scaled_to`), so the input lies
+/// in [0, 1] whatever the units: `(x x')^r` stays at most 1 for any r of the
+/// prior, and ℓ is in units of the measured range. The paper's convention,
+/// x itself, is `{ scale = 1.0 }`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct KernelInput {
@@ -149,6 +154,13 @@ impl Default for KernelInput {
 }
 
 impl KernelInput {
+    /// The default for an observable measured at `x`: x / max |x| (x itself
+    /// when every x is 0 or none is finite).
+    pub fn scaled_to(x: &[f64]) -> KernelInput {
+        let largest = x.iter().filter(|v| v.is_finite()).fold(0.0f64, |m, v| m.max(v.abs()));
+        KernelInput { shift: 0.0, scale: if largest > 0.0 { largest } else { 1.0 } }
+    }
+
     pub fn apply(&self, x: f64) -> f64 {
         (x + self.shift) / self.scale
     }

@@ -84,6 +84,7 @@ impl Study<'_> {
         let mut table: toml::Table =
             toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", self.config.path.display()))?;
         table.remove("run");
+        table.insert("conventions".into(), crate::engine::calibrate::analysis::CONVENTIONS.into());
         Ok(artifacts::sha256_hex(serde_json::to_string(&table)?.as_bytes()))
     }
 

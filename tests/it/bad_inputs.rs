@@ -24,8 +24,7 @@ struct Case {
 }
 
 fn ball_drop_toml() -> String {
-    std::fs::read_to_string(root().join("pipeline/ball_drop.toml"))
-        .unwrap()
+    crate::guard::without_bundled_inputs(&std::fs::read_to_string(root().join("pipeline/ball_drop.toml")).unwrap())
         .replace("ball_drop_data.csv", &root().join("pipeline/ball_drop_data.csv").display().to_string())
 }
 

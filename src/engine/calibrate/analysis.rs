@@ -11,6 +11,12 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+/// What an analysis means beyond its text: the defaults a config without
+/// the key gets. Stored results keyed on a config's text (a study's stages)
+/// include it, so a change of a default re-runs them instead of reusing
+/// results that meant something else.
+pub const CONVENTIONS: &str = "discrepancy inputs x / max|x| per observable unless [discrepancy.inputs] gives them";
+
 #[derive(Clone)]
 pub struct Analysis {
     pub name: String,

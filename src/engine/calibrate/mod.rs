@@ -6,6 +6,7 @@
 //! resolved once) and data.
 
 pub mod across;
+pub mod adapt;
 pub mod analysis;
 pub mod block;
 pub mod checkpoint;
@@ -26,6 +27,7 @@ pub mod structured_model;
 pub mod summary;
 
 use crate::base::artifacts::{self, Measurement, Provenance};
+use crate::base::config::KernelInput;
 use crate::base::progress::Observer;
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::Simulator;
@@ -219,7 +221,7 @@ impl Problem {
         let mut blocks: Vec<ObservableBlock> = observable_blocks(&simulator, &selected, &measurements, &data_path)?
             .into_iter()
             .map(|b| {
-                let input = analysis.kernel_inputs.get(&b.name).copied().unwrap_or_default();
+                let input = analysis.kernel_inputs.get(&b.name).copied().unwrap_or_else(|| KernelInput::scaled_to(&b.x));
                 b.with_kernel_input(input)
             })
             .collect();
@@ -374,8 +376,10 @@ pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
         problem.prior.lower,
         problem.prior.upper,
         problem.analysis.sampler.smc,
-        // The data's covariance beyond the errors, and the joint form, change the likelihood too.
+        // The data's covariance beyond the errors, the joint form and the
+        // discrepancy's inputs change the likelihood too.
         (
+            problem.likelihood.blocks.iter().map(|b| (b.input.shift.to_bits(), b.input.scale.to_bits())).collect::<Vec<_>>(),
             problem
                 .likelihood
                 .blocks
@@ -398,6 +402,8 @@ struct Sampled {
     evidence: Option<(f64, f64)>,
     details: summary::SamplerDetails,
     evaluations: u64,
+    /// Every run when the first did not converge (`adapt`); empty otherwise.
+    adaptation: Vec<adapt::Attempt>,
 }
 
 /// Calibrates with checkpoints in `checkpoint`, writes the outputs into
@@ -437,7 +443,7 @@ pub fn run_checkpointed(
         problem.observables().join("+")
     );
     let sampled = match problem.sampler {
-        SamplerKind::Smc => run_smc(problem, seed, observer, checkpoint, &label)?,
+        SamplerKind::Smc => run_smc_until_converged(problem, seed, observer, checkpoint, &label)?,
         SamplerKind::Ensemble => run_ensemble(problem, seed, observer, checkpoint, &label)?,
     };
     let wall = start.elapsed().as_secs_f64();
@@ -453,25 +459,71 @@ pub fn run_checkpointed(
         seed,
     );
     summary.diagnostics.note_model_failures(problem.simulator.failures() - failures_before);
+    summary.diagnostics.note_adaptation(sampled.adaptation);
     let predictions = summary::predictions(problem, &sampled.chains, seed)?;
     Ok(Calibration { chains: sampled.chains, summary, predictions })
 }
 
-fn run_smc(
+/// SMC with the configured settings, sampled again with more where it did
+/// not converge (`adapt`).
+fn run_smc_until_converged(
     problem: &Problem,
     seed: u64,
     observer: &dyn Observer,
     checkpoint: Option<&checkpoint::Checkpointing>,
     label: &str,
 ) -> Result<Sampled> {
-    let settings = problem.analysis.sampler.smc.clone();
+    let mut settings = problem.analysis.sampler.smc.clone();
+    let mut sampled = run_smc(problem, &settings, seed, observer, checkpoint, label)?;
+    let (first, mut spent) = (sampled.evaluations, sampled.evaluations);
+    let mut attempts = Vec::new();
+    for rerun in 1..=adapt::MAX_RERUNS + 1 {
+        let c = adapt::Convergence::of(&sampled.chains);
+        attempts.push(adapt::Attempt::new(&settings, &c, sampled.evaluations));
+        if c.converged() || rerun > adapt::MAX_RERUNS {
+            break;
+        }
+        let (next, growth) = adapt::escalate(&settings, &c);
+        let said = format!("{label}: not converged (largest R̂ {:.3}, smallest ESS {:.0})", c.max_rhat, c.min_ess);
+        if !adapt::affordable(first, spent, sampled.evaluations, growth) {
+            crate::note!("  {said}; another run would exceed {} times the first's cost", adapt::BUDGET);
+            break;
+        }
+        crate::note!(
+            "  {said}; sampling again with {} particles per replicate, {} final sweeps per dimension and {} final mixture proposals",
+            next.particles,
+            next.final_steps_per_dim,
+            next.final_mixture_proposals
+        );
+        settings = next;
+        let ck = checkpoint.map(|c| adapt::rerun_checkpoint(c, rerun));
+        sampled = run_smc(problem, &settings, seed, observer, ck.as_ref(), label)?;
+        spent += sampled.evaluations;
+    }
+    sampled.evaluations = spent;
+    if attempts.len() > 1 {
+        sampled.adaptation = attempts;
+    }
+    Ok(sampled)
+}
+
+fn run_smc(
+    problem: &Problem,
+    settings: &smc::SmcSettings,
+    seed: u64,
+    observer: &dyn Observer,
+    checkpoint: Option<&checkpoint::Checkpointing>,
+    label: &str,
+) -> Result<Sampled> {
+    let settings = settings.clone();
     observer.begin(&format!("SMC {label}"), 1000 * settings.replicates as u64);
     let out = smc::Smc::new(settings).run_checkpointed(&problem.prior, &problem.likelihood, seed, observer, checkpoint);
     observer.end();
     let out = out?;
     let evaluations = out.likelihood_evaluations();
     let details = summary::SamplerDetails::from_smc(&out);
-    Ok(Sampled { evidence: Some((out.log_evidence, out.log_evidence_err)), chains: out.chains, details, evaluations })
+    let evidence = Some((out.log_evidence, out.log_evidence_err));
+    Ok(Sampled { evidence, chains: out.chains, details, evaluations, adaptation: Vec::new() })
 }
 
 fn run_ensemble(
@@ -493,7 +545,8 @@ fn run_ensemble(
     observer.end();
     let out = out?;
     let details = summary::SamplerDetails::Ensemble { walkers: out.chains.chains.len(), acceptance: out.acceptance };
-    Ok(Sampled { chains: out.chains, evidence: None, details, evaluations: out.likelihood_evaluations })
+    let evaluations = out.likelihood_evaluations;
+    Ok(Sampled { chains: out.chains, evidence: None, details, evaluations, adaptation: Vec::new() })
 }
 
 /// Writes `posterior.parquet`, `summary.json`, `predictions.parquet` and

@@ -26,7 +26,7 @@ fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
 
 fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
     Ok(
-        serde_json::json!({"config": study.config.hash, "data": study.data_hash()?, "observables": study.diagnose_observables(), "seed": study.opts.seed}),
+        serde_json::json!({"config": study.config.hash, "conventions": crate::engine::calibrate::analysis::CONVENTIONS, "data": study.data_hash()?, "observables": study.diagnose_observables(), "seed": study.opts.seed}),
     )
 }
 

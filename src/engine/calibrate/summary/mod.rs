@@ -138,9 +138,28 @@ pub struct Diagnostics {
     #[serde(default)]
     pub model_failures: u64,
     pub sampler: SamplerDetails,
+    /// Every run, when the first did not converge and was sampled again
+    /// with more (`calibrate::adapt`); absent otherwise.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub adaptation: Vec<crate::engine::calibrate::adapt::Attempt>,
 }
 
 impl Diagnostics {
+    /// Records the runs of an adapted calibration, and says so among the
+    /// warnings when even the last did not converge.
+    pub fn note_adaptation(&mut self, attempts: Vec<crate::engine::calibrate::adapt::Attempt>) {
+        if attempts.len() > 1 && !self.converged {
+            let last = &attempts[attempts.len() - 1];
+            self.warnings.push(format!(
+                "not converged after {} runs (the last with {} particles per replicate and {} final sweeps per dimension)",
+                attempts.len(),
+                last.particles,
+                last.final_steps_per_dim
+            ));
+        }
+        self.adaptation = attempts;
+    }
+
     pub fn note_model_failures(&mut self, failures: u64) {
         self.model_failures = failures;
         if failures > 0 {
@@ -278,6 +297,7 @@ pub fn summarize(
             jitter_events,
             model_failures: 0,
             sampler,
+            adaptation: Vec::new(),
         },
         provenance: problem.provenance(seed, "calibrate"),
     }
