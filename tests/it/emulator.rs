@@ -417,7 +417,10 @@ fn emulated_ball_drop_config(text: &str) -> String {
     let data = rest.find("[data]").unwrap();
     let body = &rest[data..];
     let body = body.split("# The process that made the bundled data").next().unwrap();
-    format!("{head}[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\n{body}")
+    // The paper's kernel inputs (x itself), as the exact model's, for the two observables emulated.
+    let inputs = "inputs = { velocity = { scale = 1.0 }, acceleration = { scale = 1.0 } }";
+    let body: Vec<&str> = body.lines().map(|l| if l.starts_with("inputs = ") { inputs } else { l }).collect();
+    format!("{head}[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\n{}\n", body.join("\n"))
 }
 
 /// One emulator trained on `runs` noisy runs of a smooth two-input function

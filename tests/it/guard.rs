@@ -115,9 +115,15 @@ impl LogLikelihood for Nowhere {
 #[test]
 fn smc_on_a_likelihood_that_is_nowhere_finite_stops_with_an_error() {
     let prior = UniformPrior::new(vec!["a".into(), "b".into()], vec![0.0, 0.0], vec![1.0, 1.0]).unwrap();
+    // Its own threads: in the shared pool another test's long parallel work
+    // can hold every thread, and the time measured would be the wait.
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
     let start = Instant::now();
-    let err = Smc::new(SmcSettings { particles: 200, replicates: 2, ..Default::default() })
-        .run(&prior, &Nowhere, 1, &Silent)
+    let err = pool
+        .install(|| {
+            Smc::new(SmcSettings { particles: 200, replicates: 2, ..Default::default() })
+                .run(&prior, &Nowhere, 1, &Silent)
+        })
         .expect_err("a run on an impossible likelihood succeeded");
     assert!(start.elapsed() < Duration::from_secs(30));
     assert!(err.to_string().contains("no particle has a finite likelihood"), "{err}");

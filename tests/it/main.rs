@@ -21,6 +21,7 @@ mod inference_data;
 mod ingest;
 mod large_analysis;
 mod layers;
+mod ode_campaign;
 mod pipeline;
 mod readers;
 mod readme;

@@ -221,7 +221,8 @@ impl Problem {
         let mut blocks: Vec<ObservableBlock> = observable_blocks(&simulator, &selected, &measurements, &data_path)?
             .into_iter()
             .map(|b| {
-                let input = analysis.kernel_inputs.get(&b.name).copied().unwrap_or_else(|| KernelInput::scaled_to(&b.x));
+                let input =
+                    analysis.kernel_inputs.get(&b.name).copied().unwrap_or_else(|| KernelInput::scaled_to(&b.x));
                 b.with_kernel_input(input)
             })
             .collect();
@@ -379,7 +380,12 @@ pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
         // The data's covariance beyond the errors, the joint form and the
         // discrepancy's inputs change the likelihood too.
         (
-            problem.likelihood.blocks.iter().map(|b| (b.input.shift.to_bits(), b.input.scale.to_bits())).collect::<Vec<_>>(),
+            problem
+                .likelihood
+                .blocks
+                .iter()
+                .map(|b| (b.input.shift.to_bits(), b.input.scale.to_bits()))
+                .collect::<Vec<_>>(),
             problem
                 .likelihood
                 .blocks
