@@ -30,7 +30,10 @@ fn emulator(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     )?;
     crate::say!(
         "  {} points x {} outputs -> {} components in {:.1} s",
-        r.n_points, r.n_outputs, r.n_components, r.training_seconds
+        r.n_points,
+        r.n_outputs,
+        r.n_components,
+        r.training_seconds
     );
     let v = crate::engine::emulator::validate::run(
         &study.paths.emulator(),
