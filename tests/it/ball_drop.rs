@@ -190,6 +190,7 @@ fn bad_input_names_file_line_and_field() {
 fn replicate_grid_tabulates_coverage_over_mock_data_sets() {
     let mut cfg = config();
     cfg.sampler.smc.particles = 500;
+    cfg.sampler.adapt = false;
     let out = tmp("replicates");
     // Two data sets are enough to check the tabulation against the per-replicate tables.
     let n = 2;

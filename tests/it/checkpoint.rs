@@ -15,6 +15,7 @@ fn problem() -> Problem {
     let mut cfg =
         mdpipe::systems::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
     cfg.sampler.smc.particles = 300;
+    cfg.sampler.adapt = false;
     cfg.sampler.smc.replicates = 2;
     Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() }).unwrap()
 }
@@ -167,6 +168,7 @@ fn a_stored_fit_reads_back_whole_and_is_found_only_for_its_own_problem() {
     let mut cfg =
         mdpipe::systems::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/ball_drop.toml")).unwrap();
     cfg.sampler.smc.particles = 300;
+    cfg.sampler.adapt = false;
     cfg.sampler.smc.replicates = 2;
     let kernel_i =
         Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelI)), ..Default::default() });

@@ -74,6 +74,8 @@ max = 3.0
 [discrepancy]
 kernel = "II"
 bounds = {{ cbar = [0.0, 5.0], ell = [0.0, 10.0], r = [0.0, 3.0], s = [0.0, 5.0] }}
+[sampler]
+adapt = false
 [sampler.smc]
 particles = 400
 replicates = 2

@@ -282,6 +282,7 @@ fn an_ode_that_fails_at_some_theta_is_counted_not_fatal() {
         .replace("\"ball_drop_data.csv\"", &format!("{:?}", root().join("pipeline/ball_drop_data.csv")))
         .replace("v = \"g\"", "v = \"g + v*v*v0\"")
         .replace("particles = 2000", "particles = 400")
+        .replace("kind = \"smc\"", "kind = \"smc\"\nadapt = false")
         .replace("replicates = 4", "replicates = 2");
     let path = dir.join("blowup.toml");
     std::fs::write(&path, text).unwrap();
@@ -446,6 +447,7 @@ fn kinetics_blind(pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str,
     let mut analysis = mdpipe::systems::load(&root().join("pipeline/examples/kinetics.toml")).unwrap();
     // Lighter sampling for 80 diagnoses; evidence errors stay ~0.1, far below the threshold of 3.
     analysis.sampler.smc.particles = 400;
+    analysis.sampler.adapt = false;
     analysis.sampler.smc.replicates = 2;
     analysis.predictions.draws = 200;
     // The library's decision rule alone: discovery has its own blind test.

@@ -20,6 +20,7 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
     // (bench/demo_vs_full.py; docs/performance.md).
     let mut cfg = config();
     cfg.sampler.smc.particles = 1000;
+    cfg.sampler.adapt = false;
     cfg.sampler.smc.replicates = 2;
     let out = std::env::temp_dir().join(format!("mdpipe-diagnose-{}", std::process::id()));
     let run = diagnose::run(&cfg, &Overrides::default(), 1, &DiagnoseSettings::default(), Some(&out), &Silent).unwrap();
@@ -354,6 +355,7 @@ pub(crate) fn each_verdict_is_right(system: &str, rows: &[(&str, String, f64)]) 
 fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
     let small = |mut cfg: mdpipe::calibrate::Analysis| {
         cfg.sampler.smc.particles = 300;
+        cfg.sampler.adapt = false;
         cfg.sampler.smc.replicates = 2;
         cfg
     };

@@ -430,6 +430,7 @@ fn heavy_ion_blind(tag: &str, pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&
     let _ = std::fs::remove_dir_all(&dir);
     let mut cfg = mdpipe::systems::resolve(&emulated_stand_in(&dir, 21, 30, 60)).unwrap();
     cfg.sampler.smc.particles = 600;
+    cfg.sampler.adapt = false;
     cfg.sampler.smc.replicates = 2;
     cfg.predictions.draws = 300;
     let model = mdpipe::emulator::EmulatedModel::load(&dir.join("model").join("emulator")).unwrap();
@@ -536,6 +537,7 @@ fn a_coarse_variant_emulator_is_not_named_until_refined() {
     let diagnose_with = |cfg: &Config, seed: u64| {
         let mut analysis = mdpipe::systems::resolve(cfg).unwrap();
         analysis.sampler.smc.particles = 600;
+        analysis.sampler.adapt = false;
         analysis.sampler.smc.replicates = 2;
         analysis.predictions.draws = 300;
         let run = diagnose::run(&analysis, &overrides, seed, &settings, None, &Silent).unwrap();

@@ -23,6 +23,7 @@ fn without_candidates(config: &str) -> Analysis {
     c.truth = None;
     let mut a = Analysis::resolve(&c, &mdpipe::systems::registry()).unwrap();
     a.sampler.smc.particles = 600;
+    a.sampler.adapt = false;
     a.sampler.smc.replicates = 2;
     a.predictions.draws = 200;
     a
@@ -215,7 +216,7 @@ fn a_missing_square_is_discovered_in_an_expression_model() {
         csv.push_str(&format!("y,{x},{},0.05\n", 1.0 + 2.0 * x + 0.5 * x * x + 0.05 * z));
     }
     std::fs::write(dir.join("data.csv"), csv).unwrap();
-    let config = "name = \"line\"\n[model]\nkind = \"expression\"\nobservables = { y = \"a + b*x\" }\n[data]\nmeasurements = \"data.csv\"\n[parameters.a]\nmin = -5.0\nmax = 5.0\n[parameters.b]\nmin = -5.0\nmax = 5.0\n[sampler.smc]\nparticles = 600\nreplicates = 2\n";
+    let config = "name = \"line\"\n[model]\nkind = \"expression\"\nobservables = { y = \"a + b*x\" }\n[data]\nmeasurements = \"data.csv\"\n[parameters.a]\nmin = -5.0\nmax = 5.0\n[parameters.b]\nmin = -5.0\nmax = 5.0\n[sampler]\nadapt = false\n[sampler.smc]\nparticles = 600\nreplicates = 2\n";
     std::fs::write(dir.join("line.toml"), config).unwrap();
     let analysis = mdpipe::systems::load(&dir.join("line.toml")).unwrap();
     let d = diagnose_file(&analysis, &dir.join("data.csv"), 3, Discover::WhenUnexplained);

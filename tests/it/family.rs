@@ -100,6 +100,8 @@ truth = 1.0
 min = -5.0
 max = 5.0
 truth = 2.0
+[sampler]
+adapt = false
 [sampler.smc]
 particles = 600
 replicates = 2

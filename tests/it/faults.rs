@@ -265,6 +265,7 @@ fn small_calibration_config(dir: &Path) -> PathBuf {
         .unwrap()
         .replace("\"ball_drop_data.csv\"", &format!("{:?}", root.join("pipeline/ball_drop_data.csv")))
         .replace("particles = 2000", "particles = 300")
+        .replace("kind = \"smc\"", "kind = \"smc\"\nadapt = false")
         .replace("replicates = 4", "replicates = 2");
     let path = dir.join("ball_drop_small.toml");
     std::fs::write(&path, text).unwrap();

@@ -35,6 +35,7 @@ fn shifted_ball_drop(dir: &Path, shift: f64, extra: &str) -> PathBuf {
         .unwrap()
         .replace("ball_drop_data.csv", "data.csv")
         .replace("particles = 2000", "particles = 500")
+        .replace("kind = \"smc\"", "kind = \"smc\"\nadapt = false")
         .replace("t0 = 0.0", &format!("t0 = {shift:?}"));
     let text = without_bundled_inputs(&text);
     let cfg = dir.join("shifted.toml");

@@ -43,6 +43,8 @@ min = -10.0
 max = 10.0
 [discrepancy]
 kernel = "none"
+[sampler]
+adapt = false
 [sampler.smc]
 particles = 400
 replicates = 2

@@ -1,5 +1,6 @@
 //! Integration tests, in one binary so that the release build links once.
 
+mod adapt;
 mod bad_inputs;
 mod ball_drop;
 mod checkpoint;

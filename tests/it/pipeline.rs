@@ -37,6 +37,8 @@ truth = 0.2
 [discrepancy]
 kernel = "II"
 bounds = {{ cbar = [0.0, 5.0], ell = [0.0, 10.0], r = [0.0, 3.0], s = [0.0, 5.0] }}
+[sampler]
+adapt = false
 [sampler.smc]
 particles = 200
 replicates = 2

@@ -73,6 +73,8 @@ bounds = { cbar = [0.0, 5.0], ell = [0.0, 10.0], r = [0.0, 3.0], s = [0.0, 5.0] 
 [truth]
 kind = "heavy_ion"
 delta_f = "grad"
+[sampler]
+adapt = false
 [sampler.smc]
 particles = 400
 replicates = 2

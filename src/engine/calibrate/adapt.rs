@@ -3,7 +3,9 @@
 //! tail ESS below 400), it is sampled again with more: twice the particles
 //! per replicate when the replicates disagree (R̂), twice the final
 //! random-walk sweeps and final mixture proposals when the draws hold too
-//! few independent ones (ESS), both when both fail. At most two more runs,
+//! few independent ones (ESS; twice the particles instead when there are
+//! fewer than 800 draws in all), both when both fail. A config that chose
+//! small settings for speed turns this off with `[sampler] adapt = false`. At most two more runs,
 //! and none whose expected cost would take the total beyond eight times the
 //! first run's likelihood evaluations. The last run's draws are the result;
 //! every run is listed in `summary.json` (`diagnostics.adaptation`) and said
@@ -65,7 +67,12 @@ pub fn escalate(last: &SmcSettings, c: &Convergence) -> (SmcSettings, f64) {
         next.particles = last.particles * 2;
         growth *= 2.0;
     }
-    if c.min_ess < ESS_MIN {
+    let draws = last.particles * last.replicates.max(1);
+    if c.min_ess < ESS_MIN && c.max_rhat <= RHAT_MAX && (draws as f64) < 2.0 * ESS_MIN {
+        // Fewer draws than the ESS asked for can hold: more particles, not more moves.
+        next.particles = last.particles * 2;
+        growth *= 2.0;
+    } else if c.min_ess < ESS_MIN {
         next.final_steps_per_dim = (last.final_steps_per_dim * 2.0).max(1.0);
         next.final_mixture_proposals = (last.final_mixture_proposals * 2).max(1);
         growth *= 2.0;
@@ -118,5 +125,9 @@ mod tests {
         // 1 + 2 + 4 fits in 8; 1 + 4 + 16 does not.
         assert!(affordable(100, 100, 100, 2.0) && affordable(100, 300, 200, 2.0));
         assert!(affordable(100, 100, 100, 4.0) && !affordable(100, 500, 400, 4.0));
+        // 2 × 150 draws cannot hold an ESS of 400, whatever the moves.
+        let few = SmcSettings { particles: 150, replicates: 2, ..SmcSettings::default() };
+        let (next, g) = escalate(&few, &Convergence { max_rhat: 1.0, min_ess: 250.0 });
+        assert_eq!((next.particles, next.final_steps_per_dim, g), (300, few.final_steps_per_dim, 2.0));
     }
 }

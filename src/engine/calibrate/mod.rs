@@ -486,7 +486,7 @@ fn run_smc_until_converged(
     for rerun in 1..=adapt::MAX_RERUNS + 1 {
         let c = adapt::Convergence::of(&sampled.chains);
         attempts.push(adapt::Attempt::new(&settings, &c, sampled.evaluations));
-        if c.converged() || rerun > adapt::MAX_RERUNS {
+        if c.converged() || rerun > adapt::MAX_RERUNS || !problem.analysis.sampler.adapt {
             break;
         }
         let (next, growth) = adapt::escalate(&settings, &c);

@@ -28,13 +28,21 @@ impl SamplerKind {
 #[serde(default, deny_unknown_fields)]
 pub struct SamplerConfig {
     pub kind: SamplerKind,
+    /// Sample again with more where SMC has not converged (`adapt`); a
+    /// config that chose small settings for speed can turn it off.
+    pub adapt: bool,
     pub smc: SmcSettings,
     pub ensemble: EnsembleSettings,
 }
 
 impl Default for SamplerConfig {
     fn default() -> Self {
-        SamplerConfig { kind: SamplerKind::Smc, smc: SmcSettings::default(), ensemble: EnsembleSettings::default() }
+        SamplerConfig {
+            kind: SamplerKind::Smc,
+            adapt: true,
+            smc: SmcSettings::default(),
+            ensemble: EnsembleSettings::default(),
+        }
     }
 }
 
