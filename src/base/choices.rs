@@ -54,7 +54,6 @@ impl std::fmt::Display for UnknownChoice {
 impl std::error::Error for UnknownChoice {}
 
 /// `FromStr`, `Display` and serde for a `ValueEnum`, by its names.
-#[macro_export]
 macro_rules! choice_by_name {
     ($t:ty, $what:literal) => {
         impl std::str::FromStr for $t {
@@ -92,6 +91,8 @@ macro_rules! choice_by_name {
         }
     };
 }
+
+pub(crate) use choice_by_name;
 
 choice_by_name!(Kernel, "kernel");
 choice_by_name!(Executor, "executor");

@@ -4,7 +4,7 @@
 //! notebook, a service, a test) can capture or silence them; until a caller
 //! installs a sink they are printed as a command-line tool prints them. The
 //! engine and the pipeline never print themselves (`tests/it/layers.rs`
-//! checks it): they use [`say!`](crate::say) and [`note!`](crate::note).
+//! checks it): they use `messages::say!` and `messages::note!`.
 
 use std::sync::{Arc, RwLock};
 
@@ -62,7 +62,6 @@ pub fn emit(channel: Channel, text: &str) {
 }
 
 /// A result line, formatted as `println!` would (see the module docs).
-#[macro_export]
 macro_rules! say {
     () => {
         $crate::base::messages::emit($crate::base::messages::Channel::Result, "")
@@ -73,7 +72,6 @@ macro_rules! say {
 }
 
 /// A note or warning line, formatted as `eprintln!` would (see the module docs).
-#[macro_export]
 macro_rules! note {
     () => {
         $crate::base::messages::emit($crate::base::messages::Channel::Note, "")
@@ -82,3 +80,5 @@ macro_rules! note {
         $crate::base::messages::emit($crate::base::messages::Channel::Note, &format!($($arg)*))
     };
 }
+
+pub(crate) use {note, say};

@@ -95,7 +95,7 @@ impl Study<'_> {
                 provenance: prov,
             },
         )?;
-        crate::say!("  {:<60} {seconds:>6.1} s{whence}", c.name);
+        crate::base::messages::say!("  {:<60} {seconds:>6.1} s{whence}", c.name);
         Ok(())
     }
 
@@ -144,12 +144,12 @@ impl Study<'_> {
             Ok(report) if report.failed.is_empty() => {}
             Ok(report) => {
                 report.print_failures();
-                crate::say!(
+                crate::base::messages::say!(
                     "  warning: {} calibration task(s) failed under Slurm; those cases run here",
                     report.failed.len()
                 );
             }
-            Err(e) => crate::say!("  warning: {e:#}; the cases run here"),
+            Err(e) => crate::base::messages::say!("  warning: {e:#}; the cases run here"),
         }
         Ok(())
     }

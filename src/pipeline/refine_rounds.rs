@@ -102,7 +102,11 @@ impl Study<'_> {
         staged.json(&dir.join("rounds.json"), &result)?;
         staged.text(&dir.join("rounds.md"), &result.markdown())?;
         staged.commit()?;
-        crate::say!("  stopped: {}; the calibrations use {}", result.stopped, dir.join(&result.emulator).display());
+        crate::base::messages::say!(
+            "  stopped: {}; the calibrations use {}",
+            result.stopped,
+            dir.join(&result.emulator).display()
+        );
         Ok(())
     }
 
@@ -211,7 +215,12 @@ impl Study<'_> {
             &out,
             seed,
         )?;
-        crate::say!("  retrained: {} points x {} outputs -> {} components", r.n_points, r.n_outputs, r.n_components);
+        crate::base::messages::say!(
+            "  retrained: {} points x {} outputs -> {} components",
+            r.n_points,
+            r.n_outputs,
+            r.n_components
+        );
         let v = crate::engine::emulator::validate::run(&out, Some(&self.paths.validation()), 5, seed)?;
         if let Some(h) = &v.holdout {
             crate::engine::emulator::validate::print("  held-out design", h);
@@ -225,7 +234,10 @@ fn print_round(r: usize, runs: usize, ratios: &[ObservableRatio]) {
         .iter()
         .map(|o| format!("{} {:.2} (latent {:.2}, floor {:.2})", o.observable, o.predictive, o.latent, o.floor))
         .collect();
-    crate::say!("  round {r} ({runs} training runs): emulator predictive sd / data error: {}", parts.join(", "));
+    crate::base::messages::say!(
+        "  round {r} ({runs} training runs): emulator predictive sd / data error: {}",
+        parts.join(", ")
+    );
 }
 
 /// Why refinement stops at these ratios, if it does: the predictive sd is

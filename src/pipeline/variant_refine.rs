@@ -97,7 +97,7 @@ impl Study<'_> {
                 seed,
                 observer(self.opts.show_progress),
             )?;
-            crate::say!("  {name}: {}", refined.stopped);
+            crate::base::messages::say!("  {name}: {}", refined.stopped);
             let table = config
                 .candidates
                 .iter_mut()

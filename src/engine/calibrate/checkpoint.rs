@@ -58,14 +58,14 @@ impl Checkpointing {
         match serde_json::from_str::<Saved<S>>(&text) {
             Ok(v) if v.key == self.key => Some(v.state),
             Ok(_) => {
-                crate::note!(
+                crate::base::messages::note!(
                     "note: ignoring checkpoint {} (made by another run: data, settings or seed differ)",
                     path.display()
                 );
                 None
             }
             Err(e) => {
-                crate::note!("note: ignoring unreadable checkpoint {}: {e}", path.display());
+                crate::base::messages::note!("note: ignoring unreadable checkpoint {}: {e}", path.display());
                 None
             }
         }
@@ -76,7 +76,7 @@ impl Checkpointing {
     pub fn save<S: serde::Serialize>(&self, name: &str, state: &S) {
         let path = self.path(name);
         if let Err(e) = crate::base::artifacts::write_json_atomic(&path, &Saved { key: self.key.clone(), state }) {
-            crate::note!("warning: could not save checkpoint {}: {e:#}", path.display());
+            crate::base::messages::note!("warning: could not save checkpoint {}: {e:#}", path.display());
         }
     }
 

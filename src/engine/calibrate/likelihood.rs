@@ -93,7 +93,7 @@ impl MdLikelihood {
 
     fn note_jitter(&self, jitter: f64, n: usize) {
         if jitter > 0.0 && self.jitter_events.fetch_add(1, Ordering::Relaxed) == 0 {
-            crate::note!(
+            crate::base::messages::note!(
                 "warning: a covariance matrix ({n}x{n}) of the likelihood was not numerically positive definite; \
                  added jitter {jitter:.1e} (further events are counted in the run summary)"
             );

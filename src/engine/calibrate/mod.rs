@@ -180,7 +180,7 @@ fn hepdata_record(analysis: &Analysis, data_path: &Path) -> Result<Option<crate:
     unused.dedup();
     if !unused.is_empty() {
         record.points.retain(|p| predicted.contains(&p.observable));
-        crate::note!(
+        crate::base::messages::note!(
             "note: {}: not predicted by the model, so not used: {} (name them in [data.hepdata] observables to use them)",
             data_path.display(),
             unused.join(", ")
@@ -190,7 +190,7 @@ fn hepdata_record(analysis: &Analysis, data_path: &Path) -> Result<Option<crate:
         bail!("{}: none of its dependent variables is an observable of the model", data_path.display());
     }
     if !record.skipped.is_empty() {
-        crate::note!(
+        crate::base::messages::note!(
             "note: {}: {} bin(s) without a value (null or '-') skipped",
             data_path.display(),
             record.skipped.len()
@@ -237,14 +237,14 @@ impl Problem {
                 data_covariance::attach(&mut blocks, &entries, &measurements, path, &data_path)?
             }
             (Some(path), Some(_)) => {
-                crate::note!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display());
+                crate::base::messages::note!("warning: --data replaces the config's measurements; the config's [data] covariance ({}) describes those and is not used", path.display());
                 Vec::new()
             }
             (None, _) => Vec::new(),
         };
         let spans = simulator.has_model_covariance() && simulator.model_covariance_spans_observables();
         if !across.is_empty() && analysis.between_observables == crate::base::config::BetweenObservables::Independent {
-            crate::note!("warning: {} covariance entries between observables are not used: [data] between_observables = \"independent\"", across.len());
+            crate::base::messages::note!("warning: {} covariance entries between observables are not used: [data] between_observables = \"independent\"", across.len());
         }
         let mut likelihood = MdLikelihood::new(simulator.clone(), blocks, kernel);
         if joint::wanted(analysis.between_observables, likelihood.blocks.len(), across.len(), spans) {
@@ -492,10 +492,10 @@ fn run_smc_until_converged(
         let (next, growth) = adapt::escalate(&settings, &c);
         let said = format!("{label}: not converged (largest R̂ {:.3}, smallest ESS {:.0})", c.max_rhat, c.min_ess);
         if !adapt::affordable(first, spent, sampled.evaluations, growth) {
-            crate::note!("  {said}; another run would exceed {} times the first's cost", adapt::BUDGET);
+            crate::base::messages::note!("  {said}; another run would exceed {} times the first's cost", adapt::BUDGET);
             break;
         }
-        crate::note!(
+        crate::base::messages::note!(
             "  {said}; sampling again with {} particles per replicate, {} final sweeps per dimension and {} final mixture proposals",
             next.particles,
             next.final_steps_per_dim,

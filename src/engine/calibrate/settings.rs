@@ -13,7 +13,7 @@ pub enum SamplerKind {
     Ensemble,
 }
 
-crate::choice_by_name!(SamplerKind, "sampler");
+crate::base::choices::choice_by_name!(SamplerKind, "sampler");
 
 impl SamplerKind {
     pub fn label(self) -> &'static str {

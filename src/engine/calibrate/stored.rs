@@ -37,7 +37,10 @@ pub fn find(dirs: &[PathBuf], problem: &Problem) -> Option<(PathBuf, Calibration
         if stored.trim() == key {
             match read(dir, problem) {
                 Ok(fit) => return Some((dir.clone(), fit)),
-                Err(e) => crate::note!("warning: the stored fit {} cannot be read ({e:#}); not taken", dir.display()),
+                Err(e) => crate::base::messages::note!(
+                    "warning: the stored fit {} cannot be read ({e:#}); not taken",
+                    dir.display()
+                ),
             }
         }
     }

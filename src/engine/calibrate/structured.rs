@@ -30,7 +30,7 @@
 use super::across::low_rank_across;
 use super::block::ObservableBlock;
 use super::joint::JointLayout;
-use super::structured_model::{self as model_term, ModelScratch, ModelTerm, SmallLu};
+use super::structured_model::{self as model_term, add_gram, add_transposed_product, ModelScratch, ModelTerm, SmallLu};
 use crate::engine::gp::CholeskyWorkspace;
 use crate::engine::model::LowRankModelCovariance;
 
@@ -373,6 +373,87 @@ impl Factored {
     }
 }
 
+impl Structure {
+    /// Whether an evaluation costs fewer operations than the dense
+    /// factorization of the same covariance: the low-rank term's rank R
+    /// against N (triangular solves N n_b R, its Gram matrix N R², the LU
+    /// R³, against N³/3 and the N² K of filling an emulator's covariance).
+    /// An emulator trained on many runs and predicting few points is
+    /// cheaper dense.
+    pub fn cheaper_than_dense(&self) -> bool {
+        let n: usize = self.sizes.iter().sum();
+        let (n, r) = (n as f64, (self.rank + self.model.as_ref().map_or(0, |m| m.rank)) as f64);
+        let nb = self.sizes.iter().copied().max().unwrap_or(0) as f64;
+        let k = self.model.as_ref().map_or(0, |m| m.weighted.len()) as f64;
+        n * nb * r + n * r * r + r * r * r < n * n * n / 3.0 + n * n * k
+    }
+
+    /// Block b's rows of `U = [V, G F]` into `w` (column-major n_b × R).
+    pub(super) fn fill_u_rows(&self, model: &ModelTerm, b: usize, nb: usize, g: &[f64], w: &mut [f64]) {
+        let data = nb * self.rank;
+        w[..data].copy_from_slice(&self.v_rows[b]);
+        for (dst, src) in w[data..data + nb * model.rank].chunks_mut(nb).zip(model.f_rows[b].chunks(nb)) {
+            for ((d, s), gi) in dst.iter_mut().zip(src).zip(g) {
+                *d = gi * s;
+            }
+        }
+    }
+
+    /// `log N(r | 0, Σ)` with the model's term (see the module docs), each
+    /// block's δ from `fill_block`; `scratch.model`'s `g` and weights must
+    /// hold θ's. Returns the log-density and the largest jitter used.
+    pub fn log_pdf_with_model(
+        &self,
+        model: &ModelTerm,
+        resid: &mut [f64],
+        scratch: &mut Scratch,
+        chols: &mut [CholeskyWorkspace],
+        mut fill_block: impl FnMut(usize, &mut [f64]),
+    ) -> Option<(f64, f64)> {
+        let (rd, r) = (self.rank, self.rank + model.rank);
+        let Scratch { w, model: ms, .. } = scratch;
+        let ms = ms.as_mut().expect("a structure with a model term has its scratch");
+        ms.h.iter_mut().for_each(|v| *v = 0.0);
+        ms.a.iter_mut().for_each(|v| *v = 0.0);
+        let (mut quad, mut log_det, mut jitter) = (0.0, 0.0, 0.0f64);
+        let mut at = 0;
+        for (b, own) in self.block_data.iter().enumerate() {
+            let chol = &mut chols[b];
+            let nb = chol.n();
+            let g = &ms.g[at..at + nb];
+            let d = &model.blocks[b];
+            let mut refill = |lower: &mut [f64]| {
+                fill_block(b, lower);
+                for j in 0..nb {
+                    for i in j..nb {
+                        lower[i + j * nb] += own[i + j * nb] + g[i] * g[j] * d[i + j * nb];
+                    }
+                }
+            };
+            refill(&mut chol.factor);
+            jitter = jitter.max(chol.factorize_refilling(&mut refill).ok()?);
+            log_det += chol.log_det();
+            let z = &mut resid[at..at + nb];
+            chol.solve_lower_in_place(z);
+            quad += z.iter().map(|v| v * v).sum::<f64>();
+            let wb = &mut w[..nb * r];
+            self.fill_u_rows(model, b, nb, g, wb);
+            chol.solve_lower_columns_in_place(wb, r);
+            add_gram(wb, nb, r, &mut ms.h);
+            add_transposed_product(wb, nb, r, z, &mut ms.a);
+            at += nb;
+        }
+        model.weights_at(&ms.theta_weights, &mut ms.s);
+        let capacitance = model_term::capacitance_matrix(&mut ms.h, &ms.s, rd, r, &mut ms.lu.m);
+        let log_det_m = capacitance.then(|| ms.lu.factorize()).flatten()?;
+        ms.y.copy_from_slice(&ms.a);
+        ms.lu.solve_in_place(&mut ms.y);
+        quad -= model_term::weighted_dot(&ms.a, &ms.s, rd, &ms.y);
+        log_det += log_det_m;
+        Some((-0.5 * (quad + log_det + resid.len() as f64 * LN_2PI), jitter))
+    }
+}
+
 /// Per-thread scratch of the structured evaluation (allocated once).
 pub struct Scratch {
     pub(super) w: Vec<f64>,
@@ -457,24 +538,6 @@ fn mirror_lower(m: &mut [f64], n: usize) {
         for i in j + 1..n {
             m[j + i * n] = m[i + j * n];
         }
-    }
-}
-
-/// `lower += Wᵀ W` (lower triangle of r × r), W column-major n × r.
-pub(super) fn add_gram(w: &[f64], n: usize, r: usize, lower: &mut [f64]) {
-    for q in 0..r {
-        let wq = &w[q * n..(q + 1) * n];
-        for p in q..r {
-            let wp = &w[p * n..(p + 1) * n];
-            lower[p + q * r] += wp.iter().zip(wq).map(|(a, b)| a * b).sum::<f64>();
-        }
-    }
-}
-
-/// `c += Wᵀ z`, W column-major n × r.
-pub(super) fn add_transposed_product(w: &[f64], n: usize, r: usize, z: &[f64], c: &mut [f64]) {
-    for (p, cp) in c.iter_mut().enumerate().take(r) {
-        *cp += w[p * n..(p + 1) * n].iter().zip(z).map(|(a, b)| a * b).sum::<f64>();
     }
 }
 

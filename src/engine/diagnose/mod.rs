@@ -136,7 +136,7 @@ impl Diagnoser<'_> {
         let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..self.overrides.clone() })?;
         let cal = match self.reuse.get(name, &problem, seed) {
             Some((cal, whence)) => {
-                crate::say!("  {name}: the same problem was fitted in {whence}; that fit is used");
+                crate::base::messages::say!("  {name}: the same problem was fitted in {whence}; that fit is used");
                 cal
             }
             None => {

@@ -114,7 +114,7 @@ pub(super) fn named_statement(
 
 /// Plain-text summary for the terminal.
 pub fn print(d: &Diagnosis) {
-    crate::say!("Locate (model + MD; δ in units of the measurement error):");
+    crate::base::messages::say!("Locate (model + MD; δ in units of the measurement error):");
     for m in &d.mismatch {
         let show = |rs: &[Region]| -> String {
             if rs.is_empty() {
@@ -123,7 +123,7 @@ pub fn print(d: &Diagnosis) {
                 rs.iter().map(|r| format!("[{:.2}, {:.2}] {}", r.x_from, r.x_to, r.sign)).collect::<Vec<_>>().join(", ")
             }
         };
-        crate::say!(
+        crate::base::messages::say!(
             "  {:<14} max |δ| = {:>5.1}σ at x = {:.2}; δ ≠ 0 in {}; r = {:.2} [{:.2}, {:.2}]; no-MD χ²/n = {:.1}, misses in {}",
             m.observable,
             m.max_sigma,
@@ -136,7 +136,7 @@ pub fn print(d: &Diagnosis) {
             show(&m.residual_regions)
         );
     }
-    crate::say!(
+    crate::base::messages::say!(
         "Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):",
         d.md_log_evidence - d.base_log_evidence
     );
@@ -148,7 +148,7 @@ pub fn print(d: &Diagnosis) {
             String::new()
         };
         let flag = if c.converged { "" } else { "   not converged" };
-        crate::say!(
+        crate::base::messages::say!(
             "  {:<width$} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}{flag}",
             c.name,
             c.log_bayes_factor,
@@ -157,14 +157,16 @@ pub fn print(d: &Diagnosis) {
         );
     }
     if d.candidates.iter().any(|c| !c.converged) {
-        crate::say!("  (not converged: its ESS or R̂ failed the check in its summary.json, so its log BF is less certain than the ± says;");
-        crate::say!("   parameters the data cannot tell apart keep a fit from converging; otherwise more particles or more final");
-        crate::say!("   moves ([sampler.smc] particles, final_mixture_proposals, final_steps_per_dim) help)");
+        crate::base::messages::say!("  (not converged: its ESS or R̂ failed the check in its summary.json, so its log BF is less certain than the ± says;");
+        crate::base::messages::say!("   parameters the data cannot tell apart keep a fit from converging; otherwise more particles or more final");
+        crate::base::messages::say!(
+            "   moves ([sampler.smc] particles, final_mixture_proposals, final_steps_per_dim) help)"
+        );
     }
     if let Some(r) = &d.discovery {
-        crate::say!("Discover ({} terms from the model's own symbols screened in {:.1} s; the best calibrated, log BF above includes their prior odds):", r.searched, r.screening_seconds);
+        crate::base::messages::say!("Discover ({} terms from the model's own symbols screened in {:.1} s; the best calibrated, log BF above includes their prior odds):", r.searched, r.screening_seconds);
         for t in &r.screened {
-            crate::say!(
+            crate::base::messages::say!(
                 "  {:<width$} {}   screening Δχ² = {:.1}, ΔBIC = {:.1}, prior odds 1:{:.0}",
                 t.name,
                 t.formula,
@@ -174,11 +176,11 @@ pub fn print(d: &Diagnosis) {
             );
         }
     }
-    crate::say!("Verdict: {} ({})", d.verdict.best, d.verdict.confidence_phrase());
-    crate::say!("  {}", d.verdict.statement);
+    crate::base::messages::say!("Verdict: {} ({})", d.verdict.best, d.verdict.confidence_phrase());
+    crate::base::messages::say!("  {}", d.verdict.statement);
     if let Some(imp) = &d.improvement {
         // With MD the χ² is of η alone: what δ had to absorb, not the MD fit's misfit.
-        crate::say!("Repair (before → after; χ²/dof of the model part η alone, δ left out):");
+        crate::base::messages::say!("Repair (before → after; χ²/dof of the model part η alone, δ left out):");
         for f in imp.before.iter().chain(&imp.after) {
             let g: Vec<String> = f
                 .parameters
@@ -186,7 +188,7 @@ pub fn print(d: &Diagnosis) {
                 .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
                 .collect();
             let dmax = f.delta_max_sigma.values().cloned().fold(0.0, f64::max);
-            crate::say!(
+            crate::base::messages::say!(
                 "  {:<34} χ²/dof {:>6.2}  log Z {:>8.2}  max|δ| {:>4.1}σ  {}",
                 f.label,
                 f.chi2_per_dof,
@@ -202,7 +204,10 @@ pub fn print(d: &Diagnosis) {
                 .map(|l| format!(" (the data's Cramér–Rao limit: {l:.1}x)"))
                 .unwrap_or_default();
             let change = if *r >= 1.0 { format!("{r:.1}x narrower") } else { format!("{:.1}x wider", 1.0 / r) };
-            crate::say!("  95% interval of {n}: {change} than with MD alone{limit}{}", imp.truth_coverage(n));
+            crate::base::messages::say!(
+                "  95% interval of {n}: {change} than with MD alone{limit}{}",
+                imp.truth_coverage(n)
+            );
         }
     }
 }

@@ -233,7 +233,7 @@ fn check_priors_inside_box(model: &EmulatedModel, priors: &[(String, &str, &Para
             bail!("{said}: out there the emulator returns its mean, not the model. Narrow the prior to the training box, or run design points out there and retrain");
         }
         if excess > 2.0 * cell {
-            crate::note!("warning: {said}; the emulator extrapolates there");
+            crate::base::messages::note!("warning: {said}; the emulator extrapolates there");
         }
     }
     Ok(())

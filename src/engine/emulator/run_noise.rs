@@ -364,7 +364,7 @@ mod tests {
             run_vs_runs: run_z2_vs_runs / count,
             nugget_left,
         };
-        crate::say!(
+        crate::base::messages::say!(
             "{outputs} outputs, {runs} runs, noise correlation {} ({}): z² against the true mean: {:.3} (mean prediction), {:.3} (run prediction); against fresh runs: {:.3}; largest nugget share left: {:.3}",
             case.rho,
             if case.told { "in the table" } else { "not in the table" },

@@ -391,7 +391,7 @@ fn positive_definite(r: Vec<f64>, m: usize, file: &Path) -> Vec<f64> {
         chol.factor.copy_from_slice(&shrunk);
         if chol.factorize_exact() {
             if lambda > 0.0 {
-                crate::note!("warning: {}: the correlation matrix is not positive definite; shrunk towards the identity by λ = {lambda} ((1 − λ) R + λ I)", file.display());
+                crate::base::messages::note!("warning: {}: the correlation matrix is not positive definite; shrunk towards the identity by λ = {lambda} ((1 − λ) R + λ I)", file.display());
             }
             return shrunk;
         }

@@ -214,8 +214,8 @@ pub fn run(
 
 /// Console table of one validation set.
 pub fn print(label: &str, rows: &[ObservableValidation]) {
-    crate::say!("{label}:");
-    crate::say!(
+    crate::base::messages::say!("{label}:");
+    crate::base::messages::say!(
         "  {:<14} {:>6} {:>11} {:>11} {:>9} {:>8} {:>8}",
         "observable",
         "n",
@@ -226,7 +226,7 @@ pub fn print(label: &str, rows: &[ObservableValidation]) {
         "cov95"
     );
     for r in rows {
-        crate::say!(
+        crate::base::messages::say!(
             "  {:<14} {:>6} {:>11.4e} {:>11.4e} {:>9.4} {:>8.3} {:>8.3}",
             r.observable,
             r.n,

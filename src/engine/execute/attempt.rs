@@ -232,7 +232,7 @@ pub fn remove_after_attempts(dir: &Path) -> Result<()> {
     let locks = attempt_locks(dir);
     let running: Vec<&PathBuf> = locks.iter().filter(|l| lock_is_held(l)).collect();
     if !running.is_empty() {
-        crate::say!(
+        crate::base::messages::say!(
             "  waiting for {} attempt(s) of an earlier run still running in {} (each ends within its \
              time limit; stop them to go on at once)",
             running.len(),

@@ -89,11 +89,11 @@ impl ExecutionReport {
     /// Prints the failures with their exit codes and log tails.
     pub fn print_failures(&self) {
         for f in &self.failed {
-            crate::say!("  point {:04} failed {} attempt(s):", f.id, f.attempts.len());
+            crate::base::messages::say!("  point {:04} failed {} attempt(s):", f.id, f.attempts.len());
             for a in &f.attempts {
-                crate::say!("    {}: {}", a.tag, a.describe());
+                crate::base::messages::say!("    {}: {}", a.tag, a.describe());
                 for line in a.stderr_tail.lines() {
-                    crate::say!("      | {line}");
+                    crate::base::messages::say!("      | {line}");
                 }
             }
         }
@@ -235,7 +235,13 @@ impl Tracker {
         let ok = record.succeeded();
         if !ok {
             self.bar.suspend(|| {
-                crate::say!("  {}: point {:04} attempt {} {}", self.label, id, record.tag, record.describe())
+                crate::base::messages::say!(
+                    "  {}: point {:04} attempt {} {}",
+                    self.label,
+                    id,
+                    record.tag,
+                    record.describe()
+                )
             });
         }
         self.records.entry(id).or_default().push(record);
@@ -275,7 +281,7 @@ impl Tracker {
             self.records.values().filter(|r| r.len() > 1).count()
         );
         if self.plain && self.last_line.elapsed().as_secs() >= 30 {
-            crate::say!("  {msg} (of {})", self.total);
+            crate::base::messages::say!("  {msg} (of {})", self.total);
             self.last_line = std::time::Instant::now();
         }
         self.bar.set_message(msg);

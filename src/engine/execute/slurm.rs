@@ -53,7 +53,7 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
         }
     }
     if let Some(last) = state.submissions.last() {
-        crate::say!("  {}: following array job {} from an earlier mdpipe", job.label, last.job_id);
+        crate::base::messages::say!("  {}: following array job {} from an earlier mdpipe", job.label, last.job_id);
     }
     loop {
         // squeue first: a task that has left the queue has written its record.
@@ -103,7 +103,7 @@ pub fn run(job: &Job, todo: &[i64], tracker: &mut Tracker) -> Result<()> {
             return Ok(());
         }
         let job_id = submit(job, &again)?;
-        crate::say!("  {}: submitted array job {job_id} ({} points)", job.label, again.len());
+        crate::base::messages::say!("  {}: submitted array job {job_id} ({} points)", job.label, again.len());
         state.submissions.push(Submission { job_id, ids: again });
         artifacts::write_json_atomic(&path, &state)?;
     }

@@ -572,20 +572,30 @@ pub fn pooled_noise_correlation(ingested: &Ingested) -> Option<Vec<crate::base::
 pub fn print_report(report: &IngestReport) {
     for p in &report.points {
         match &p.flagged {
-            None => crate::note!("design point {:>4}: {} good events ({})", p.design_id, p.good_events, p.source),
-            Some(why) => crate::note!("design point {:>4}: FLAGGED, left out of the table: {why}", p.design_id),
+            None => crate::base::messages::note!(
+                "design point {:>4}: {} good events ({})",
+                p.design_id,
+                p.good_events,
+                p.source
+            ),
+            Some(why) => {
+                crate::base::messages::note!("design point {:>4}: FLAGGED, left out of the table: {why}", p.design_id)
+            }
         }
         for s in &p.skipped {
-            crate::note!("    skipped event {}: {}", s.event, s.reason);
+            crate::base::messages::note!("    skipped event {}: {}", s.event, s.reason);
         }
         if !p.undefined_bins.is_empty() {
-            crate::note!(
+            crate::base::messages::note!(
                 "    left out (value or jackknife error undefined; more events or --oversample would measure them): {}",
                 p.undefined_bins.join(", ")
             );
         }
     }
     if !report.missing_points.is_empty() {
-        crate::note!("design points with no run folder (not in the table): {:?}", report.missing_points);
+        crate::base::messages::note!(
+            "design points with no run folder (not in the table): {:?}",
+            report.missing_points
+        );
     }
 }

@@ -119,7 +119,7 @@ pub fn refine_variant(
             new_runs: 0,
         };
         let worst = round.ratios.iter().map(|o| o.latent).fold(0.0, f64::max);
-        crate::say!(
+        crate::base::messages::say!(
             "  {} round {r} ({} runs): worst latent sd / data error {worst:.2}, emulator share {:.0}%",
             candidate.name,
             round.training_runs,

@@ -37,7 +37,7 @@ pub fn write_figures(html: &str, dir: &Path) -> Result<Vec<PathBuf>> {
             fonts.set_sans_serif_family(family.clone());
             options.font_family = family;
         }
-        None => crate::note!(
+        None => crate::base::messages::note!(
             "warning: no system fonts found, so the PNG figures have no text (install e.g. fonts-dejavu-core)"
         ),
     }

@@ -51,7 +51,7 @@ fn calibrate(study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {
     let mut dirs = Vec::new();
     for c in &cases {
         if study.case_done(c) {
-            crate::say!("  {:<60} done earlier, kept", c.name);
+            crate::base::messages::say!("  {:<60} done earlier, kept", c.name);
         } else {
             study.calibrate_case(&analysis, c)?;
         }
@@ -100,7 +100,7 @@ impl Study<'_> {
         )?;
         staged.text(&self.paths.calibrate().join("cases.md"), &md)?;
         staged.commit()?;
-        crate::say!("{md}");
+        crate::base::messages::say!("{md}");
         Ok(())
     }
 }

@@ -96,7 +96,7 @@ impl Study<'_> {
             &dir.join("emulator"),
             v.design_seed,
         )?;
-        crate::say!(
+        crate::base::messages::say!(
             "  {}: {} points x {} outputs -> {} components ({})",
             v.name,
             r.n_points,

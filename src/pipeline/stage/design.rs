@@ -66,10 +66,10 @@ impl Study<'_> {
         if runs.exists() {
             crate::engine::execute::attempt::remove_after_attempts(&runs)
                 .with_context(|| format!("removing runs of the previous design {}", runs.display()))?;
-            crate::say!("  removed {} (runs of the previous design)", runs.display());
+            crate::base::messages::say!("  removed {} (runs of the previous design)", runs.display());
         }
         let q = crate::engine::design::write_design(&spec, spec_hash, n, seed, dir)?;
-        crate::say!("  {}: {} points, minimum distance {:.4}", dir.display(), q.points, q.min_distance);
+        crate::base::messages::say!("  {}: {} points, minimum distance {:.4}", dir.display(), q.points, q.min_distance);
         Ok(())
     }
 

@@ -64,7 +64,7 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     if study.refine_variants(&mut config, &analysis, &overrides, &d.diagnosis)? {
         crate::engine::diagnose::print(&d.diagnosis);
         artifacts::write_json_atomic(&out.join("refine").join("diagnosis_before.json"), &d.diagnosis)?;
-        crate::say!("  refined the variant emulators the verdict listed; diagnosing again");
+        crate::base::messages::say!("  refined the variant emulators the verdict listed; diagnosing again");
         d = diagnose(&study.analysis(&config)?)?;
     }
     crate::engine::diagnose::print(&d.diagnosis);
@@ -74,6 +74,6 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         &format!("mdpipe run: {} (diagnose)", study.config.name),
         &setup::systems().into_iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
     )?;
-    crate::say!("  {}", out.join("report.html").display());
+    crate::base::messages::say!("  {}", out.join("report.html").display());
     Ok(())
 }

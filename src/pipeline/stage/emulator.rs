@@ -28,7 +28,7 @@ fn emulator(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         &study.paths.emulator(),
         study.opts.seed,
     )?;
-    crate::say!(
+    crate::base::messages::say!(
         "  {} points x {} outputs -> {} components in {:.1} s",
         r.n_points,
         r.n_outputs,

@@ -42,15 +42,15 @@ impl Study<'_> {
         ingested.rows.retain(|r| keep.contains(&r.observable));
         let dropped = drop_incomplete_points(&mut ingested.rows);
         for (id, what) in &dropped {
-            crate::say!("  design point {id} left out: {what} undefined (a failed v_n{{2}} measurement, listed in the ingest report)");
+            crate::base::messages::say!("  design point {id} left out: {what} undefined (a failed v_n{{2}} measurement, listed in the ingest report)");
         }
         let flagged: Vec<i64> =
             ingested.report.points.iter().filter(|p| p.flagged.is_some()).map(|p| p.design_id).collect();
         if !flagged.is_empty() {
-            crate::say!("  design points flagged by ingest and left out: {flagged:?}");
+            crate::base::messages::say!("  design points flagged by ingest and left out: {flagged:?}");
         }
         if !ingested.report.missing_points.is_empty() {
-            crate::say!(
+            crate::base::messages::say!(
                 "  warning: design points without a run (failed, see runs/execution.json) left out of {}: {:?}",
                 out.display(),
                 ingested.report.missing_points
@@ -58,7 +58,7 @@ impl Study<'_> {
         }
         let report = crate::engine::ingest::write(&ingested, design_df.as_ref(), out)?;
         let points: std::collections::BTreeSet<i64> = ingested.rows.iter().map(|r| r.design_id).collect();
-        crate::say!(
+        crate::base::messages::say!(
             "  {}: {} points ({} left out); report {}",
             out.display(),
             points.len(),

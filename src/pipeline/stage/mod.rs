@@ -112,12 +112,12 @@ impl StageLoop {
         let outputs = (stage.outputs)(study)?;
         let done = read_stamp(&paths.stamp(name)).filter(|s| s.key == key && outputs.iter().all(|p| p.exists()));
         if let Some(done) = done.filter(|_| !opts.force) {
-            crate::say!("[{name}] up to date, skipped");
+            crate::base::messages::say!("[{name}] up to date, skipped");
             self.outcomes.push(StageOutcome { stage: name.into(), ran: false, seconds: 0.0 });
             self.keys.insert(name.into(), done.downstream_key());
             return Ok(());
         }
-        crate::say!("[{name}] running");
+        crate::base::messages::say!("[{name}] running");
         let start = std::time::Instant::now();
         (stage.body)(study, &Keys { upstream: &self.keys, this: &key })
             .with_context(|| format!("{}: stage {name}", study.config.path.display()))?;
@@ -141,7 +141,7 @@ impl StageLoop {
             ),
         };
         artifacts::write_json_atomic(&paths.stamp(name), &stamp)?;
-        crate::say!("[{name}] done in {seconds:.1} s");
+        crate::base::messages::say!("[{name}] done in {seconds:.1} s");
         self.keys.insert(name.into(), output_key);
         self.outcomes.push(StageOutcome { stage: name.into(), ran: true, seconds });
         Ok(())

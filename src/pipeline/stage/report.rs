@@ -41,6 +41,6 @@ fn report(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     let html = crate::engine::report::build(&dirs, &format!("mdpipe run: {}", study.config.name), &figures)?;
     let html = html.replacen("</h1>\n", &format!("</h1>\n{sections}"), 1);
     artifacts::write_text_atomic(&study.paths.out.join("report.html"), &html)?;
-    crate::say!("  {}", study.paths.out.join("report.html").display());
+    crate::base::messages::say!("  {}", study.paths.out.join("report.html").display());
     Ok(())
 }

@@ -81,7 +81,7 @@ impl Study<'_> {
             seed: self.point_seeds(label),
         };
         let report = execute::run(&job, self.opts.executor, self.opts.show_progress)?;
-        crate::say!(
+        crate::base::messages::say!(
             "  {}: {} points ({} had their run, {} ran, {} after a retry, {} failed) in {:.1} s",
             runs.display(),
             report.points,
@@ -101,7 +101,7 @@ impl Study<'_> {
                     execute::ExecutionReport::path(&runs).display()
                 );
             }
-            crate::say!(
+            crate::base::messages::say!(
                 "  warning: {} of {} points of the {label} failed and are left out (never averaged in): {ids:?}; see {}",
                 ids.len(),
                 report.points,

@@ -63,7 +63,7 @@ fn mock(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         crate::engine::ingest::ingest_runs(&runs, None, &crate::engine::ingest::IngestSettings::default())?;
     let undefined: Vec<String> = ingested.report.points.iter().flat_map(|p| p.undefined_bins.clone()).collect();
     if !undefined.is_empty() {
-        crate::say!("  mock bins left out (undefined): {}", undefined.join(", "));
+        crate::base::messages::say!("  mock bins left out (undefined): {}", undefined.join(", "));
     }
     let keep = study.all_observables();
     let data: Vec<Measurement> = ingested
@@ -85,7 +85,7 @@ fn mock(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     if let Some(entries) = crate::engine::ingest::single_point_covariance(&kept) {
         crate::base::covariance::write_covariance_csv(&folder(study).join("covariance.csv"), &entries)?;
     }
-    crate::say!(
+    crate::base::messages::say!(
         "  {} values from {mock_events} events (delta-f {mock_delta_f}) -> {}",
         data.len(),
         measurements(study).display()

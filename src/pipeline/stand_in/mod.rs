@@ -80,7 +80,7 @@ impl StudySystem for StandIn {
             md.push_str(&rounds.study_section());
         }
         artifacts::write_text_atomic(&study.paths.out.join("study.md"), &md)?;
-        crate::say!("{md}");
+        crate::base::messages::say!("{md}");
         Ok(())
     }
 

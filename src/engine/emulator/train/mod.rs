@@ -158,7 +158,7 @@ fn drop_unsupported_excess(
     for (k, fit) in null_fits {
         // A null fit that fails leaves the free fit, and its excess, in place.
         let Ok(null) = fit.map_err(|e| {
-            crate::note!(
+            crate::base::messages::note!(
                 "warning: component {k}: the fit with the reported run noise failed ({e}); its fitted excess is kept"
             )
         }) else {
@@ -402,7 +402,7 @@ fn fit_components(
         }
     }
     if failures > 0 {
-        crate::note!("warning: {failures} of {} optimizer runs failed (see the emulator report); the best successful run is used per component", runs.len());
+        crate::base::messages::note!("warning: {failures} of {} optimizer runs failed (see the emulator report); the best successful run is used per component", runs.len());
     }
     let mut hypers = Vec::with_capacity(pca.n_components);
     let mut lmls = Vec::with_capacity(pca.n_components);
