@@ -289,3 +289,47 @@ fn nothing_between_the_blocks_is_a_structure_of_rank_zero() {
         }
     }
 }
+
+/// A sampler that keeps each block's statistics (`block_stats`) moves one
+/// observable's φ at one block's cost: after every such update the value
+/// combined from the statistics is the whole evaluation's, bit for bit
+/// (the same operations in the same order), on random problems.
+#[test]
+fn one_blocks_statistics_updated_alone_give_the_whole_evaluation() {
+    let config = RunnerConfig { cases: 100, rng_seed: RngSeed::Fixed(20261128), ..RunnerConfig::default() };
+    let checked = std::cell::Cell::new(0);
+    let result = TestRunner::new(config).run(&(any::<u64>(), 0..2usize), |(seed, k)| {
+        let kernel = [DiscrepancyKernel::KernelI, DiscrepancyKernel::KernelII][k];
+        let p = problem(seed);
+        let lik = likelihood(&p, Some(kernel));
+        let width = lik.term_stats_width();
+        if lik.structure.as_ref().is_none_or(|s| s.model.is_some()) {
+            prop_assert_eq!(width, 0, "seed {}: statistics without the structured form", seed);
+            return Ok(());
+        }
+        prop_assert!(width > 0, "seed {seed}: a structured likelihood with δ keeps statistics");
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed ^ 11);
+        let mut params = parameters(Some(kernel), p.blocks.len(), &mut rng);
+        let mut stats = vec![0.0; width * p.blocks.len()];
+        let whole = lik.log_likelihood_stats(&params, &mut stats);
+        prop_assert_eq!(whole.to_bits(), lik.log_likelihood(&params).to_bits(), "seed {}", seed);
+        let nh = kernel.n_hyper();
+        for _ in 0..6 {
+            let b = rng.random_range(0..p.blocks.len());
+            let other = parameters(Some(kernel), p.blocks.len(), &mut rng);
+            let own = 2 + b * nh..2 + (b + 1) * nh;
+            params[own.clone()].copy_from_slice(&other[own]);
+            let updated = lik.update_term_stats(&params, b, &mut stats);
+            let direct = lik.log_likelihood(&params);
+            prop_assert!(
+                updated.to_bits() == direct.to_bits(),
+                "seed {seed}, block {b}: from statistics {updated} vs whole {direct}"
+            );
+            checked.set(checked.get() + 1);
+        }
+        Ok(())
+    });
+    result.unwrap();
+    println!("{} single-block updates checked against whole evaluations", checked.get());
+    assert!(checked.get() >= 100, "too few structured problems with δ: {}", checked.get());
+}

@@ -5,7 +5,7 @@
 
 use crate::base::artifacts::Measurement;
 use crate::base::config::KernelInput;
-use crate::engine::gp::DiscrepancyGram;
+use crate::engine::gp::{CholeskyWorkspace, DiscrepancyGram};
 use anyhow::{bail, Result};
 
 /// Measurements of one observable, standardized.
@@ -95,5 +95,24 @@ impl ObservableBlock {
 
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
+    }
+}
+
+impl ObservableBlock {
+    /// The factor of a block's data covariance (errors² and any covariance
+    /// beyond them, standardized), made once for a likelihood in which nothing
+    /// depends on the parameters: the block form's counterpart of
+    /// `FixedFactors`. `None` for errors alone (no factorization needed) or a
+    /// covariance that needs jitter (then it is factorized, with the jitter
+    /// counted, at each evaluation as before).
+    pub fn fixed_factor(&self) -> Option<CholeskyWorkspace> {
+        if self.diagonal_data() {
+            return None;
+        }
+        let n = self.len();
+        let mut chol = CholeskyWorkspace::new(n);
+        chol.factor.iter_mut().for_each(|v| *v = 0.0);
+        self.add_data_covariance(1.0 / (self.scale * self.scale), &mut chol.factor);
+        chol.factorize_exact().then_some(chol)
     }
 }

@@ -24,12 +24,12 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 
 /// Per-thread scratch so that evaluations allocate nothing.
-struct Workspace {
-    chol: Vec<CholeskyWorkspace>,
-    eta: Vec<f64>,
-    resid: Vec<f64>,
-    xr: Vec<f64>,
-    corr: Vec<f64>,
+pub(super) struct Workspace {
+    pub(super) chol: Vec<CholeskyWorkspace>,
+    pub(super) eta: Vec<f64>,
+    pub(super) resid: Vec<f64>,
+    pub(super) xr: Vec<f64>,
+    pub(super) corr: Vec<f64>,
     /// The joint covariance's factor and residuals (joint likelihoods only).
     joint_chol: Option<CholeskyWorkspace>,
     joint_resid: Vec<f64>,
@@ -37,7 +37,7 @@ struct Workspace {
     joint_bases: Vec<JointBase>,
     clock: u64,
     /// Scratch of the structured joint evaluation (`structured`).
-    structured: Option<structured::Scratch>,
+    pub(super) structured: Option<structured::Scratch>,
 }
 
 /// The joint covariance without δ (the data's and the model's parts) and the
@@ -68,7 +68,7 @@ pub struct MdLikelihood {
     pub blocks: Vec<ObservableBlock>,
     pub kernel: Option<DiscrepancyKernel>,
     pub n_theta: usize,
-    log_jacobian: f64,
+    pub(super) log_jacobian: f64,
     /// The model adds its own predictive covariance (an emulator).
     pub(super) model_covariance: bool,
     /// One Gaussian over all points instead of independent blocks.
@@ -91,7 +91,7 @@ impl MdLikelihood {
         self.jitter_events.load(Ordering::Relaxed)
     }
 
-    fn note_jitter(&self, jitter: f64, n: usize) {
+    pub(super) fn note_jitter(&self, jitter: f64, n: usize) {
         if jitter > 0.0 && self.jitter_events.fetch_add(1, Ordering::Relaxed) == 0 {
             crate::base::messages::note!(
                 "warning: a covariance matrix ({n}x{n}) of the likelihood was not numerically positive definite; \
@@ -105,7 +105,7 @@ impl MdLikelihood {
         let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
         let model_covariance = simulator.has_model_covariance();
         let fixed = kernel.is_none() && !model_covariance;
-        let fixed_blocks = blocks.iter().map(|b| fixed.then(|| structured::fixed_block_factor(b)).flatten()).collect();
+        let fixed_blocks = blocks.iter().map(|b| fixed.then(|| b.fixed_factor()).flatten()).collect();
         MdLikelihood {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             simulator,
@@ -200,7 +200,7 @@ impl MdLikelihood {
     }
 
     /// Runs `f` with this thread's workspace for this likelihood.
-    fn with_workspace<R>(&self, f: impl FnOnce(&mut Workspace) -> R) -> R {
+    pub(super) fn with_workspace<R>(&self, f: impl FnOnce(&mut Workspace) -> R) -> R {
         WORKSPACES.with(|cell| {
             let mut list = cell.borrow_mut();
             let pos = match list.iter().position(|(id, _)| *id == self.id) {
@@ -331,7 +331,7 @@ impl MdLikelihood {
     }
 
     /// Block b's covariance beyond the data (δ, the model's own) into `lower`.
-    fn fill_own(&self, params: &[f64], b: usize, lower: &mut [f64], xr: &mut [f64], corr: &mut [f64]) {
+    pub(super) fn fill_own(&self, params: &[f64], b: usize, lower: &mut [f64], xr: &mut [f64], corr: &mut [f64]) {
         let block = &self.blocks[b];
         let n = block.len();
         match self.kernel {

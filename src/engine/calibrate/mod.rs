@@ -9,6 +9,7 @@ pub mod across;
 pub mod adapt;
 pub mod analysis;
 pub mod block;
+pub mod block_stats;
 pub mod checkpoint;
 pub mod data_covariance;
 pub mod diagnostics;
@@ -25,6 +26,7 @@ pub mod stored;
 pub mod structured;
 pub mod structured_model;
 pub mod summary;
+pub mod target;
 
 use crate::base::artifacts::{self, Measurement, Provenance};
 use crate::base::config::KernelInput;
@@ -39,72 +41,7 @@ pub use prior::UniformPrior;
 pub use settings::{SamplerConfig, SamplerKind};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-
-/// Anything a sampler can target, given a uniform prior.
-pub trait LogLikelihood: Sync {
-    fn log_likelihood(&self, x: &[f64]) -> f64;
-
-    /// How the log-likelihood splits into independent terms, when it does; a
-    /// sampler may then move one term's own parameters at the cost of that term.
-    fn term_structure(&self) -> Option<TermStructure> {
-        None
-    }
-
-    /// The log-likelihood, with each term written to `terms` (only called when
-    /// `term_structure` is given).
-    fn log_likelihood_terms(&self, x: &[f64], _terms: &mut [f64]) -> f64 {
-        self.log_likelihood(x)
-    }
-
-    /// One term (only called when `term_structure` is given).
-    fn log_likelihood_term(&self, _x: &[f64], _term: usize) -> f64 {
-        unreachable!("log_likelihood_term needs a term structure")
-    }
-
-    /// For terms that are not separable: a cheap, fixed function of `x` whose
-    /// change with term `term`'s own parameters tracks the likelihood's. A
-    /// sampler may screen a move of those parameters with it before paying
-    /// for a whole evaluation (delayed acceptance, Christen & Fox 2005),
-    /// which leaves the target exact. `None`: no screen.
-    fn screening_term(&self, _x: &[f64], _term: usize) -> Option<f64> {
-        None
-    }
-}
-
-/// `log L(x) = const + Σ_t L_t(x_shared, x_own(t))`: every term depends on the
-/// shared parameters (θ) and on its own (one observable's φ), and on no other.
-/// When the terms are not `separable` (a joint likelihood), the groups still
-/// make good Gibbs moves, but each costs a whole evaluation.
-#[derive(Clone, Debug)]
-pub struct TermStructure {
-    pub shared: Vec<usize>,
-    pub own: Vec<Vec<usize>>,
-    pub separable: bool,
-}
-
-impl LogLikelihood for MdLikelihood {
-    fn log_likelihood(&self, x: &[f64]) -> f64 {
-        MdLikelihood::log_likelihood(self, x)
-    }
-    fn term_structure(&self) -> Option<TermStructure> {
-        let nh = self.n_hyper();
-        if nh == 0 {
-            return None;
-        }
-        let own =
-            (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
-        Some(TermStructure { shared: (0..self.n_theta).collect(), own, separable: self.joint.is_none() })
-    }
-    fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64 {
-        MdLikelihood::log_likelihood_terms(self, x, terms)
-    }
-    fn log_likelihood_term(&self, x: &[f64], term: usize) -> f64 {
-        MdLikelihood::log_likelihood_term(self, x, term)
-    }
-    fn screening_term(&self, x: &[f64], term: usize) -> Option<f64> {
-        MdLikelihood::screening_term(self, x, term)
-    }
-}
+pub use target::{LogLikelihood, TermStructure};
 
 /// Posterior draws grouped into chains (walkers for the ensemble sampler,
 /// replicates for SMC). Each chain is row-major `draws × dim`.

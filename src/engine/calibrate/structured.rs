@@ -177,8 +177,9 @@ impl Structure {
 
     /// `log N(r | 0, Σ)` with each block's covariance beyond the data
     /// (δ, the model's own) written by `fill_block(b, lower)` (lower
-    /// triangle, overwritten), to which the block's data part is added; `None` when a block (or M) is not positive definite even
-    /// with jitter. Returns the log-density and the largest jitter used.
+    /// triangle, overwritten), to which the block's data part is added; `None`
+    /// when a block (or M) is not positive definite even with jitter. Returns
+    /// the log-density and the largest jitter used.
     pub fn log_pdf(
         &self,
         resid: &mut [f64],
@@ -186,47 +187,107 @@ impl Structure {
         chols: &mut [CholeskyWorkspace],
         mut fill_block: impl FnMut(usize, &mut [f64]),
     ) -> Option<(f64, f64)> {
-        let r = self.rank;
-        scratch.capacitance.factor.iter_mut().for_each(|v| *v = 0.0);
-        scratch.c.iter_mut().for_each(|v| *v = 0.0);
-        let (mut quad, mut log_det, mut jitter) = (0.0, 0.0, 0.0f64);
+        let Scratch { w, c, capacitance, .. } = scratch;
+        capacitance.factor.iter_mut().for_each(|v| *v = 0.0);
+        c.iter_mut().for_each(|v| *v = 0.0);
+        let mut sums = BlockSums::default();
         let mut at = 0;
-        for (b, own) in self.block_data.iter().enumerate() {
-            let chol = &mut chols[b];
+        for (b, chol) in chols.iter_mut().enumerate() {
             let nb = chol.n();
-            let mut refill = |lower: &mut [f64]| {
-                fill_block(b, lower);
-                for j in 0..nb {
-                    for i in j..nb {
-                        lower[i + j * nb] += own[i + j * nb];
-                    }
-                }
-            };
-            refill(&mut chol.factor);
-            jitter = jitter.max(chol.factorize_refilling(&mut refill).ok()?);
-            log_det += chol.log_det();
-            let z = &mut resid[at..at + nb];
-            chol.solve_lower_in_place(z);
-            quad += z.iter().map(|v| v * v).sum::<f64>();
-            if r > 0 {
-                let w = &mut scratch.w[..nb * r];
-                w.copy_from_slice(&self.v_rows[b]);
-                chol.solve_lower_columns_in_place(w, r);
-                add_gram(w, nb, r, &mut scratch.capacitance.factor);
-                add_transposed_product(w, nb, r, z, &mut scratch.c);
-            }
+            let part = &mut BlockPart { chol, z: &mut resid[at..at + nb], w: &mut w[..nb * self.rank] };
+            let jitter = self.add_block(b, part, &mut fill_block, c, &mut capacitance.factor)?;
+            sums.add(part, jitter);
             at += nb;
         }
+        let value = self.finish(sums.log_det, sums.quad, c, capacitance, resid.len())?;
+        Some((value, sums.jitter))
+    }
+
+    /// Block b's factor (`fill_block`'s covariance plus the block's data
+    /// part), `z = L_b⁻¹ r_b` and `W_b = L_b⁻¹ V_b` in `part`, with `W_bᵀ z`
+    /// added to `a` and `W_bᵀ W_b` to `h` (lower, rank × rank). Returns the
+    /// jitter used.
+    pub(super) fn add_block(
+        &self,
+        b: usize,
+        part: &mut BlockPart,
+        fill_block: &mut impl FnMut(usize, &mut [f64]),
+        a: &mut [f64],
+        h: &mut [f64],
+    ) -> Option<f64> {
+        let (r, nb, own) = (self.rank, part.chol.n(), &self.block_data[b]);
+        part.w.copy_from_slice(&self.v_rows[b]);
+        let jitter = part.factor(r, |lower| {
+            fill_block(b, lower);
+            lower.iter_mut().zip(own).for_each(|(l, o)| *l += o);
+        })?;
         if r > 0 {
-            add_identity(&mut scratch.capacitance.factor, r);
-            if !scratch.capacitance.factorize_exact() {
+            add_gram(part.w, nb, r, h);
+            add_transposed_product(part.w, nb, r, part.z, a);
+        }
+        Some(jitter)
+    }
+
+    /// The log-density from the blocks' sums: `M = I + Σ_b H_b` (in
+    /// `capacitance`, overwritten by its factor) and `a = Σ_b W_bᵀ z_b` (in
+    /// `a`, overwritten).
+    pub(super) fn finish(
+        &self,
+        mut log_det: f64,
+        mut quad: f64,
+        a: &mut [f64],
+        capacitance: &mut CholeskyWorkspace,
+        n_points: usize,
+    ) -> Option<f64> {
+        if self.rank > 0 {
+            add_identity(&mut capacitance.factor, self.rank);
+            if !capacitance.factorize_exact() {
                 return None;
             }
-            log_det += scratch.capacitance.log_det();
-            scratch.capacitance.solve_lower_in_place(&mut scratch.c);
-            quad -= scratch.c.iter().map(|v| v * v).sum::<f64>();
+            log_det += capacitance.log_det();
+            capacitance.solve_lower_in_place(a);
+            quad -= a.iter().map(|v| v * v).sum::<f64>();
         }
-        Some((-0.5 * (quad + log_det + resid.len() as f64 * LN_2PI), jitter))
+        Some(-0.5 * (quad + log_det + n_points as f64 * LN_2PI))
+    }
+}
+
+/// One block's factor, its residuals (`z` after `factor`) and its rows of
+/// the low-rank columns (`W_b` after `factor`).
+pub(super) struct BlockPart<'a> {
+    pub(super) chol: &'a mut CholeskyWorkspace,
+    pub(super) z: &'a mut [f64],
+    pub(super) w: &'a mut [f64],
+}
+
+impl BlockPart<'_> {
+    /// Factorizes the block's covariance written by `refill` (again, with
+    /// jitter, if it is not numerically positive definite) and solves for
+    /// `z` and the first `cols` columns of `w`. Returns the jitter used.
+    pub(super) fn factor(&mut self, cols: usize, mut refill: impl FnMut(&mut [f64])) -> Option<f64> {
+        refill(&mut self.chol.factor);
+        let jitter = self.chol.factorize_refilling(&mut refill).ok()?;
+        self.chol.solve_lower_in_place(self.z);
+        if cols > 0 {
+            self.chol.solve_lower_columns_in_place(self.w, cols);
+        }
+        Some(jitter)
+    }
+}
+
+/// Running sums over the blocks of an evaluation.
+#[derive(Default)]
+pub(super) struct BlockSums {
+    pub(super) log_det: f64,
+    pub(super) quad: f64,
+    pub(super) jitter: f64,
+}
+
+impl BlockSums {
+    pub(super) fn add(&mut self, part: &BlockPart, jitter: f64) {
+        self.log_det += part.chol.log_det();
+        self.quad += part.z.iter().map(|v| v * v).sum::<f64>();
+        self.jitter = self.jitter.max(jitter);
     }
 }
 
@@ -415,32 +476,24 @@ impl Structure {
         let ms = ms.as_mut().expect("a structure with a model term has its scratch");
         ms.h.iter_mut().for_each(|v| *v = 0.0);
         ms.a.iter_mut().for_each(|v| *v = 0.0);
-        let (mut quad, mut log_det, mut jitter) = (0.0, 0.0, 0.0f64);
+        let mut sums = BlockSums::default();
         let mut at = 0;
-        for (b, own) in self.block_data.iter().enumerate() {
-            let chol = &mut chols[b];
+        for (b, chol) in chols.iter_mut().enumerate() {
             let nb = chol.n();
-            let g = &ms.g[at..at + nb];
-            let d = &model.blocks[b];
-            let mut refill = |lower: &mut [f64]| {
+            let (g, d, own) = (&ms.g[at..at + nb], &model.blocks[b], &self.block_data[b]);
+            let part = &mut BlockPart { chol, z: &mut resid[at..at + nb], w: &mut w[..nb * r] };
+            self.fill_u_rows(model, b, nb, g, part.w);
+            let jitter = part.factor(r, |lower| {
                 fill_block(b, lower);
                 for j in 0..nb {
                     for i in j..nb {
                         lower[i + j * nb] += own[i + j * nb] + g[i] * g[j] * d[i + j * nb];
                     }
                 }
-            };
-            refill(&mut chol.factor);
-            jitter = jitter.max(chol.factorize_refilling(&mut refill).ok()?);
-            log_det += chol.log_det();
-            let z = &mut resid[at..at + nb];
-            chol.solve_lower_in_place(z);
-            quad += z.iter().map(|v| v * v).sum::<f64>();
-            let wb = &mut w[..nb * r];
-            self.fill_u_rows(model, b, nb, g, wb);
-            chol.solve_lower_columns_in_place(wb, r);
-            add_gram(wb, nb, r, &mut ms.h);
-            add_transposed_product(wb, nb, r, z, &mut ms.a);
+            })?;
+            add_gram(part.w, nb, r, &mut ms.h);
+            add_transposed_product(part.w, nb, r, part.z, &mut ms.a);
+            sums.add(part, jitter);
             at += nb;
         }
         model.weights_at(&ms.theta_weights, &mut ms.s);
@@ -448,17 +501,17 @@ impl Structure {
         let log_det_m = capacitance.then(|| ms.lu.factorize()).flatten()?;
         ms.y.copy_from_slice(&ms.a);
         ms.lu.solve_in_place(&mut ms.y);
-        quad -= model_term::weighted_dot(&ms.a, &ms.s, rd, &ms.y);
-        log_det += log_det_m;
-        Some((-0.5 * (quad + log_det + resid.len() as f64 * LN_2PI), jitter))
+        let quad = sums.quad - model_term::weighted_dot(&ms.a, &ms.s, rd, &ms.y);
+        let log_det = sums.log_det + log_det_m;
+        Some((-0.5 * (quad + log_det + resid.len() as f64 * LN_2PI), sums.jitter))
     }
 }
 
 /// Per-thread scratch of the structured evaluation (allocated once).
 pub struct Scratch {
     pub(super) w: Vec<f64>,
-    c: Vec<f64>,
-    capacitance: CholeskyWorkspace,
+    pub(super) c: Vec<f64>,
+    pub(super) capacitance: CholeskyWorkspace,
     /// The model term's buffers, when the structure has one.
     pub model: Option<ModelScratch>,
 }
@@ -475,23 +528,6 @@ impl Scratch {
             model: s.model.as_ref().map(|m| ModelScratch::new(n, s.rank, m)),
         }
     }
-}
-
-/// The factor of a block's data covariance (errors² and any covariance
-/// beyond them, standardized), made once for a likelihood in which nothing
-/// depends on the parameters: the block form's counterpart of
-/// `FixedFactors`. `None` for errors alone (no factorization needed) or a
-/// covariance that needs jitter (then it is factorized, with the jitter
-/// counted, at each evaluation as before).
-pub fn fixed_block_factor(block: &ObservableBlock) -> Option<CholeskyWorkspace> {
-    if block.diagonal_data() {
-        return None;
-    }
-    let n = block.len();
-    let mut chol = CholeskyWorkspace::new(n);
-    chol.factor.iter_mut().for_each(|v| *v = 0.0);
-    block.add_data_covariance(1.0 / (block.scale * block.scale), &mut chol.factor);
-    chol.factorize_exact().then_some(chol)
 }
 
 /// Each block's data covariance once `V Vᵀ` is taken out of it (errors²

@@ -99,7 +99,8 @@ pub struct SmcStep {
     pub beta: f64,
     /// Sweeps: each moves every group of coordinates once.
     pub mcmc_steps: usize,
-    /// Acceptance of the joint move of all coordinates.
+    /// Acceptance of the joint move of all coordinates (of the first group
+    /// where there is none: above `JOINT_MOVE_MAX_DIM` coordinates).
     pub acceptance: f64,
     /// Acceptance per move group: joint, then (with independent likelihood
     /// terms) the shared parameters and each term's own parameters.
@@ -247,6 +248,8 @@ struct Kernel<'a> {
     prior: &'a UniformPrior,
     likelihood: &'a dyn LogLikelihood,
     structure: Option<TermStructure>,
+    /// What each particle keeps of the likelihood's terms, and how many values.
+    cache: (TermCache, usize),
     n: usize,
     dim: usize,
     base_steps: f64,
@@ -288,16 +291,22 @@ impl<'a> Kernel<'a> {
         let dim = prior.dim();
         let n = settings.particles.max(2);
         let structure = likelihood.term_structure();
+        let cache = TermCache::of(structure.as_ref(), likelihood);
         // A sweep moves every group once, so its length is set by the largest group
         // that is not the joint move (or by the joint move when it is alone).
-        let sweep_dim =
-            move_groups(dim, structure.as_ref()).iter().skip(1).map(|g| g.coords.len()).max().unwrap_or(dim);
+        let sweep_dim = move_groups(dim, structure.as_ref())
+            .iter()
+            .map(|g| g.coords.len())
+            .filter(|&k| k < dim)
+            .max()
+            .unwrap_or(dim);
         let base_steps = (settings.steps_per_dim * sweep_dim as f64).ceil().max(1.0);
         Kernel {
             settings,
             prior,
             likelihood,
             structure,
+            cache,
             n,
             dim,
             base_steps,
@@ -305,6 +314,10 @@ impl<'a> Kernel<'a> {
             final_steps: (settings.final_steps_per_dim * sweep_dim as f64).ceil() as usize,
             target_ess: settings.ess_fraction * n as f64,
         }
+    }
+
+    fn target(&self) -> Target<'a> {
+        Target { prior: self.prior, likelihood: self.likelihood, cache: self.cache.0 }
     }
 
     /// The particles drawn from the prior, at β = 0.
@@ -317,8 +330,7 @@ impl<'a> Kernel<'a> {
             })
             .collect();
         master.long_jump();
-        let n_terms = self.structure.as_ref().filter(|s| s.separable).map(|s| s.own.len()).unwrap_or(0);
-        let cloud = initial_cloud(self.prior, self.likelihood, &mut rngs, self.n, n_terms);
+        let cloud = initial_cloud(self.prior, self.likelihood, &mut rngs, self.n, self.cache);
         ReplicateState {
             cloud,
             rngs,
@@ -376,7 +388,7 @@ impl<'a> Kernel<'a> {
         let steps = ((self.base_steps * (self.settings.target_acceptance / st.last_acceptance.max(1e-3)).max(1.0))
             .ceil() as usize)
             .min(self.max_steps);
-        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, next, steps, self.prior, self.likelihood);
+        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, next, steps, self.target());
         st.evaluations += counts.full_evaluations;
         st.term_evaluations += counts.term_evaluations;
         for (gi, g) in st.groups.iter_mut().enumerate() {
@@ -403,8 +415,7 @@ impl<'a> Kernel<'a> {
         let Some(mixture) = Mixture::fit(&st.cloud.x, self.dim, &mut st.master) else {
             return IndependentCounts::default();
         };
-        let counts =
-            independent_moves(&mut st.cloud, &mut st.rngs, &mixture, beta, proposals, self.prior, self.likelihood);
+        let counts = independent_moves(&mut st.cloud, &mut st.rngs, &mixture, beta, proposals, self.target());
         st.evaluations += counts.evaluations;
         counts
     }
@@ -435,7 +446,7 @@ impl<'a> Kernel<'a> {
         } else {
             self.final_steps
         };
-        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, sweeps, self.prior, self.likelihood);
+        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, sweeps, self.target());
         st.steps.push(SmcStep {
             beta: 1.0,
             mcmc_steps: sweeps,

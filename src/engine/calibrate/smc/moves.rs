@@ -57,11 +57,22 @@ pub(super) struct MoveGroup {
     pub(super) term: Option<usize>,
 }
 
+/// Above this many coordinates the joint move is left out when the groups
+/// cover every coordinate: a random walk of all d coordinates at once moves
+/// each by about 2.38/√d of its spread for a whole evaluation, while the
+/// shared parameters' move and each term's move shift theirs by 2.38/√k
+/// (k ≤ a few) for a whole evaluation or less. At 124 coordinates the
+/// joint move was half of the whole evaluations for a fortieth of the
+/// movement; the mixture's independent proposals still move every
+/// coordinate at once.
+pub(super) const JOINT_MOVE_MAX_DIM: usize = 64;
+
 /// The move groups: one joint move of everything, and when the likelihood is a
-/// sum of independent terms, a move of the shared parameters and one move per
-/// term of its own parameters (Metropolis within Gibbs). A term's move costs one
-/// term, not the whole likelihood, which is what makes many observables with
-/// their own discrepancy hyperparameters affordable.
+/// sum of terms, a move of the shared parameters and one move per term of its
+/// own parameters (Metropolis within Gibbs). A term's move costs one term (or
+/// its statistics), not the whole likelihood, which is what makes many
+/// observables with their own discrepancy hyperparameters affordable. Without
+/// the joint move above [`JOINT_MOVE_MAX_DIM`] coordinates.
 pub(super) fn move_groups(dim: usize, structure: Option<&TermStructure>) -> Vec<MoveGroup> {
     let group = |coords: Vec<usize>, term| MoveGroup {
         scale: 2.38 / (coords.len() as f64).sqrt(),
@@ -69,7 +80,8 @@ pub(super) fn move_groups(dim: usize, structure: Option<&TermStructure>) -> Vec<
         coords,
         term,
     };
-    let mut groups = vec![group((0..dim).collect(), None)];
+    let joint = structure.is_none() || dim <= JOINT_MOVE_MAX_DIM;
+    let mut groups = if joint { vec![group((0..dim).collect(), None)] } else { Vec::new() };
     if let Some(st) = structure {
         if !st.shared.is_empty() {
             groups.push(group(st.shared.clone(), None));
@@ -94,6 +106,49 @@ pub(super) fn update_factors(groups: &mut [MoveGroup], x: &[f64], dim: usize) {
     }
 }
 
+/// What each particle keeps of its likelihood's terms, so that a move of one
+/// term's own parameters costs that term.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub(super) enum TermCache {
+    /// Nothing: a term's move is screened, then pays a whole evaluation.
+    None,
+    /// Each separable term's value (their sum is the log-likelihood).
+    Terms,
+    /// Each linked term's statistics (`LogLikelihood::term_stats_width`).
+    Stats,
+}
+
+impl TermCache {
+    /// The cache a likelihood allows and how many values it keeps per particle.
+    pub(super) fn of(structure: Option<&TermStructure>, likelihood: &dyn LogLikelihood) -> (TermCache, usize) {
+        match structure {
+            Some(s) if s.separable => (TermCache::Terms, s.own.len()),
+            Some(s) if likelihood.term_stats_width() > 0 => {
+                (TermCache::Stats, s.own.len() * likelihood.term_stats_width())
+            }
+            _ => (TermCache::None, 0),
+        }
+    }
+
+    /// A whole evaluation at `x`, refilling the cache's `values`.
+    fn evaluate(self, likelihood: &dyn LogLikelihood, x: &[f64], values: &mut [f64]) -> f64 {
+        match self {
+            TermCache::None => likelihood.log_likelihood(x),
+            TermCache::Terms => likelihood.log_likelihood_terms(x, values),
+            TermCache::Stats => likelihood.log_likelihood_stats(x, values),
+        }
+    }
+}
+
+/// What the moves target: `L(x(u))^β π_u(u)` given the prior and the
+/// likelihood, and what each particle keeps of the likelihood's terms.
+#[derive(Clone, Copy)]
+pub(super) struct Target<'a> {
+    pub(super) prior: &'a UniformPrior,
+    pub(super) likelihood: &'a dyn LogLikelihood,
+    pub(super) cache: TermCache,
+}
+
 /// The particle cloud between tempering steps, in the unbounded coordinates u.
 #[derive(Clone, serde::Serialize, serde::Deserialize)]
 pub(super) struct Cloud {
@@ -104,9 +159,10 @@ pub(super) struct Cloud {
     pub(super) loglik: Vec<f64>,
     #[serde(with = "f64_bits")]
     pub(super) logprior: Vec<f64>,
-    /// Per particle, each likelihood term (empty without a term structure).
+    /// Per particle, its `TermCache` values (empty without one).
     #[serde(with = "f64_bits")]
     pub(super) terms: Vec<f64>,
+    /// Values per particle in `terms`.
     pub(super) n_terms: usize,
 }
 
@@ -179,17 +235,17 @@ fn each_particle<T: Send>(
 
 /// `sweeps` rounds of random-walk Metropolis moves, one per group in turn, of
 /// every particle at inverse temperature β (target `L(x(u))^β π_u(u)`).
-#[allow(clippy::too_many_arguments)]
 pub(super) fn mutate(
     cloud: &mut Cloud,
     rngs: &mut [Xoshiro256PlusPlus],
     groups: &[MoveGroup],
     beta: f64,
     sweeps: usize,
-    prior: &UniformPrior,
-    likelihood: &dyn LogLikelihood,
+    Target { prior, likelihood, cache }: Target,
 ) -> MoveCounts {
     let (dim, nt) = (cloud.dim, cloud.n_terms);
+    // A cloud resumed from a checkpoint written without values keeps none.
+    let cache = if nt == 0 { TermCache::None } else { cache };
     each_particle(
         cloud,
         rngs,
@@ -227,7 +283,7 @@ pub(super) fn mutate(
                     // Terms that are not separable (nt = 0) move at the cost of a
                     // whole evaluation, paid only for moves their screen lets through.
                     let screened = match g.term {
-                        Some(t) if nt == 0 => {
+                        Some(t) if cache == TermCache::None => {
                             screen_change(likelihood, prior, xi, &prop_x, &mut cur_x, &mut screens[t], t)
                         }
                         None | Some(_) => None,
@@ -239,20 +295,20 @@ pub(super) fn mutate(
                             continue;
                         }
                     }
-                    let (lp, new_term) = match g.term {
-                        Some(t) if nt > 0 => {
+                    let (lp, new_term) = match (g.term, cache) {
+                        (Some(t), TermCache::Terms) => {
                             counts.term_evaluations += 1;
                             let lt = likelihood.log_likelihood_term(&prop_x, t);
                             (*li - ti[t] + lt, lt)
                         }
+                        (Some(t), TermCache::Stats) => {
+                            counts.term_evaluations += 1;
+                            prop_terms.copy_from_slice(ti);
+                            (likelihood.update_term_stats(&prop_x, t, &mut prop_terms), f64::NAN)
+                        }
                         _ => {
                             counts.full_evaluations += 1;
-                            let lp = if nt > 0 {
-                                likelihood.log_likelihood_terms(&prop_x, &mut prop_terms)
-                            } else {
-                                likelihood.log_likelihood(&prop_x)
-                            };
-                            (lp, f64::NAN)
+                            (cache.evaluate(likelihood, &prop_x, &mut prop_terms), f64::NAN)
                         }
                     };
                     let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
@@ -274,8 +330,8 @@ pub(super) fn mutate(
                         xi.copy_from_slice(&prop);
                         *li = lp;
                         *pi = lpi;
-                        match g.term {
-                            Some(t) if nt > 0 => ti[t] = new_term,
+                        match (g.term, cache) {
+                            (Some(t), TermCache::Terms) => ti[t] = new_term,
                             _ => ti.copy_from_slice(&prop_terms),
                         }
                         match (g.term, screened) {
@@ -330,10 +386,10 @@ pub(super) fn independent_moves(
     mixture: &Mixture,
     beta: f64,
     proposals: usize,
-    prior: &UniformPrior,
-    likelihood: &dyn LogLikelihood,
+    Target { prior, likelihood, cache }: Target,
 ) -> IndependentCounts {
     let (dim, nt) = (cloud.dim, cloud.n_terms);
+    let cache = if nt == 0 { TermCache::None } else { cache };
     each_particle(
         cloud,
         rngs,
@@ -353,11 +409,7 @@ pub(super) fn independent_moves(
                     continue;
                 }
                 evaluated += 1;
-                let lp = if nt > 0 {
-                    likelihood.log_likelihood_terms(&prop_x, &mut prop_terms)
-                } else {
-                    likelihood.log_likelihood(&prop_x)
-                };
+                let lp = cache.evaluate(likelihood, &prop_x, &mut prop_terms);
                 let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
                 let log_ratio = if li.is_finite() {
                     beta * (lp - *li) + lpi - *pi + log_q - log_q_prop
@@ -423,7 +475,7 @@ pub(super) fn initial_cloud(
     likelihood: &dyn LogLikelihood,
     rngs: &mut [Xoshiro256PlusPlus],
     n: usize,
-    n_terms: usize,
+    (cache, n_terms): (TermCache, usize),
 ) -> Cloud {
     let dim = prior.dim();
     let mut x = vec![0.0; n * dim];
@@ -438,11 +490,7 @@ pub(super) fn initial_cloud(
             let mut draw = vec![0.0; dim];
             prior.sample(rng, &mut draw);
             prior.to_unbounded(&draw, row);
-            if n_terms > 0 {
-                likelihood.log_likelihood_terms(&draw, t)
-            } else {
-                likelihood.log_likelihood(&draw)
-            }
+            cache.evaluate(likelihood, &draw, t)
         })
         .collect();
     drop(term_chunks);
