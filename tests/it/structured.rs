@@ -293,7 +293,9 @@ fn nothing_between_the_blocks_is_a_structure_of_rank_zero() {
 /// A sampler that keeps each block's statistics (`block_stats`) moves one
 /// observable's φ at one block's cost: after every such update the value
 /// combined from the statistics is the whole evaluation's, bit for bit
-/// (the same operations in the same order), on random problems.
+/// (the same operations in the same order), on random problems, with θ
+/// moves accepted and rejected between them (the blocks' predictions are
+/// kept per θ).
 #[test]
 fn one_blocks_statistics_updated_alone_give_the_whole_evaluation() {
     let config = RunnerConfig { cases: 100, rng_seed: RngSeed::Fixed(20261128), ..RunnerConfig::default() };
@@ -314,7 +316,19 @@ fn one_blocks_statistics_updated_alone_give_the_whole_evaluation() {
         let whole = lik.log_likelihood_stats(&params, &mut stats);
         prop_assert_eq!(whole.to_bits(), lik.log_likelihood(&params).to_bits(), "seed {}", seed);
         let nh = kernel.n_hyper();
-        for _ in 0..6 {
+        for step in 0..6 {
+            // As in a sweep: a θ move (whole statistics at θ'), accepted every
+            // other time; the φ moves then sit at whichever θ is current.
+            if step % 3 == 1 {
+                let mut theta_moved = params.clone();
+                theta_moved[..2].copy_from_slice(&parameters(Some(kernel), 0, &mut rng)[..2]);
+                let mut proposed = stats.clone();
+                let whole = lik.log_likelihood_stats(&theta_moved, &mut proposed);
+                prop_assert_eq!(whole.to_bits(), lik.log_likelihood(&theta_moved).to_bits(), "seed {}", seed);
+                if step == 1 {
+                    (params, stats) = (theta_moved, proposed);
+                }
+            }
             let b = rng.random_range(0..p.blocks.len());
             let other = parameters(Some(kernel), p.blocks.len(), &mut rng);
             let own = 2 + b * nh..2 + (b + 1) * nh;

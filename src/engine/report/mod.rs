@@ -33,6 +33,8 @@ pub struct RunArtifacts {
     /// Draws per parameter, in `names` order.
     pub draws: Vec<Vec<f64>>,
     pub predictions: polars::prelude::DataFrame,
+    /// Each row of `predictions`: its observable and kind (checked on load).
+    prediction_rows: Vec<(String, String)>,
     pub data: Vec<Measurement>,
 }
 
@@ -52,8 +54,9 @@ impl RunArtifacts {
             draws.push(c.f64()?.into_no_null_iter().collect());
         }
         let predictions = artifacts::read_parquet(&dir.join("predictions.parquet"))?;
+        let prediction_rows = row_labels(&predictions, &dir.join("predictions.parquet"))?;
         let data = artifacts::read_measurements(&dir.join("measurements.parquet"))?;
-        Ok(RunArtifacts { dir: dir.to_path_buf(), summary, names, draws, predictions, data })
+        Ok(RunArtifacts { dir: dir.to_path_buf(), summary, names, draws, predictions, prediction_rows, data })
     }
 
     pub fn param(&self, name: &str) -> Option<&[f64]> {
@@ -72,16 +75,33 @@ impl RunArtifacts {
     }
 
     pub fn pred_col(&self, observable: &str, kind: &str, col: &str) -> Vec<f64> {
-        let obs = self.predictions.column("observable").unwrap().str().unwrap();
-        let kinds = self.predictions.column("kind").unwrap().str().unwrap();
-        let rows =
-            (0..self.predictions.height()).filter(|&i| obs.get(i) == Some(observable) && kinds.get(i) == Some(kind));
+        let rows = (0..self.prediction_rows.len())
+            .filter(|&i| self.prediction_rows[i].0 == observable && self.prediction_rows[i].1 == kind);
         // Older runs have no `truth` column: treat a missing column as unknown.
         match self.predictions.column(col).ok().and_then(|c| c.f64().ok()) {
             Some(vals) => rows.map(|i| vals.get(i).unwrap_or(f64::NAN)).collect(),
             None => rows.map(|_| f64::NAN).collect(),
         }
     }
+}
+
+/// Each row's `observable` and `kind` of a predictions table; an error
+/// naming the file, the column and the row where one is missing, not text
+/// or empty.
+fn row_labels(predictions: &polars::prelude::DataFrame, path: &Path) -> Result<Vec<(String, String)>> {
+    let text = |name: &str| -> Result<Vec<String>> {
+        let column = predictions.column(name).map_err(|_| anyhow::anyhow!("{}: no column '{name}'", path.display()))?;
+        let values = column.str().map_err(|_| anyhow::anyhow!("{}: column '{name}' is not text", path.display()))?;
+        (0..values.len())
+            .map(|row| {
+                values
+                    .get(row)
+                    .map(str::to_string)
+                    .ok_or_else(|| anyhow::anyhow!("{}: row {}: column '{name}' is empty", path.display(), row + 1))
+            })
+            .collect()
+    };
+    Ok(text("observable")?.into_iter().zip(text("kind")?).collect())
 }
 
 pub fn svg(
@@ -178,5 +198,41 @@ pub trait SystemFigures: Sync {
     /// One observable's predictions, instead of the generic bands.
     fn prediction_figure(&self, _run: &RunArtifacts, _observable: &str) -> Result<Option<(String, String)>> {
         Ok(None)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use polars::prelude::{Column, DataFrame};
+
+    fn table(columns: Vec<Column>) -> DataFrame {
+        DataFrame::new(columns.first().map_or(0, |c| c.len()), columns).unwrap()
+    }
+
+    /// A predictions table a user points the report at is checked on load:
+    /// a missing, numeric or empty label is an error naming the file, the
+    /// column and the row, never a panic.
+    #[test]
+    fn a_damaged_predictions_table_is_refused_by_name() {
+        let path = Path::new("run/predictions.parquet");
+        let good =
+            table(vec![Column::new("observable".into(), ["y", "y"]), Column::new("kind".into(), ["data", "grid"])]);
+        let rows = row_labels(&good, path).unwrap();
+        assert_eq!(rows[1], ("y".to_string(), "grid".to_string()));
+        let missing = table(vec![Column::new("observable".into(), ["y"])]);
+        let numeric = table(vec![Column::new("observable".into(), [1.0]), Column::new("kind".into(), ["data"])]);
+        let empty = table(vec![
+            Column::new("observable".into(), [Some("y"), None]),
+            Column::new("kind".into(), ["data", "grid"]),
+        ]);
+        for (frame, says) in [
+            (missing, "run/predictions.parquet: no column 'kind'"),
+            (numeric, "run/predictions.parquet: column 'observable' is not text"),
+            (empty, "run/predictions.parquet: row 2: column 'observable' is empty"),
+        ] {
+            let error = row_labels(&frame, path).unwrap_err().to_string();
+            assert_eq!(error, says);
+        }
     }
 }
