@@ -280,8 +280,8 @@ pub(super) fn mutate(
                     if !prior.contains(&prop_x) {
                         continue;
                     }
-                    // Terms that are not separable (nt = 0) move at the cost of a
-                    // whole evaluation, paid only for moves their screen lets through.
+                    // Terms linked without kept statistics (no cache) move at the cost
+                    // of a whole evaluation, paid only for moves their screen lets through.
                     let screened = match g.term {
                         Some(t) if cache == TermCache::None => {
                             screen_change(likelihood, prior, xi, &prop_x, &mut cur_x, &mut screens[t], t)
