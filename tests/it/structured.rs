@@ -307,6 +307,12 @@ fn one_blocks_statistics_updated_alone_give_the_whole_evaluation() {
         let width = lik.term_stats_width();
         if lik.structure.as_ref().is_none_or(|s| s.model.is_some()) {
             prop_assert_eq!(width, 0, "seed {}: statistics without the structured form", seed);
+            // Asked anyway, the statistics' functions are the whole evaluation.
+            let params =
+                parameters(Some(kernel), p.blocks.len(), &mut rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed));
+            let whole = lik.log_likelihood(&params).to_bits();
+            prop_assert_eq!(lik.log_likelihood_stats(&params, &mut []).to_bits(), whole);
+            prop_assert_eq!(lik.update_term_stats(&params, 0, &mut []).to_bits(), whole);
             return Ok(());
         }
         prop_assert!(width > 0, "seed {seed}: a structured likelihood with δ keeps statistics");

@@ -51,9 +51,13 @@ impl MdLikelihood {
     }
 
     /// Every block's statistics at `params` into `stats` (blocks ×
-    /// `term_stats_width`), and the log-likelihood from them.
+    /// `term_stats_width`), and the log-likelihood from them (the whole
+    /// evaluation, `stats` untouched, where there are none to keep).
     pub fn log_likelihood_stats(&self, params: &[f64], stats: &mut [f64]) -> f64 {
         let width = self.term_stats_width();
+        if width == 0 {
+            return self.log_likelihood(params);
+        }
         for (b, out) in stats.chunks_mut(width).enumerate() {
             self.block_stats(params, b, out);
         }
@@ -61,9 +65,13 @@ impl MdLikelihood {
     }
 
     /// Block `b`'s statistics recomputed at `params` in `stats` (every
-    /// block's), and the log-likelihood from them.
+    /// block's), and the log-likelihood from them (as
+    /// `log_likelihood_stats` where there are none to keep).
     pub fn update_term_stats(&self, params: &[f64], b: usize, stats: &mut [f64]) -> f64 {
         let width = self.term_stats_width();
+        if width == 0 {
+            return self.log_likelihood(params);
+        }
         self.block_stats(params, b, &mut stats[b * width..(b + 1) * width]);
         self.combine_stats(stats)
     }
