@@ -11,7 +11,10 @@
 pub mod cumulants;
 pub mod hdf5;
 pub mod layout;
+mod report;
 pub mod tables;
+
+pub use report::print_report;
 
 use crate::base::artifacts::{self, Provenance};
 use anyhow::{anyhow, bail, Context, Result};
@@ -566,36 +569,4 @@ pub fn pooled_noise_correlation(ingested: &Ingested) -> Option<Vec<crate::base::
         })
         .collect();
     Some(entries)
-}
-
-/// Prints what was read, skipped and flagged.
-pub fn print_report(report: &IngestReport) {
-    for p in &report.points {
-        match &p.flagged {
-            None => crate::base::messages::note!(
-                "design point {:>4}: {} good events ({})",
-                p.design_id,
-                p.good_events,
-                p.source
-            ),
-            Some(why) => {
-                crate::base::messages::note!("design point {:>4}: FLAGGED, left out of the table: {why}", p.design_id)
-            }
-        }
-        for s in &p.skipped {
-            crate::base::messages::note!("    skipped event {}: {}", s.event, s.reason);
-        }
-        if !p.undefined_bins.is_empty() {
-            crate::base::messages::note!(
-                "    left out (value or jackknife error undefined; more events or --oversample would measure them): {}",
-                p.undefined_bins.join(", ")
-            );
-        }
-    }
-    if !report.missing_points.is_empty() {
-        crate::base::messages::note!(
-            "design points with no run folder (not in the table): {:?}",
-            report.missing_points
-        );
-    }
 }
