@@ -194,7 +194,7 @@ fn joint_coverage(prior: &UniformPrior, path: &str, failures: &mut Vec<String>) 
             prior.sample(&mut rng, &mut truth);
             let lik = linked_line(&truth, &x, 0.2, 0.1, &mut rng);
             assert!(lik.term_stats_width() > 0);
-            let screened = ScreenedOnly(&lik);
+            let screened = WithoutStatistics { lik: &lik, screen: true };
             let target: &dyn mdpipe::calibrate::LogLikelihood = if path == "statistics" { &lik } else { &screened };
             let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() })
                 .run(prior, target, 91 + k as u64, &mdpipe::progress::Silent)
@@ -235,33 +235,24 @@ fn joint_coverage(prior: &UniformPrior, path: &str, failures: &mut Vec<String>) 
     report
 }
 
-/// The joint likelihood without its screen and without its blocks'
-/// statistics: the sampler's plain Metropolis path for the same target.
-struct Unscreened<'a>(&'a MdLikelihood);
-
-impl mdpipe::calibrate::LogLikelihood for Unscreened<'_> {
-    fn log_likelihood(&self, x: &[f64]) -> f64 {
-        self.0.log_likelihood(x)
-    }
-    fn term_structure(&self) -> Option<mdpipe::calibrate::TermStructure> {
-        mdpipe::calibrate::LogLikelihood::term_structure(self.0)
-    }
+/// The joint likelihood without its blocks' statistics, so that the sampler
+/// takes another φ-move path for the same target: with `screen`, delayed
+/// acceptance (the path of an emulator's covariance across observables);
+/// without, plain Metropolis.
+struct WithoutStatistics<'a> {
+    lik: &'a MdLikelihood,
+    screen: bool,
 }
 
-/// The joint likelihood with its screen but without its blocks' statistics:
-/// the sampler's delayed-acceptance path (that of an emulator's covariance
-/// across observables).
-struct ScreenedOnly<'a>(&'a MdLikelihood);
-
-impl mdpipe::calibrate::LogLikelihood for ScreenedOnly<'_> {
+impl mdpipe::calibrate::LogLikelihood for WithoutStatistics<'_> {
     fn log_likelihood(&self, x: &[f64]) -> f64 {
-        self.0.log_likelihood(x)
+        self.lik.log_likelihood(x)
     }
     fn term_structure(&self) -> Option<mdpipe::calibrate::TermStructure> {
-        mdpipe::calibrate::LogLikelihood::term_structure(self.0)
+        mdpipe::calibrate::LogLikelihood::term_structure(self.lik)
     }
     fn screening_term(&self, x: &[f64], term: usize) -> Option<f64> {
-        self.0.screening_term(x, term)
+        self.screen.then(|| self.lik.screening_term(x, term)).flatten()
     }
 }
 
@@ -284,7 +275,11 @@ fn statistics_screened_and_plain_phi_moves_give_the_same_posterior() {
     let run = |target: &dyn mdpipe::calibrate::LogLikelihood, seed| {
         Smc::new(settings.clone()).run(&prior, target, seed, &mdpipe::progress::Silent).unwrap()
     };
-    let (from_stats, screened, plain) = (run(&lik, 5), run(&ScreenedOnly(&lik), 3), run(&Unscreened(&lik), 4));
+    let (from_stats, screened, plain) = (
+        run(&lik, 5),
+        run(&WithoutStatistics { lik: &lik, screen: true }, 3),
+        run(&WithoutStatistics { lik: &lik, screen: false }, 4),
+    );
     assert!(
         from_stats.replicates.iter().all(|r| r.term_evaluations > 0)
             && screened.replicates.iter().all(|r| r.term_evaluations > 0)
