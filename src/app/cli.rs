@@ -164,10 +164,9 @@ pub enum Command {
     Run {
         /// Analysis config with a [run] table, e.g. examples/decay_counter/study.toml
         config: PathBuf,
-        /// Run only this stage: design, simulate, ingest, emulator, mock, refine, calibrate,
-        /// report, candidates or diagnose
+        /// Run only this stage
         #[arg(long)]
-        stage: Option<String>,
+        stage: Option<crate::pipeline::StageId>,
         /// Run the selected stages even if their inputs are unchanged
         #[arg(long)]
         force: bool,
@@ -265,7 +264,7 @@ impl Command {
                 commands::run_study(&config, stage, force, seed, out, executor, case)
             }
             Command::Refine { config, seed, out, executor } => {
-                commands::run_study(&config, Some("refine".into()), false, seed, out, executor, None)
+                commands::run_study(&config, Some(crate::pipeline::StageId::Refine), false, seed, out, executor, None)
             }
             Command::Demo { seed, full, out } => demo::run(seed, full, &out),
             Command::Bench(args) => bench::command(args),

@@ -170,7 +170,7 @@ pub fn report(dirs: &[PathBuf], out: &Path, png: Option<&Path>) -> Result<()> {
 
 pub fn run_study(
     config: &Path,
-    stage: Option<String>,
+    stage: Option<crate::pipeline::StageId>,
     force: bool,
     seed: u64,
     out: Option<PathBuf>,

@@ -22,19 +22,19 @@
 //! The last two run when the study declares candidates: `[[candidates]]`
 //! tables that say how the simulator turns each piece of physics on
 //! (`variants`), or the stand-in's library names in `[run] candidates`.
-//! Each stage is one file in `stage/` (its name, rank, upstream stages,
-//! outputs, settings and body), and a system adds its own through
-//! `system::StudySystem` (the stand-in's mock stage); `stage::StageLoop`
-//! owns the keys and stamps:
+//! Each stage is one module of `stage/` (a type implementing `stage::Stage`:
+//! its `StageId`, upstream stages, outputs, typed settings and body), and a
+//! system adds its own through `system::StudySystem` (the stand-in's mock
+//! stage); `stage::StageLoop` owns the keys and stamps:
 //! a stage whose stamp (`OUT/stages/<stage>.json`) holds the key of its
 //! settings and upstream keys, and whose outputs exist, is skipped. Within
 //! the calibrate stage each case is stamped too
 //! (`OUT/stages/calibrate/<case>.json`), so an interrupted stage resumes
 //! with the cases it had not finished.
 
-mod cases;
 mod complete;
-mod refine_rounds;
+mod plan;
+mod points;
 mod rounds;
 mod run_config;
 mod setup;
@@ -42,7 +42,6 @@ mod stage;
 mod stand_in;
 mod study;
 mod system;
-mod variant_refine;
 mod variants;
 
 use crate::base::artifacts::{self};
@@ -54,13 +53,13 @@ pub use complete::{fill_in_from_study, load, study_out};
 pub use rounds::Rounds;
 pub use run_config::{RefineConfig, RunConfig};
 use stage::StageLoop;
-pub use stage::StageOutcome;
+pub use stage::{StageId, StageOutcome};
 use study::Study;
 pub use study::{RunOptions, RunPaths};
 
 /// Every stage a study may have, in order (`--stage` takes these names).
 pub fn stages() -> Vec<&'static str> {
-    setup::stages().iter().map(|s| s.name).collect()
+    plan::stages().iter().map(|s| s.id().name()).collect()
 }
 
 /// Runs the study (or one stage of it). Returns what ran and what was skipped.
@@ -72,14 +71,9 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
         )
     })?;
     let run: &RunConfig = &RunConfig::of(config, table)?;
-    if let Some(s) = &opts.stage {
-        if !stages().contains(&s.as_str()) {
-            bail!("--stage {s}: unknown stage (use one of {})", stages().join(", "));
-        }
-    }
     let spec = crate::engine::design::DesignSpec::load(&config.resolve(&run.design))?;
     let design_parameters: Vec<String> = spec.parameters.iter().map(|p| p.name.clone()).collect();
-    if opts.case.is_some() && opts.stage.as_deref() != Some("calibrate") {
+    if opts.case.is_some() && opts.stage != Some(StageId::Calibrate) {
         bail!("--case needs --stage calibrate");
     }
     execute::spec::seconds_of(&run.calibration_time_limit).context("[run] calibration_time_limit")?;
@@ -96,7 +90,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     let study = Study { config, run, emulator, paths, opts };
     // Every candidate's declaration is checked before anything runs.
     study.variants()?;
-    let planned = setup::plan(&study)?;
+    let planned = plan::plan(&study)?;
     let mut stages = StageLoop::new(&planned);
     for stage in planned {
         stages.run(&study, stage)?;

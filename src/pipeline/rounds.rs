@@ -1,5 +1,5 @@
-//! What the refine stage reports (`rounds.json`, `rounds.md`) and which
-//! emulator the stages after it use.
+//! What the refine stage reports (`rounds.json`, `rounds.md`, its section
+//! of study.md) and, from it, which emulator the stages after it use.
 
 use super::study::Study;
 use crate::base::artifacts::Provenance;
@@ -85,28 +85,27 @@ impl Rounds {
     }
 }
 
-impl Study<'_> {
-    /// The refine stage's report, when `[run.refine]` is set.
-    pub(super) fn rounds(&self) -> Result<Option<Rounds>> {
-        if self.run.refine.is_none() {
-            return Ok(None);
-        }
-        let path = self.refine_dir().join("rounds.json");
-        Ok(Some(serde_json::from_str(
-            &std::fs::read_to_string(&path)
-                .with_context(|| format!("reading {} (run the refine stage first)", path.display()))?,
-        )?))
-    }
+/// Where the refine stage writes: `OUT/refine/`.
+pub(super) fn refine_dir(study: &Study<'_>) -> PathBuf {
+    study.paths.out.join("refine")
+}
 
-    pub(super) fn refine_dir(&self) -> PathBuf {
-        self.paths.out.join("refine")
+/// The refine stage's report, when `[run.refine]` is set.
+pub(super) fn rounds(study: &Study<'_>) -> Result<Option<Rounds>> {
+    if study.run.refine.is_none() {
+        return Ok(None);
     }
+    let path = refine_dir(study).join("rounds.json");
+    Ok(Some(serde_json::from_str(
+        &std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {} (run the refine stage first)", path.display()))?,
+    )?))
+}
 
-    /// The emulator the calibrations use: refine's last, when `[run.refine]` is set.
-    pub(super) fn study_emulator(&self) -> Result<PathBuf> {
-        Ok(match self.rounds()? {
-            Some(rounds) => self.refine_dir().join(rounds.emulator),
-            None => self.paths.emulator(),
-        })
-    }
+/// The emulator the calibrations use: refine's last, when `[run.refine]` is set.
+pub(super) fn emulator_in_use(study: &Study<'_>) -> Result<PathBuf> {
+    Ok(match rounds(study)? {
+        Some(rounds) => refine_dir(study).join(rounds.emulator),
+        None => study.paths.emulator(),
+    })
 }

@@ -1,10 +1,10 @@
-//! The study as its systems complete it (`system::StudySystem`): the stages
-//! it has, what its simulate stage runs, its candidates, the data and the
+//! The study as its systems complete it (`system::StudySystem`): what its
+//! simulate stage runs, what they add to its stages' keys, its candidates, the data and the
 //! analysis its calibrations use. The one list of the systems `mdpipe run`
 //! knows is here.
 
 use super::run_config::with_config_dir;
-use super::stage::{self, Presence, StageDef};
+use super::stage::{Presence, StageId};
 use super::study::{absolute, Study};
 use super::system::StudySystem;
 use super::variants::{check_declaration, design_parameter, Variant};
@@ -21,48 +21,44 @@ use std::path::Path;
 use std::sync::Arc;
 
 /// Every system `mdpipe run` knows.
-pub(super) fn systems() -> [&'static dyn StudySystem; 1] {
-    [&super::stand_in::StandIn]
+pub(super) fn systems() -> &'static [&'static dyn StudySystem] {
+    &[&super::stand_in::StandIn]
 }
 
 /// The first answer any system gives.
-pub(super) fn first<T>(ask: impl Fn(&dyn StudySystem) -> Option<T>) -> Option<T> {
-    systems().into_iter().find_map(ask)
+fn first<T>(ask: impl Fn(&dyn StudySystem) -> Option<T>) -> Option<T> {
+    systems().iter().find_map(|s| ask(*s))
 }
 
 /// The first answer any system gives, or its first error.
-pub(super) fn first_ok<T>(ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Option<T>> {
+fn first_ok<T>(ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Option<T>> {
     for s in systems() {
-        if let Some(t) = ask(s)? {
+        if let Some(t) = ask(*s)? {
             return Ok(Some(t));
         }
     }
     Ok(None)
 }
 
-/// Every stage, the generic ones and those systems add, in the order a study runs them.
-pub(super) fn stages() -> Vec<&'static StageDef> {
-    let mut stages = stage::FOUND.to_vec();
+/// What the systems add to a generic stage's key.
+pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::Map<String, serde_json::Value> {
+    let mut settings = serde_json::Map::new();
     for system in systems() {
-        stages.extend(system.stages());
+        settings.extend(system.key_settings(study, stage));
     }
-    stages.sort_by_key(|s| s.rank);
-    stages
+    settings
 }
 
-/// The stages this study has, in order; `--stage` naming one it has not is refused.
-pub(super) fn plan(study: &Study<'_>) -> Result<Vec<&'static StageDef>> {
-    let mut planned = Vec::new();
-    for stage in stages() {
-        match (stage.present)(study)? {
-            Presence::Runs => planned.push(stage),
-            Presence::Absent(why) if study.opts.stage.as_deref() == Some(stage.name) => {
-                bail!("--stage {}: {why}", stage.name)
-            }
-            Presence::Absent(_) => {}
-        }
-    }
-    Ok(planned)
+/// Whether the study declares candidates (`[[candidates]]` or a system's library).
+pub(super) fn with_candidates(study: &Study<'_>) -> Result<Presence> {
+    Ok(if study.variants()?.is_empty() {
+        Presence::Absent(format!(
+            "{} declares no candidates ([[candidates]] or [run] candidates)",
+            study.config.path.display()
+        ))
+    } else {
+        Presence::Runs
+    })
 }
 
 impl Study<'_> {
@@ -79,7 +75,7 @@ impl Study<'_> {
     /// The analysis config pointed at the study's emulator (refined, with
     /// `[run.refine]`) and mock data.
     pub(super) fn study_config(&self) -> Result<Config> {
-        Ok(self.study_config_with(&self.study_emulator()?))
+        Ok(self.study_config_with(&super::rounds::emulator_in_use(self)?))
     }
 
     /// The analysis config pointed at `emulator` and this run's mock data.
@@ -102,7 +98,7 @@ impl Study<'_> {
     pub(super) fn analysis(&self, config: &Config) -> Result<Analysis> {
         let mut families = Registry::new();
         families.register(Arc::new(EmulatorFamily));
-        for family in systems().into_iter().filter_map(|s| s.family()) {
+        for family in systems().iter().filter_map(|s| s.family()) {
             families.register(family);
         }
         let mut analysis = Analysis::resolve(config, &families)?;
@@ -158,44 +154,5 @@ impl Study<'_> {
             });
         }
         Ok(variants)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use std::path::Path;
-
-    /// Every file in `stage/` is a stage (the build script found them); with
-    /// the systems' stages, each has a name and a rank of its own and reads
-    /// only stages that run before it.
-    #[test]
-    fn every_stage_file_is_a_stage_that_reads_only_earlier_stages() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/pipeline/stage");
-        let files = std::fs::read_dir(&dir).unwrap().filter(|e| e.as_ref().unwrap().file_name() != "mod.rs").count();
-        assert_eq!(stage::FOUND.len(), files, "one STAGE per file in {}", dir.display());
-        let stages = stages();
-        for (i, stage) in stages.iter().enumerate() {
-            assert!(stages[..i].iter().all(|s| s.name != stage.name && s.rank < stage.rank), "{}", stage.name);
-            for u in stage.upstream {
-                assert!(stages[..i].iter().any(|s| s.name == *u), "{} reads {u}, which is not before it", stage.name);
-            }
-        }
-        let names: Vec<&str> = stages.iter().map(|s| s.name).collect();
-        assert_eq!(
-            names,
-            [
-                "design",
-                "simulate",
-                "ingest",
-                "emulator",
-                "mock",
-                "refine",
-                "calibrate",
-                "report",
-                "candidates",
-                "diagnose"
-            ]
-        );
     }
 }

@@ -2,6 +2,8 @@
 //! table and options) and where it writes (`RunPaths`).
 
 use super::run_config::RunConfig;
+use crate::base::choices::StageId;
+
 use crate::base::artifacts;
 use crate::base::config::Config;
 use crate::engine::calibrate;
@@ -15,7 +17,7 @@ pub struct RunOptions {
     pub out: PathBuf,
     pub seed: u64,
     /// Run only this stage (its inputs must exist).
-    pub stage: Option<String>,
+    pub stage: Option<StageId>,
     /// Run stages even when their stamps match.
     pub force: bool,
     pub show_progress: bool,
@@ -64,7 +66,8 @@ impl RunPaths {
 }
 
 /// What every stage reads: the config, its `[run]` table, where the run
-/// writes and how. Stage bodies are its methods; they change nothing in it.
+/// writes and how. Read only: stages change
+/// nothing in it.
 pub(super) struct Study<'a> {
     pub(super) config: &'a Config,
     pub(super) run: &'a RunConfig,
@@ -112,6 +115,11 @@ impl Study<'_> {
         }
         found.sort();
         found
+    }
+
+    /// Diagnose and the refine stage's pilots work on the last (largest) observable set.
+    pub(super) fn diagnose_observables(&self) -> Vec<String> {
+        self.run.observable_sets.last().cloned().unwrap_or_default()
     }
 
     pub(super) fn all_observables(&self) -> Vec<String> {

@@ -1,10 +1,11 @@
 //! What a simulator system brings to `mdpipe run` beyond its command line,
 //! as `report::SystemFigures` brings figures to a report. The runner and its
-//! stages know no system; they ask the systems listed in `setup::systems()`
-//! (the heavy-ion stand-in, `stand_in`, is the one built in). Every method has a
+//! stages know no system; they ask the systems the study holds
+//! (`Study::systems`, listed once in `setup::systems()`; the heavy-ion
+//! stand-in, `stand_in`, is the one built in). Every method has a
 //! default that adds nothing, so a system implements only what it brings.
 
-use super::stage::StageDef;
+use super::stage::{AnyStage, StageId};
 use super::study::Study;
 use super::variants::Variant;
 use crate::base::config::Config;
@@ -24,8 +25,13 @@ pub(super) struct StudyData {
 
 pub(super) trait StudySystem: Sync {
     /// The stages it adds to the generic ones, each with its rank among them.
-    fn stages(&self) -> &'static [&'static StageDef] {
+    fn stages(&self) -> &'static [&'static dyn AnyStage] {
         &[]
+    }
+    /// What it adds to a generic stage's key: its own `[run]` settings that
+    /// shape that stage's output (the generic stages know only their own).
+    fn key_settings(&self, _study: &Study<'_>, _stage: StageId) -> serde_json::Map<String, serde_json::Value> {
+        serde_json::Map::new()
     }
     /// What the simulate stage runs when the study has no `[run.simulator]`.
     fn default_simulator(&self, _study: &Study<'_>, _validation: bool) -> Result<Option<SimulatorSpec>> {

@@ -9,7 +9,6 @@
 //! priors of its fit. The stand-in's library (`[run] candidates`) gives
 //! variants of the same kind (`system::StudySystem::library_variants`).
 
-use super::study::*;
 use crate::base::config::{Config, ParamSpec};
 use crate::engine::design::{DesignParameter, DesignSpec};
 use crate::engine::emulator::family::CandidateDeclaration;
@@ -130,13 +129,6 @@ pub(super) fn design_parameter(name: &str, prior: &ParamSpec) -> DesignParameter
         log: false,
         key: String::new(),
         units: prior.units.clone(),
-    }
-}
-
-impl Study<'_> {
-    /// Diagnose works on the last (largest) observable set.
-    pub(super) fn diagnose_observables(&self) -> Vec<String> {
-        self.run.observable_sets.last().cloned().unwrap_or_default()
     }
 }
 

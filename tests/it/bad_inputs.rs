@@ -323,12 +323,10 @@ fn cases() -> Vec<Case> {
             "no [run] table",
             "study",
         ),
-        c(
+        usage(
             "run: unknown --stage",
-            vec![],
             "run pipeline/heavy_ion_2param.toml --stage fit --out {d}/study",
-            "unknown stage",
-            "study",
+            "[possible values: design, simulate, ingest, emulator, mock, refine, calibrate, report, candidates, diagnose]",
         ),
         c(
             "report: damaged summary.json",

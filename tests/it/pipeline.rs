@@ -194,7 +194,7 @@ fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
     RunOptions {
         out: out.to_path_buf(),
         seed: 3,
-        stage: stage.map(String::from),
+        stage: stage.map(|s| s.parse().unwrap()),
         force,
         show_progress: false,
         executor: mdpipe::execute::Executor::Local,
@@ -347,8 +347,9 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let err = run(&config, &opts(&dir.join("fresh"), Some("ingest"), false)).unwrap_err();
     let msg = format!("{err:#}");
     assert!(msg.contains("needs the outputs of stage simulate"), "{msg}");
-    let err = run(&config, &opts(&dir.join("fresh"), Some("fit"), false)).unwrap_err();
-    assert!(format!("{err:#}").contains("unknown stage"));
+    // An unknown stage is refused where it is parsed, naming the stages there are.
+    let err = "fit".parse::<mdpipe::pipeline::StageId>().unwrap_err().to_string();
+    assert!(err.contains("unknown stage \"fit\" (use design, simulate,"), "{err}");
     // A bad [run] table is refused before any stage runs, naming the file and field.
     let text = std::fs::read_to_string(dir.join("study.toml"))
         .unwrap()

@@ -1,22 +1,33 @@
 //! The stages of `mdpipe run` and the loop that runs them.
 //!
-//! A stage is one file in this folder: a `STAGE` that gives its name, its
-//! rank among the stages, the stages whose outputs it reads, what it leaves,
-//! the settings that define its output, and its body. The build script
-//! (`build.rs`) declares every file here as a module, so a new stage is one
-//! new file. The loop owns the keys: a stage's key hashes its settings and
-//! its upstream stages' keys; a stage whose stamp (`OUT/stages/<stage>.json`)
-//! holds the same key, and whose outputs exist, is skipped.
+//! A stage is a type implementing [`Stage`]: its [`StageId`], the stages
+//! whose outputs it reads, whether the study has it, what it leaves, the
+//! typed settings that define its output, and its body. Each stage is one
+//! module here holding all of its own code (a folder when it has several
+//! files); what two stages share (a design run through the executor and
+//! ingested) is the service module `pipeline::points`. The generic stages
+//! are listed in `pipeline::plan`; a system adds its own through
+//! `system::StudySystem::stages`. The loop owns the keys: a stage's key
+//! hashes its settings and its upstream stages' keys; a stage whose stamp
+//! (`OUT/stages/<stage>.json`) holds the same key, and whose outputs exist,
+//! is skipped.
+
+pub(super) mod calibrate;
+pub(super) mod candidates;
+pub(super) mod design;
+pub(super) mod diagnose;
+pub(super) mod emulator;
+pub(super) mod ingest;
+pub(super) mod refine;
+pub(super) mod report;
+pub(super) mod simulate;
 
 use super::study::Study;
 use crate::base::artifacts::{self, Provenance};
+pub use crate::base::choices::StageId;
 use anyhow::{anyhow, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-
-// `mod <file>;` for every stage file, and `FOUND`, their `STAGE`s
-// (`setup::stages` adds the systems' stages and orders them).
-include!(concat!(env!("OUT_DIR"), "/stages.rs"));
 
 /// Whether a study has a stage, and if not, why (for `--stage`).
 pub(in crate::pipeline) enum Presence {
@@ -25,24 +36,50 @@ pub(in crate::pipeline) enum Presence {
 }
 
 /// One stage of a study: what it needs, what it leaves, what it does.
-pub(in crate::pipeline) struct StageDef {
-    /// Its `--stage` name and the name of its stamp.
-    pub(in crate::pipeline) name: &'static str,
-    /// Its place in the study: stages run in ascending rank.
-    pub(in crate::pipeline) rank: u32,
+pub(in crate::pipeline) trait Stage: Sync {
+    /// What defines its output beyond its upstream keys; serialized into its key.
+    type Settings: serde::Serialize;
+    fn id(&self) -> StageId;
     /// The stages whose outputs it reads, when the study has them.
-    pub(in crate::pipeline) upstream: &'static [&'static str],
-    pub(in crate::pipeline) present: fn(&Study<'_>) -> Result<Presence>,
+    fn upstream(&self) -> &'static [StageId];
+    fn present(&self, _study: &Study<'_>) -> Result<Presence> {
+        Ok(Presence::Runs)
+    }
     /// What it leaves: the stage reruns when one of them is missing.
-    pub(in crate::pipeline) outputs: fn(&Study<'_>) -> Result<Vec<PathBuf>>,
-    /// The settings that define its output, beyond its upstream keys.
-    pub(in crate::pipeline) settings: fn(&Study<'_>) -> Result<serde_json::Value>,
-    pub(in crate::pipeline) body: fn(&Study<'_>, &Keys<'_>) -> Result<()>,
+    fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>>;
+    fn settings(&self, study: &Study<'_>) -> Result<Self::Settings>;
+    fn run(&self, study: &Study<'_>, keys: &Keys<'_>) -> Result<()>;
 }
 
-/// For a stage every study has.
-fn always(_: &Study<'_>) -> Result<Presence> {
-    Ok(Presence::Runs)
+/// A [`Stage`] as the loop holds it, its settings already serialized.
+pub(in crate::pipeline) trait AnyStage: Sync {
+    fn id(&self) -> StageId;
+    fn upstream(&self) -> &'static [StageId];
+    fn present(&self, study: &Study<'_>) -> Result<Presence>;
+    fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>>;
+    fn settings_value(&self, study: &Study<'_>) -> Result<serde_json::Value>;
+    fn run(&self, study: &Study<'_>, keys: &Keys<'_>) -> Result<()>;
+}
+
+impl<S: Stage> AnyStage for S {
+    fn id(&self) -> StageId {
+        Stage::id(self)
+    }
+    fn upstream(&self) -> &'static [StageId] {
+        Stage::upstream(self)
+    }
+    fn present(&self, study: &Study<'_>) -> Result<Presence> {
+        Stage::present(self, study)
+    }
+    fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
+        Stage::outputs(self, study)
+    }
+    fn settings_value(&self, study: &Study<'_>) -> Result<serde_json::Value> {
+        Ok(serde_json::to_value(Stage::settings(self, study)?)?)
+    }
+    fn run(&self, study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {
+        Stage::run(self, study, keys)
+    }
 }
 
 /// What a stage body may know of the loop: the keys of the stages before it
@@ -88,20 +125,20 @@ pub struct StageOutcome {
 /// The loop over a study's stages: it owns the keys, skips a stage whose
 /// stamp holds its key, runs the rest and stamps them.
 pub(in crate::pipeline) struct StageLoop {
-    /// The names of the study's stages.
-    planned: Vec<&'static str>,
+    /// The study's stages.
+    planned: Vec<StageId>,
     keys: BTreeMap<String, String>,
     pub(in crate::pipeline) outcomes: Vec<StageOutcome>,
 }
 
 impl StageLoop {
-    pub(in crate::pipeline) fn new(planned: &[&StageDef]) -> StageLoop {
-        StageLoop { planned: planned.iter().map(|s| s.name).collect(), keys: BTreeMap::new(), outcomes: Vec::new() }
+    pub(in crate::pipeline) fn new(planned: &[&dyn AnyStage]) -> StageLoop {
+        StageLoop { planned: planned.iter().map(|s| s.id()).collect(), keys: BTreeMap::new(), outcomes: Vec::new() }
     }
 
-    pub(in crate::pipeline) fn run(&mut self, study: &Study<'_>, stage: &StageDef) -> Result<()> {
-        let (name, paths, opts) = (stage.name, &study.paths, study.opts);
-        if opts.stage.as_deref().is_some_and(|s| s != name) {
+    pub(in crate::pipeline) fn run(&mut self, study: &Study<'_>, stage: &dyn AnyStage) -> Result<()> {
+        let (name, paths, opts) = (stage.id().name(), &study.paths, study.opts);
+        if opts.stage.is_some_and(|s| s != stage.id()) {
             // Not this stage: later stages key on what it left on disk.
             if let Some(s) = read_stamp(&paths.stamp(name)) {
                 self.keys.insert(name.into(), s.downstream_key());
@@ -109,7 +146,7 @@ impl StageLoop {
             return Ok(());
         }
         let key = self.key_of(study, stage)?;
-        let outputs = (stage.outputs)(study)?;
+        let outputs = stage.outputs(study)?;
         let done = read_stamp(&paths.stamp(name)).filter(|s| s.key == key && outputs.iter().all(|p| p.exists()));
         if let Some(done) = done.filter(|_| !opts.force) {
             crate::base::messages::say!("[{name}] up to date, skipped");
@@ -119,7 +156,8 @@ impl StageLoop {
         }
         crate::base::messages::say!("[{name}] running");
         let start = std::time::Instant::now();
-        (stage.body)(study, &Keys { upstream: &self.keys, this: &key })
+        stage
+            .run(study, &Keys { upstream: &self.keys, this: &key })
             .with_context(|| format!("{}: stage {name}", study.config.path.display()))?;
         if opts.case.is_some() {
             return Ok(());
@@ -148,12 +186,12 @@ impl StageLoop {
     }
 
     /// The stage's key: its settings and its upstream stages' keys.
-    fn key_of(&self, study: &Study<'_>, stage: &StageDef) -> Result<String> {
-        let name = stage.name;
-        let mut material = serde_json::json!({"stage": name, "version": env!("CARGO_PKG_VERSION"), "settings": (stage.settings)(study)?});
+    fn key_of(&self, study: &Study<'_>, stage: &dyn AnyStage) -> Result<String> {
+        let name = stage.id().name();
+        let mut material = serde_json::json!({"stage": name, "version": env!("CARGO_PKG_VERSION"), "settings": stage.settings_value(study)?});
         // An upstream stage the study does not have is left out.
-        for u in stage.upstream.iter().filter(|u| self.planned.contains(u)) {
-            let key = self.keys.get(*u).cloned().ok_or_else(|| anyhow!("stage {name} needs the outputs of stage {u}, which has not run in {}; run `mdpipe run CONFIG --stage {u}` (or without --stage) first", study.paths.out.display()))?;
+        for u in stage.upstream().iter().filter(|u| self.planned.contains(u)) {
+            let key = self.keys.get(u.name()).cloned().ok_or_else(|| anyhow!("stage {name} needs the outputs of stage {u}, which has not run in {}; run `mdpipe run CONFIG --stage {u}` (or without --stage) first", study.paths.out.display()))?;
             material[format!("upstream_{u}")] = serde_json::Value::String(key);
         }
         Ok(artifacts::sha256_hex(material.to_string().as_bytes()))

@@ -2,45 +2,49 @@
 //! with the section and figures of a system that assessed the study (the
 //! stand-in's study against its truth).
 
-use super::{Keys, StageDef};
+use super::{Keys, Stage, StageId};
 use crate::base::artifacts;
 use crate::pipeline::setup;
 use crate::pipeline::study::Study;
 use anyhow::Result;
 use std::path::PathBuf;
 
-pub(super) const STAGE: StageDef = StageDef {
-    name: "report",
-    rank: 80,
-    upstream: &["calibrate"],
-    present: super::always,
-    outputs,
-    settings,
-    body: report,
-};
+pub(in crate::pipeline) struct Report;
 
-fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
-    Ok(vec![study.paths.out.join("report.html")])
+#[derive(serde::Serialize)]
+pub(in crate::pipeline) struct Settings {
+    config: String,
 }
 
-fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
-    Ok(serde_json::json!({"config": study.analysis_hash()?}))
-}
-
-fn report(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
-    let dirs = [study.paths.calibrate(), study.study_emulator()?];
-    // A system that assessed the study adds its section and its figures.
-    let mut figures = Vec::new();
-    let mut sections = String::new();
-    for system in setup::systems() {
-        if let Some(section) = system.report_section(study)? {
-            sections.push_str(&section);
-            figures.extend(system.figures());
-        }
+impl Stage for Report {
+    type Settings = Settings;
+    fn id(&self) -> StageId {
+        StageId::Report
     }
-    let html = crate::engine::report::build(&dirs, &format!("mdpipe run: {}", study.config.name), &figures)?;
-    let html = html.replacen("</h1>\n", &format!("</h1>\n{sections}"), 1);
-    artifacts::write_text_atomic(&study.paths.out.join("report.html"), &html)?;
-    crate::base::messages::say!("  {}", study.paths.out.join("report.html").display());
-    Ok(())
+    fn upstream(&self) -> &'static [StageId] {
+        &[StageId::Calibrate]
+    }
+    fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
+        Ok(vec![study.paths.out.join("report.html")])
+    }
+    fn settings(&self, study: &Study<'_>) -> Result<Settings> {
+        Ok(Settings { config: study.analysis_hash()? })
+    }
+    fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
+        let dirs = [study.paths.calibrate(), crate::pipeline::rounds::emulator_in_use(study)?];
+        // A system that assessed the study adds its section and its figures.
+        let mut figures = Vec::new();
+        let mut sections = String::new();
+        for system in setup::systems() {
+            if let Some(section) = system.report_section(study)? {
+                sections.push_str(&section);
+                figures.extend(system.figures());
+            }
+        }
+        let html = crate::engine::report::build(&dirs, &format!("mdpipe run: {}", study.config.name), &figures)?;
+        let html = html.replacen("</h1>\n", &format!("</h1>\n{sections}"), 1);
+        artifacts::write_text_atomic(&study.paths.out.join("report.html"), &html)?;
+        crate::base::messages::say!("  {}", study.paths.out.join("report.html").display());
+        Ok(())
+    }
 }

@@ -3,14 +3,57 @@
 //! events ingested as the measurements, with their jackknife covariance.
 
 use crate::base::artifacts::{self, Measurement, Provenance};
-use crate::pipeline::stage::{Keys, Presence, StageDef};
+use crate::pipeline::stage::{Keys, Presence, Stage, StageId};
 use crate::pipeline::study::Study;
 use crate::systems::heavy_ion::{self, events::Layout, DeltaF, HeavyIonParams};
 use anyhow::{anyhow, Result};
 use std::path::PathBuf;
 
-pub(super) const STAGE: StageDef =
-    StageDef { name: "mock", rank: 50, upstream: &[], present, outputs, settings, body: mock };
+pub(super) struct Mock;
+
+#[derive(serde::Serialize)]
+pub(super) struct Settings {
+    truth: Vec<(String, f64)>,
+    delta_f: Option<String>,
+    events: Option<usize>,
+    oversample: usize,
+    seed: u64,
+    observables: Vec<String>,
+}
+
+impl Stage for Mock {
+    type Settings = Settings;
+    fn id(&self) -> StageId {
+        StageId::Mock
+    }
+    fn upstream(&self) -> &'static [StageId] {
+        &[]
+    }
+    fn present(&self, study: &Study<'_>) -> Result<Presence> {
+        Ok(if study.run.stand_in_study() {
+            Presence::Runs
+        } else {
+            Presence::Absent(format!("{} has no mock data ([run] mock_delta_f)", study.config.path.display()))
+        })
+    }
+    fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
+        Ok(vec![measurements(study)])
+    }
+    fn settings(&self, study: &Study<'_>) -> Result<Settings> {
+        let run = study.run;
+        Ok(Settings {
+            truth: truth_named(study)?,
+            delta_f: run.mock_delta_f.clone(),
+            events: run.mock_events,
+            oversample: run.oversample,
+            seed: study.opts.seed,
+            observables: study.all_observables(),
+        })
+    }
+    fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
+        mock(study)
+    }
+}
 
 /// Where the mock stage writes: mock/runs/, mock/measurements.parquet, mock/covariance.csv.
 pub(super) fn folder(study: &Study<'_>) -> PathBuf {
@@ -21,27 +64,8 @@ pub(super) fn measurements(study: &Study<'_>) -> PathBuf {
     folder(study).join("measurements.parquet")
 }
 
-fn present(study: &Study<'_>) -> Result<Presence> {
-    Ok(if study.run.stand_in_study() {
-        Presence::Runs
-    } else {
-        Presence::Absent(format!("{} has no mock data ([run] mock_delta_f)", study.config.path.display()))
-    })
-}
-
-fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
-    Ok(vec![measurements(study)])
-}
-
-fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
-    let run = study.run;
-    Ok(
-        serde_json::json!({"truth": study.truth_named()?, "delta_f": run.mock_delta_f, "events": run.mock_events, "oversample": run.oversample, "seed": study.opts.seed, "observables": study.all_observables()}),
-    )
-}
-
-fn mock(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
-    let params = HeavyIonParams::from_named(&study.truth_named()?)?;
+fn mock(study: &Study<'_>) -> Result<()> {
+    let params = HeavyIonParams::from_named(&truth_named(study)?)?;
     let mock_delta_f = study.run.mock_delta_f.clone().unwrap_or_default();
     let mock_events = study.run.mock_events.unwrap_or_default();
     let delta_f: DeltaF = mock_delta_f.parse()?;
@@ -97,23 +121,22 @@ fn mock_seed(seed: u64) -> u64 {
     seed.wrapping_mul(31).wrapping_add(977)
 }
 
-impl Study<'_> {
-    /// The mock truth: `mock_truth`, or every θ's `truth` value from the config.
-    pub(super) fn truth_named(&self) -> Result<Vec<(String, f64)>> {
-        if let Some(t) = &self.run.mock_truth {
-            return Ok(t.iter().map(|(k, v)| (k.clone(), *v)).collect());
-        }
-        self.config
-            .parameters
-            .iter()
-            .map(|(name, p)| {
-                p.truth.map(|t| (name.clone(), t)).ok_or_else(|| {
-                    anyhow!(
-                        "{}: [parameters.{name}] needs a `truth` value: the mock data are made there",
-                        self.config.path.display()
-                    )
-                })
-            })
-            .collect()
+/// The mock truth: `mock_truth`, or every θ's `truth` value from the config.
+pub(super) fn truth_named(study: &Study<'_>) -> Result<Vec<(String, f64)>> {
+    if let Some(t) = &study.run.mock_truth {
+        return Ok(t.iter().map(|(k, v)| (k.clone(), *v)).collect());
     }
+    study
+        .config
+        .parameters
+        .iter()
+        .map(|(name, p)| {
+            p.truth.map(|t| (name.clone(), t)).ok_or_else(|| {
+                anyhow!(
+                    "{}: [parameters.{name}] needs a `truth` value: the mock data are made there",
+                    study.config.path.display()
+                )
+            })
+        })
+        .collect()
 }

@@ -6,7 +6,7 @@
 
 mod mock;
 
-use super::stage::StageDef;
+use super::stage::{AnyStage, StageId};
 use super::study::*;
 use super::system::{StudyData, StudySystem};
 use super::variants::Variant;
@@ -27,16 +27,29 @@ use std::sync::Arc;
 pub(super) struct StandIn;
 
 impl StudySystem for StandIn {
-    fn stages(&self) -> &'static [&'static StageDef] {
-        &[&mock::STAGE]
+    fn stages(&self) -> &'static [&'static dyn AnyStage] {
+        &[&mock::Mock]
+    }
+
+    /// Its keys of `[run]` that shape the runs: events per point, Cooper–Frye
+    /// samples per event, and the model's δf.
+    fn key_settings(&self, study: &Study<'_>, stage: StageId) -> serde_json::Map<String, serde_json::Value> {
+        let mut settings = serde_json::Map::new();
+        if matches!(stage, StageId::Design | StageId::Simulate | StageId::Refine | StageId::Candidates) {
+            let run = study.run;
+            settings.insert("events".into(), run.events.into());
+            settings.insert("oversample".into(), run.oversample.into());
+            settings.insert("delta_f".into(), run.model_delta_f.clone().into());
+        }
+        settings
     }
 
     fn default_simulator(&self, study: &Study<'_>, validation: bool) -> Result<Option<SimulatorSpec>> {
-        study.stand_in_simulator(&study.run.model_delta_f, study.runs_seed(validation)).map(Some)
+        stand_in_simulator(study, &study.run.model_delta_f, runs_seed(study, validation)).map(Some)
     }
 
     fn library_variants(&self, study: &Study<'_>) -> Result<Vec<Variant>> {
-        study.library_variants()
+        library_variants(study)
     }
 
     fn data(&self, study: &Study<'_>) -> Option<StudyData> {
@@ -65,18 +78,18 @@ impl StudySystem for StandIn {
     }
 
     fn assess(&self, study: &Study<'_>, config: &Config, dirs: &[PathBuf]) -> Result<()> {
-        let truth_curve: BTreeMap<String, f64> = study.truth_named()?.into_iter().collect();
+        let truth_curve: BTreeMap<String, f64> = mock::truth_named(study)?.into_iter().collect();
         let assessed = heavy_ion::study::assess(
             config,
             dirs,
             &truth_curve,
-            &study.study_emulator()?,
+            &super::rounds::emulator_in_use(study)?,
             &study.paths.validation(),
             &mock::measurements(study),
         )?;
         artifacts::write_json_atomic(&study.paths.out.join("study.json"), &assessed)?;
         let mut md = assessed.markdown();
-        if let Some(rounds) = study.rounds()? {
+        if let Some(rounds) = super::rounds::rounds(study)? {
             md.push_str(&rounds.study_section());
         }
         artifacts::write_text_atomic(&study.paths.out.join("study.md"), &md)?;
@@ -96,56 +109,55 @@ impl StudySystem for StandIn {
     }
 }
 
-impl Study<'_> {
-    /// Seed of the stand-in's events, distinct for the training and validation designs.
-    fn runs_seed(&self, validation: bool) -> u64 {
-        self.opts.seed.wrapping_mul(31).wrapping_add(if validation { 104_729 } else { 11 })
-    }
+/// Seed of the stand-in's events, distinct for the training and validation designs.
+fn runs_seed(study: &Study<'_>, validation: bool) -> u64 {
+    study.opts.seed.wrapping_mul(31).wrapping_add(if validation { 104_729 } else { 11 })
+}
 
-    /// The stand-in as a simulator like any other: one point's events with
-    /// the particlization `delta_f` (the design may add its candidates'
-    /// parameters, which `simulate heavy-ion --design` reads).
-    fn stand_in_simulator(&self, delta_f: &str, seed: u64) -> Result<SimulatorSpec> {
-        let events = self.run.events.ok_or_else(|| anyhow!("[run] events is needed to run the stand-in"))?;
-        let command = format!(
-            "{{mdpipe}} simulate heavy-ion --design {{design}} --only {{id}} --point-folder --delta-f {delta_f} --events {events} --oversample {} --layout hdf5 --seed {seed} --out {{point}}",
-            self.run.oversample,
-        );
-        Ok(SimulatorSpec {
-            command,
-            placeholders: Default::default(),
-            output: OutputKind::IebeMusic,
-            time_limit: "1h".into(),
-            retries: 1,
-            parallel: None,
-            slurm: Default::default(),
-        })
-    }
+/// The stand-in as a simulator like any other: one point's events with
+/// the particlization `delta_f` (the design may add its candidates'
+/// parameters, which `simulate heavy-ion --design` reads).
+fn stand_in_simulator(study: &Study<'_>, delta_f: &str, seed: u64) -> Result<SimulatorSpec> {
+    let events = study.run.events.ok_or_else(|| anyhow!("[run] events is needed to run the stand-in"))?;
+    let command = format!(
+        "{{mdpipe}} simulate heavy-ion --design {{design}} --only {{id}} --point-folder --delta-f {delta_f} --events {events} --oversample {} --layout hdf5 --seed {seed} --out {{point}}",
+        study.run.oversample,
+    );
+    Ok(SimulatorSpec {
+        command,
+        placeholders: Default::default(),
+        output: OutputKind::IebeMusic,
+        time_limit: "1h".into(),
+        retries: 1,
+        parallel: None,
+        slurm: Default::default(),
+    })
+}
 
-    /// The stand-in's library candidates `[run] candidates` names, as
-    /// variants of its simulator: each a command of its own (the Grad δf
-    /// switched on, or the model's δf) with its parameter added to the design.
-    fn library_variants(&self) -> Result<Vec<Variant>> {
-        let model_delta_f: DeltaF = self.run.model_delta_f.parse()?;
-        self.run
-            .candidates
-            .iter()
-            .enumerate()
-            .map(|(k, name)| {
-                let c = heavy_ion::candidate(name)?;
-                let delta_f =
-                    if c.delta_f(model_delta_f) == DeltaF::Grad { "grad" } else { self.run.model_delta_f.as_str() };
-                let seed = self.opts.seed.wrapping_add(1_000 * (k as u64 + 1));
-                let simulator = self.stand_in_simulator(delta_f, seed)?;
-                Ok(Variant {
-                    declaration: c.declaration(absolute(&self.paths.candidate(name).join("emulator"))).to_table()?,
-                    name: c.name.into(),
-                    parameters: c.design_parameter().into_iter().collect(),
-                    parameter_file: Default::default(),
-                    simulator,
-                    design_seed: seed,
-                })
+/// The stand-in's library candidates `[run] candidates` names, as
+/// variants of its simulator: each a command of its own (the Grad δf
+/// switched on, or the model's δf) with its parameter added to the design.
+fn library_variants(study: &Study<'_>) -> Result<Vec<Variant>> {
+    let model_delta_f: DeltaF = study.run.model_delta_f.parse()?;
+    study
+        .run
+        .candidates
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let c = heavy_ion::candidate(name)?;
+            let delta_f =
+                if c.delta_f(model_delta_f) == DeltaF::Grad { "grad" } else { study.run.model_delta_f.as_str() };
+            let seed = study.opts.seed.wrapping_add(1_000 * (k as u64 + 1));
+            let simulator = stand_in_simulator(study, delta_f, seed)?;
+            Ok(Variant {
+                declaration: c.declaration(absolute(&study.paths.candidate(name).join("emulator"))).to_table()?,
+                name: c.name.into(),
+                parameters: c.design_parameter().into_iter().collect(),
+                parameter_file: Default::default(),
+                simulator,
+                design_seed: seed,
             })
-            .collect()
-    }
+        })
+        .collect()
 }

@@ -1,7 +1,9 @@
 //! The diagnose stage (when the study declares candidates): `diagnose` on
 //! the study's data with every candidate's variant emulator declared.
 
-use super::{Keys, StageDef};
+mod variant_refine;
+
+use super::{Keys, Presence, Stage, StageId};
 use crate::base::artifacts;
 use crate::base::progress::observer;
 use crate::engine::calibrate::Overrides;
@@ -10,31 +12,50 @@ use crate::pipeline::study::Study;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
-pub(super) const STAGE: StageDef = StageDef {
-    name: "diagnose",
-    rank: 100,
-    upstream: &["emulator", "mock", "refine", "candidates"],
-    present: super::candidates::with_candidates,
-    outputs,
-    settings,
-    body: diagnose,
-};
+pub(in crate::pipeline) struct Diagnose;
 
-fn outputs(study: &Study<'_>) -> Result<Vec<PathBuf>> {
-    Ok(vec![study.paths.diagnose().join("diagnosis.json"), study.paths.diagnose().join("report.html")])
+#[derive(serde::Serialize)]
+pub(in crate::pipeline) struct Settings {
+    config: String,
+    conventions: &'static str,
+    data: String,
+    observables: Vec<String>,
+    seed: u64,
 }
 
-fn settings(study: &Study<'_>) -> Result<serde_json::Value> {
-    Ok(
-        serde_json::json!({"config": study.config.hash, "conventions": crate::engine::calibrate::analysis::CONVENTIONS, "data": study.data_hash()?, "observables": study.diagnose_observables(), "seed": study.opts.seed}),
-    )
+impl Stage for Diagnose {
+    type Settings = Settings;
+    fn id(&self) -> StageId {
+        StageId::Diagnose
+    }
+    fn upstream(&self) -> &'static [StageId] {
+        &[StageId::Emulator, StageId::Mock, StageId::Refine, StageId::Candidates]
+    }
+    fn present(&self, study: &Study<'_>) -> Result<Presence> {
+        setup::with_candidates(study)
+    }
+    fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
+        Ok(vec![study.paths.diagnose().join("diagnosis.json"), study.paths.diagnose().join("report.html")])
+    }
+    fn settings(&self, study: &Study<'_>) -> Result<Settings> {
+        Ok(Settings {
+            config: study.config.hash.clone(),
+            conventions: crate::engine::calibrate::analysis::CONVENTIONS,
+            data: study.data_hash()?,
+            observables: study.diagnose_observables(),
+            seed: study.opts.seed,
+        })
+    }
+    fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
+        diagnose(study)
+    }
 }
 
 /// `mdpipe diagnose` on the study's data (the mock's, or the config's
 /// measurements) with every candidate's variant emulator declared;
 /// when the verdict rests on variant emulators and `[run.refine]
 /// variant_budget` allows, they are refined and the diagnosis made again.
-fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
+fn diagnose(study: &Study<'_>) -> Result<()> {
     let mut config = study.study_config()?;
     config.candidates = study.variants()?.into_iter().map(|v| v.declaration).collect();
     let out = study.paths.diagnose();
@@ -46,7 +67,10 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     let seed = study.opts.seed.wrapping_add(77);
     // The base fits are two of the calibrate stage's cases; the diagnosis
     // after refinement takes the fits whose problems did not change.
-    let stored = [study.paths.calibrate(), study.refine_dir()].iter().flat_map(|d| study.stored_fits(d)).collect();
+    let stored = [study.paths.calibrate(), crate::pipeline::rounds::refine_dir(study)]
+        .iter()
+        .flat_map(|d| study.stored_fits(d))
+        .collect();
     let reuse = crate::engine::diagnose::Reuse::across_diagnoses(stored);
     let diagnose = |analysis: &_| {
         crate::engine::diagnose::run_reusing(
@@ -61,7 +85,7 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
     };
     let analysis = study.analysis(&config)?;
     let mut d = diagnose(&analysis)?;
-    if study.refine_variants(&mut config, &analysis, &overrides, &d.diagnosis)? {
+    if variant_refine::refine_variants(study, &mut config, &analysis, &overrides, &d.diagnosis)? {
         crate::engine::diagnose::print(&d.diagnosis);
         artifacts::write_json_atomic(&out.join("refine").join("diagnosis_before.json"), &d.diagnosis)?;
         crate::base::messages::say!("  refined the variant emulators the verdict listed; diagnosing again");
@@ -72,7 +96,7 @@ fn diagnose(study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
         std::slice::from_ref(&out),
         &out.join("report.html"),
         &format!("mdpipe run: {} (diagnose)", study.config.name),
-        &setup::systems().into_iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
+        &setup::systems().iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
     )?;
     crate::base::messages::say!("  {}", out.join("report.html").display());
     Ok(())
