@@ -179,7 +179,7 @@ pub fn run_study(
 ) -> Result<()> {
     let config = Config::load(config)?;
     let run: crate::pipeline::RunConfig = match &config.run {
-        Some(table) => config.decode(table, "run")?,
+        Some(table) => crate::pipeline::RunConfig::decode(&config, table)?,
         None => bail!(
             "{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)",
             config.path.display()

@@ -32,10 +32,10 @@ pub fn load(path: &Path) -> Result<Analysis> {
 /// Fills in, for a config with a `[run]` table: `[model] artifact` (the
 /// study's emulator, refined when `[run.refine]` ran) and each
 /// `[[candidates]]` `emulator` (its variant), when not given; and the
-/// stand-in's library candidates that `[run] candidates` names.
+/// stand-in's library candidates that `[run.stand_in] candidates` names.
 pub fn fill_in_from_study(config: &mut Config) -> Result<()> {
     let Some(table) = &config.run else { return Ok(()) };
-    let run: RunConfig = config.decode(table, "run")?;
+    let run = RunConfig::decode(config, table)?;
     let paths = RunPaths { out: study_out(config, &run, None) };
     let model_is_emulator = config.model.get("kind").and_then(|k| k.as_str()) == Some("emulator");
     if model_is_emulator && !config.model.contains_key("artifact") {
@@ -64,10 +64,8 @@ pub fn fill_in_from_study(config: &mut Config) -> Result<()> {
             c.insert("emulator".into(), emulator.display().to_string().into());
         }
     }
-    for name in &run.candidates {
-        let emulator = absolute(&paths.candidate(name).join("emulator"));
-        let declared = crate::systems::heavy_ion::candidate(name)?.declaration(emulator).to_table()?;
-        config.candidates.push(declared);
+    for system in super::setup::systems() {
+        config.candidates.extend(system.library_declarations(&run, &paths)?);
     }
     Ok(())
 }

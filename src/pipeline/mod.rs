@@ -1,10 +1,11 @@
 //! `mdpipe run`: a study end to end for any simulator, as a sequence of
 //! stages that each write their artifacts under one output folder and are
 //! skipped when their inputs have not changed. The simulate stage runs
-//! `[run.simulator]` (or, without it, the heavy-ion stand-in as one instance
-//! of a simulator) through `engine::execute`, locally or as a Slurm array.
-//! The calibrations use the config's measurements, or the stand-in's mock
-//! data (`mock_delta_f`), whose truth is known and assessed in study.md.
+//! `[run.simulator]` (or, without it, a system's simulator: the heavy-ion
+//! stand-in's with `[run.stand_in]`) through `engine::execute`, locally or
+//! as a Slurm array. The calibrations use the config's measurements, or a
+//! system's mock data (the stand-in's `mock_delta_f`), whose truth is known
+//! and assessed in study.md.
 //!
 //! | stage       | writes (under OUT/)                                             |
 //! |-------------|-----------------------------------------------------------------|
@@ -21,7 +22,7 @@
 //!
 //! The last two run when the study declares candidates: `[[candidates]]`
 //! tables that say how the simulator turns each piece of physics on
-//! (`variants`), or the stand-in's library names in `[run] candidates`.
+//! (`variants`), or the stand-in's library names in `[run.stand_in] candidates`.
 //! Each stage is one module of `stage/` (a type implementing `stage::Stage`:
 //! its `StageId`, upstream stages, outputs, typed settings and body), and a
 //! system adds its own through `system::StudySystem` (the stand-in's mock
@@ -78,6 +79,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     }
     execute::spec::seconds_of(&run.calibration_time_limit).context("[run] calibration_time_limit")?;
     run.validate(&design_parameters).with_context(|| format!("{}: [run]", config.path.display()))?;
+    setup::check_system_tables(run).with_context(|| format!("{}", config.path.display()))?;
     variants::check_priors_inside_design(config, &spec).with_context(|| format!("{}", config.path.display()))?;
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;

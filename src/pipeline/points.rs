@@ -165,7 +165,7 @@ pub(super) fn run_design(
 pub(super) fn ingest_design(study: &Study<'_>, dir: &Path, out: &Path) -> Result<()> {
     let keep = study.all_observables();
     let (mut ingested, design_df) =
-        reader(study.run.output()).read(&dir.join("runs"), Some(&dir.join("design.parquet")))?;
+        reader(study.simulator(false)?.output).read(&dir.join("runs"), Some(&dir.join("design.parquet")))?;
     ingested.rows.retain(|r| keep.contains(&r.observable));
     let dropped = drop_incomplete_points(&mut ingested.rows);
     for (id, what) in &dropped {

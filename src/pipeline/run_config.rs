@@ -3,7 +3,6 @@
 use crate::base::choices::Kernel;
 use crate::base::config::Config;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
-use crate::systems::heavy_ion::{self, DeltaF};
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -22,29 +21,10 @@ pub struct RunConfig {
     /// Training design points and held-out validation points.
     pub points: usize,
     pub validation_points: usize,
-    /// The simulator run at each design point. Without it, the heavy-ion
-    /// stand-in (`mdpipe simulate heavy-ion`) with `events` and `model_delta_f`.
+    /// The simulator run at each design point. Without it, a system's own
+    /// (the heavy-ion stand-in's, with `[run.stand_in]`).
     #[serde(default)]
     pub simulator: Option<SimulatorSpec>,
-    /// Events per design point of the stand-in's model runs, and Cooper–Frye samples per event.
-    #[serde(default)]
-    pub events: Option<usize>,
-    #[serde(default = "default_oversample")]
-    pub oversample: usize,
-    /// Particlization of the model runs: none (f_eq), as in the paper.
-    #[serde(default = "default_model_delta_f")]
-    pub model_delta_f: String,
-    /// Mock data: the stand-in at the parameters' `truth` values with this δf.
-    /// Without it, the calibrations use the config's `[data] measurements`.
-    #[serde(default)]
-    pub mock_delta_f: Option<String>,
-    /// Stand-in parameters of the mock data when they are not the calibration
-    /// parameters' truth values (a constant η/s = 0.1 behind a kink model:
-    /// `{ eta_s = 0.1, e_sw = 0.2 }`).
-    #[serde(default)]
-    pub mock_truth: Option<BTreeMap<String, f64>>,
-    #[serde(default)]
-    pub mock_events: Option<usize>,
     /// Observable sets to calibrate on, in order (each should extend the last).
     pub observable_sets: Vec<Vec<String>>,
     /// Discrepancy kernels: none, I, II.
@@ -53,23 +33,21 @@ pub struct RunConfig {
     /// Wall-time limit of one calibration case when cases go out as Slurm array tasks.
     #[serde(default = "default_calibration_time_limit")]
     pub calibration_time_limit: String,
-    /// Diagnose candidates from the stand-in's library, by name.
-    #[serde(default)]
-    pub candidates: Vec<String>,
     /// Design points of each candidate's variant runs (default: `points`).
     #[serde(default)]
     pub candidate_points: Option<usize>,
     /// Adaptive design after the emulator stage (`[run.refine]`).
     #[serde(default)]
     pub refine: Option<RefineConfig>,
+    /// The systems' own tables (`[run.stand_in]`), by name: each is decoded
+    /// and checked by its system, never here.
+    #[serde(skip)]
+    pub systems: BTreeMap<String, toml::Table>,
 }
 
-fn default_oversample() -> usize {
-    heavy_ion::events::DEFAULT_OVERSAMPLE
-}
-fn default_model_delta_f() -> String {
-    "none".into()
-}
+/// The tables of `[run]` that are its own; any other table is a system's.
+const OWN_TABLES: [&str; 2] = ["simulator", "refine"];
+
 fn default_calibration_time_limit() -> String {
     "12h".into()
 }
@@ -80,13 +58,7 @@ fn default_kernels() -> Vec<Kernel> {
 impl RunConfig {
     /// Checks everything a later stage would trip on, before any stage runs.
     pub(super) fn validate(&self, design_parameters: &[String]) -> Result<()> {
-        for (field, n) in [
-            ("points", Some(self.points)),
-            ("validation_points", Some(self.validation_points)),
-            ("events", self.events),
-            ("mock_events", self.mock_events),
-            ("oversample", Some(self.oversample)),
-        ] {
+        for (field, n) in [("points", Some(self.points)), ("validation_points", Some(self.validation_points))] {
             if n == Some(0) {
                 bail!("{field} must be at least 1");
             }
@@ -96,33 +68,10 @@ impl RunConfig {
                 "[run.simulator] output: the simulate stage reads what points leave: use \"iebe-music\" or \"table\""
             ),
             Some(spec) => spec.validate(design_parameters).context("[run.simulator]")?,
-            None if self.events.is_none() => {
-                bail!("give `events` (the stand-in's events per point) or a [run.simulator] table")
-            }
             None => {}
-        }
-        self.model_delta_f.parse::<DeltaF>().context("model_delta_f")?;
-        if let Some(m) = &self.mock_delta_f {
-            m.parse::<DeltaF>().context("mock_delta_f")?;
-            if self.mock_events.is_none() {
-                bail!("mock_delta_f needs mock_events (the events of the stand-in's mock data)");
-            }
         }
         if self.observable_sets.is_empty() || self.observable_sets.iter().any(|s| s.is_empty()) {
             bail!("observable_sets: give one or more non-empty sets");
-        }
-        let known: Vec<String> =
-            crate::base::paper_table::PAPER_TABLE_OBSERVABLES.iter().map(|(_, name)| name.to_string()).collect();
-        for o in self.observable_sets.iter().flatten() {
-            if self.simulator.is_none() && !known.contains(o) {
-                bail!("observable_sets: unknown observable '{o}' (the stand-in gives {})", known.join(", "));
-            }
-        }
-        if !self.candidates.is_empty() && self.simulator.is_some() {
-            bail!("candidates: these name the heavy-ion stand-in's library; with your own simulator declare each candidate as a [[candidates]] table saying how the simulator turns it on (`parameter_file`, `placeholders` or `command`) and its `parameters` (see docs/cluster.md)");
-        }
-        for c in &self.candidates {
-            heavy_ion::candidate(c).context("candidates")?;
         }
         if let Some(r) = &self.refine {
             r.validate()?;
@@ -144,22 +93,29 @@ pub(super) fn with_config_dir(command: &str, config: &Config) -> String {
 }
 
 impl RunConfig {
+    /// The `[run]` table of `config`: its own keys decoded (an unknown one is
+    /// refused), its other tables kept for their systems.
+    pub fn decode(config: &Config, table: &toml::Table) -> Result<RunConfig> {
+        let mut own = table.clone();
+        let mut systems = BTreeMap::new();
+        for (key, value) in table {
+            if let (toml::Value::Table(t), false) = (value, OWN_TABLES.contains(&key.as_str())) {
+                own.remove(key);
+                systems.insert(key.clone(), t.clone());
+            }
+        }
+        let mut run: RunConfig = config.decode(&own, "run")?;
+        run.systems = systems;
+        Ok(run)
+    }
+
     /// The `[run]` table of `config`, its commands' `{config_dir}` filled in.
     pub(super) fn of(config: &Config, table: &toml::Table) -> Result<RunConfig> {
-        let mut run: RunConfig = config.decode(table, "run")?;
+        let mut run = RunConfig::decode(config, table)?;
         if let Some(s) = run.simulator.as_mut() {
             s.command = with_config_dir(&s.command, config);
         }
         Ok(run)
-    }
-
-    /// A study on the stand-in's mock data (with its truth known), rather than on measurements.
-    pub fn stand_in_study(&self) -> bool {
-        self.mock_delta_f.is_some()
-    }
-
-    pub(super) fn output(&self) -> OutputKind {
-        self.simulator.as_ref().map_or(OutputKind::IebeMusic, |s| s.output)
     }
 }
 

@@ -3,7 +3,7 @@
 //! analysis its calibrations use. The one list of the systems `mdpipe run`
 //! knows is here.
 
-use super::run_config::with_config_dir;
+use super::run_config::{with_config_dir, RunConfig};
 use super::stage::{Presence, StageId};
 use super::study::{absolute, Study};
 use super::system::StudySystem;
@@ -40,6 +40,22 @@ fn first_ok<T>(ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Op
     Ok(None)
 }
 
+/// Every table of `[run]` that is not its own belongs to a system, which
+/// checks it; and without `[run.simulator]` some system must run the points.
+pub(super) fn check_system_tables(run: &RunConfig) -> Result<()> {
+    let known: Vec<&str> = systems().iter().filter_map(|s| s.run_table()).collect();
+    if let Some(name) = run.systems.keys().find(|name| !known.contains(&name.as_str())) {
+        bail!("[run.{name}]: no system of that name (the systems: {})", known.join(", "));
+    }
+    if run.simulator.is_none() && run.systems.is_empty() {
+        bail!("[run]: give a [run.simulator] table (or [run.stand_in] with `events` for the heavy-ion stand-in)");
+    }
+    for system in systems() {
+        system.validate(run)?;
+    }
+    Ok(())
+}
+
 /// What the systems add to a generic stage's key.
 pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::Map<String, serde_json::Value> {
     let mut settings = serde_json::Map::new();
@@ -53,7 +69,7 @@ pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::
 pub(super) fn with_candidates(study: &Study<'_>) -> Result<Presence> {
     Ok(if study.variants()?.is_empty() {
         Presence::Absent(format!(
-            "{} declares no candidates ([[candidates]] or [run] candidates)",
+            "{} declares no candidates ([[candidates]] or [run.stand_in] candidates)",
             study.config.path.display()
         ))
     } else {
@@ -68,8 +84,12 @@ impl Study<'_> {
         if let Some(s) = &self.run.simulator {
             return Ok(s.clone());
         }
-        first_ok(|s| s.default_simulator(self, validation))?
-            .ok_or_else(|| anyhow!("{}: give a [run.simulator] table", self.config.path.display()))
+        first_ok(|s| s.default_simulator(self, validation))?.ok_or_else(|| {
+            anyhow!(
+                "{}: give a [run.simulator] table (or [run.stand_in] with `events` for the heavy-ion stand-in)",
+                self.config.path.display()
+            )
+        })
     }
 
     /// The analysis config pointed at the study's emulator (refined, with
@@ -131,6 +151,7 @@ impl Study<'_> {
         if self.config.candidates.is_empty() {
             return Ok(variants);
         }
+        let library = variants.len();
         let spec = DesignSpec::load(&self.config.resolve(&self.run.design))?;
         let base = self.simulator(false)?;
         for (k, table) in self.config.candidates.iter().enumerate() {
@@ -150,7 +171,8 @@ impl Study<'_> {
                 parameters: c.parameters.iter().map(|(n, p)| design_parameter(n, p)).collect(),
                 parameter_file: c.parameter_file.clone(),
                 simulator,
-                design_seed: self.opts.seed.wrapping_add(1_000 * (self.run.candidates.len() + k + 1) as u64),
+                // After the systems' library variants' seeds (1_000 apart each).
+                design_seed: self.opts.seed.wrapping_add(1_000 * (library + k + 1) as u64),
             });
         }
         Ok(variants)

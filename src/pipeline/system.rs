@@ -5,8 +5,9 @@
 //! stand-in, `stand_in`, is the one built in). Every method has a
 //! default that adds nothing, so a system implements only what it brings.
 
+use super::run_config::RunConfig;
 use super::stage::{AnyStage, StageId};
-use super::study::Study;
+use super::study::{RunPaths, Study};
 use super::variants::Variant;
 use crate::base::config::Config;
 use crate::engine::execute::SimulatorSpec;
@@ -24,6 +25,20 @@ pub(super) struct StudyData {
 }
 
 pub(super) trait StudySystem: Sync {
+    /// The name of its own table in `[run]` (`[run.<name>]`), if it has one.
+    fn run_table(&self) -> Option<&'static str> {
+        None
+    }
+    /// Checks its table of `run` before any stage runs.
+    fn validate(&self, _run: &RunConfig) -> Result<()> {
+        Ok(())
+    }
+    /// The declarations of its library candidates that `run` names, each
+    /// pointing at its variant emulator under `paths` (what the standalone
+    /// commands take from a study, `complete::fill_in_from_study`).
+    fn library_declarations(&self, _run: &RunConfig, _paths: &RunPaths) -> Result<Vec<toml::Table>> {
+        Ok(Vec::new())
+    }
     /// The stages it adds to the generic ones, each with its rank among them.
     fn stages(&self) -> &'static [&'static dyn AnyStage] {
         &[]
@@ -37,7 +52,7 @@ pub(super) trait StudySystem: Sync {
     fn default_simulator(&self, _study: &Study<'_>, _validation: bool) -> Result<Option<SimulatorSpec>> {
         Ok(None)
     }
-    /// Candidate physics from its own library (`[run] candidates`), as variants of its simulator.
+    /// Candidate physics from its own library (`[run.stand_in] candidates`), as variants of its simulator.
     fn library_variants(&self, _study: &Study<'_>) -> Result<Vec<Variant>> {
         Ok(Vec::new())
     }

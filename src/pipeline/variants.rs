@@ -6,7 +6,7 @@
 //! (`parameter_file`), other values of the command's own placeholders
 //! (`placeholders`, declared in `[run.simulator] placeholders`), or a command
 //! of its own (`command`). Its `parameters` join θ in its design and are the
-//! priors of its fit. The stand-in's library (`[run] candidates`) gives
+//! priors of its fit. The stand-in's library (`[run.stand_in] candidates`) gives
 //! variants of the same kind (`system::StudySystem::library_variants`).
 
 use crate::base::config::{Config, ParamSpec};

@@ -53,14 +53,15 @@ log_observables = ["ch_spectrum"]
 design = "{}"
 points = 16
 validation_points = 6
+observable_sets = [["ch_spectrum"], ["ch_spectrum", "ch_v2"]]
+kernels = ["none", "II"]
+candidate_points = {candidate_points}
+[run.stand_in]
 events = 60
 oversample = 20
 mock_delta_f = "grad"
 mock_events = {mock_events}
-observable_sets = [["ch_spectrum"], ["ch_spectrum", "ch_v2"]]
-kernels = ["none", "II"]
 candidates = ["grad_shear_delta_f", "proton_annihilation"]
-candidate_points = {candidate_points}
 [run.refine]
 points_per_round = 4
 budget = 8

@@ -2,6 +2,7 @@
 //! mock_delta_f`): the stand-in run at the truth with the concealed δf, its
 //! events ingested as the measurements, with their jackknife covariance.
 
+use super::settings::StandInRun;
 use crate::base::artifacts::{self, Measurement, Provenance};
 use crate::pipeline::stage::{Keys, Presence, Stage, StageId};
 use crate::pipeline::study::Study;
@@ -30,22 +31,22 @@ impl Stage for Mock {
         &[]
     }
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
-        Ok(if study.run.stand_in_study() {
+        Ok(if super::mock_study(study) {
             Presence::Runs
         } else {
-            Presence::Absent(format!("{} has no mock data ([run] mock_delta_f)", study.config.path.display()))
+            Presence::Absent(format!("{} has no mock data ([run.stand_in] mock_delta_f)", study.config.path.display()))
         })
     }
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![measurements(study)])
     }
     fn settings(&self, study: &Study<'_>) -> Result<Settings> {
-        let run = study.run;
+        let stand_in = stand_in(study)?;
         Ok(Settings {
             truth: truth_named(study)?,
-            delta_f: run.mock_delta_f.clone(),
-            events: run.mock_events,
-            oversample: run.oversample,
+            delta_f: stand_in.mock_delta_f,
+            events: stand_in.mock_events,
+            oversample: stand_in.oversample,
             seed: study.opts.seed,
             observables: study.all_observables(),
         })
@@ -66,8 +67,9 @@ pub(super) fn measurements(study: &Study<'_>) -> PathBuf {
 
 fn mock(study: &Study<'_>) -> Result<()> {
     let params = HeavyIonParams::from_named(&truth_named(study)?)?;
-    let mock_delta_f = study.run.mock_delta_f.clone().unwrap_or_default();
-    let mock_events = study.run.mock_events.unwrap_or_default();
+    let stand_in = stand_in(study)?;
+    let mock_delta_f = stand_in.mock_delta_f.clone().unwrap_or_default();
+    let mock_events = stand_in.mock_events.unwrap_or_default();
     let delta_f: DeltaF = mock_delta_f.parse()?;
     let runs = folder(study).join("runs");
     if runs.exists() {
@@ -78,7 +80,7 @@ fn mock(study: &Study<'_>) -> Result<()> {
         &[(0, params)],
         delta_f,
         mock_events,
-        study.run.oversample,
+        stand_in.oversample,
         mock_seed(study.opts.seed),
         Layout::Hdf5,
         &runs,
@@ -117,13 +119,18 @@ fn mock(study: &Study<'_>) -> Result<()> {
     Ok(())
 }
 
+/// The study's `[run.stand_in]` (the mock stage runs only with one).
+fn stand_in(study: &Study<'_>) -> Result<StandInRun> {
+    StandInRun::of(study.run)?.ok_or_else(|| anyhow!("the mock stage needs a [run.stand_in] table"))
+}
+
 fn mock_seed(seed: u64) -> u64 {
     seed.wrapping_mul(31).wrapping_add(977)
 }
 
 /// The mock truth: `mock_truth`, or every θ's `truth` value from the config.
 pub(super) fn truth_named(study: &Study<'_>) -> Result<Vec<(String, f64)>> {
-    if let Some(t) = &study.run.mock_truth {
+    if let Some(t) = &stand_in(study)?.mock_truth {
         return Ok(t.iter().map(|(k, v)| (k.clone(), *v)).collect());
     }
     study

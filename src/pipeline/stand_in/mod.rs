@@ -5,7 +5,9 @@
 //! truth (study.json, study.md) with its report section and figures.
 
 mod mock;
+mod settings;
 
+use super::run_config::RunConfig;
 use super::stage::{AnyStage, StageId};
 use super::study::*;
 use super::system::{StudyData, StudySystem};
@@ -19,6 +21,7 @@ use crate::systems::heavy_ion::family::HeavyIonFamily;
 use crate::systems::heavy_ion::figures::HeavyIonFigures;
 use crate::systems::heavy_ion::{self, DeltaF};
 use anyhow::{anyhow, Context, Result};
+use settings::StandInRun;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -27,6 +30,28 @@ use std::sync::Arc;
 pub(super) struct StandIn;
 
 impl StudySystem for StandIn {
+    fn run_table(&self) -> Option<&'static str> {
+        Some(settings::TABLE)
+    }
+
+    fn validate(&self, run: &RunConfig) -> Result<()> {
+        match StandInRun::of(run)? {
+            Some(s) => s.validate(run).with_context(|| format!("[run.{}]", settings::TABLE)),
+            None => Ok(()),
+        }
+    }
+
+    fn library_declarations(&self, run: &RunConfig, paths: &RunPaths) -> Result<Vec<toml::Table>> {
+        let names = StandInRun::of(run)?.map(|s| s.candidates).unwrap_or_default();
+        names
+            .iter()
+            .map(|name| {
+                let emulator = absolute(&paths.candidate(name).join("emulator"));
+                heavy_ion::candidate(name)?.declaration(emulator).to_table()
+            })
+            .collect()
+    }
+
     fn stages(&self) -> &'static [&'static dyn AnyStage] {
         &[&mock::Mock]
     }
@@ -35,17 +60,18 @@ impl StudySystem for StandIn {
     /// samples per event, and the model's δf.
     fn key_settings(&self, study: &Study<'_>, stage: StageId) -> serde_json::Map<String, serde_json::Value> {
         let mut settings = serde_json::Map::new();
+        let Ok(Some(stand_in)) = StandInRun::of(study.run) else { return settings };
         if matches!(stage, StageId::Design | StageId::Simulate | StageId::Refine | StageId::Candidates) {
-            let run = study.run;
-            settings.insert("events".into(), run.events.into());
-            settings.insert("oversample".into(), run.oversample.into());
-            settings.insert("delta_f".into(), run.model_delta_f.clone().into());
+            settings.insert("events".into(), stand_in.events.into());
+            settings.insert("oversample".into(), stand_in.oversample.into());
+            settings.insert("delta_f".into(), stand_in.model_delta_f.into());
         }
         settings
     }
 
     fn default_simulator(&self, study: &Study<'_>, validation: bool) -> Result<Option<SimulatorSpec>> {
-        stand_in_simulator(study, &study.run.model_delta_f, runs_seed(study, validation)).map(Some)
+        let Some(stand_in) = StandInRun::of(study.run)? else { return Ok(None) };
+        stand_in_simulator(&stand_in, &stand_in.model_delta_f, runs_seed(study, validation)).map(Some)
     }
 
     fn library_variants(&self, study: &Study<'_>) -> Result<Vec<Variant>> {
@@ -53,7 +79,7 @@ impl StudySystem for StandIn {
     }
 
     fn data(&self, study: &Study<'_>) -> Option<StudyData> {
-        study.run.stand_in_study().then(|| {
+        mock_study(study).then(|| {
             // The mock's bins are counted from the same events (correlated by
             // 0.6-0.95 within a spectrum); with errors alone the likelihood
             // is overconfident and the MD fits excluded ε_sw by 2-3 sd.
@@ -70,11 +96,11 @@ impl StudySystem for StandIn {
     }
 
     fn units(&self, study: &Study<'_>) -> Option<Units> {
-        study.run.stand_in_study().then(HeavyIonFamily::units)
+        mock_study(study).then(HeavyIonFamily::units)
     }
 
     fn assessment(&self, study: &Study<'_>) -> Option<PathBuf> {
-        study.run.stand_in_study().then(|| study.paths.out.join("study.json"))
+        mock_study(study).then(|| study.paths.out.join("study.json"))
     }
 
     fn assess(&self, study: &Study<'_>, config: &Config, dirs: &[PathBuf]) -> Result<()> {
@@ -117,11 +143,11 @@ fn runs_seed(study: &Study<'_>, validation: bool) -> u64 {
 /// The stand-in as a simulator like any other: one point's events with
 /// the particlization `delta_f` (the design may add its candidates'
 /// parameters, which `simulate heavy-ion --design` reads).
-fn stand_in_simulator(study: &Study<'_>, delta_f: &str, seed: u64) -> Result<SimulatorSpec> {
-    let events = study.run.events.ok_or_else(|| anyhow!("[run] events is needed to run the stand-in"))?;
+fn stand_in_simulator(stand_in: &StandInRun, delta_f: &str, seed: u64) -> Result<SimulatorSpec> {
+    let events = stand_in.events.ok_or_else(|| anyhow!("[run.stand_in] events is needed to run the stand-in"))?;
     let command = format!(
         "{{mdpipe}} simulate heavy-ion --design {{design}} --only {{id}} --point-folder --delta-f {delta_f} --events {events} --oversample {} --layout hdf5 --seed {seed} --out {{point}}",
-        study.run.oversample,
+        stand_in.oversample,
     );
     Ok(SimulatorSpec {
         command,
@@ -134,22 +160,22 @@ fn stand_in_simulator(study: &Study<'_>, delta_f: &str, seed: u64) -> Result<Sim
     })
 }
 
-/// The stand-in's library candidates `[run] candidates` names, as
+/// The stand-in's library candidates `[run.stand_in] candidates` names, as
 /// variants of its simulator: each a command of its own (the Grad δf
 /// switched on, or the model's δf) with its parameter added to the design.
 fn library_variants(study: &Study<'_>) -> Result<Vec<Variant>> {
-    let model_delta_f: DeltaF = study.run.model_delta_f.parse()?;
-    study
-        .run
+    let Some(stand_in) = StandInRun::of(study.run)? else { return Ok(Vec::new()) };
+    let model_delta_f: DeltaF = stand_in.model_delta_f.parse()?;
+    stand_in
         .candidates
         .iter()
         .enumerate()
         .map(|(k, name)| {
             let c = heavy_ion::candidate(name)?;
             let delta_f =
-                if c.delta_f(model_delta_f) == DeltaF::Grad { "grad" } else { study.run.model_delta_f.as_str() };
+                if c.delta_f(model_delta_f) == DeltaF::Grad { "grad" } else { stand_in.model_delta_f.as_str() };
             let seed = study.opts.seed.wrapping_add(1_000 * (k as u64 + 1));
-            let simulator = stand_in_simulator(study, delta_f, seed)?;
+            let simulator = stand_in_simulator(&stand_in, delta_f, seed)?;
             Ok(Variant {
                 declaration: c.declaration(absolute(&study.paths.candidate(name).join("emulator"))).to_table()?,
                 name: c.name.into(),
@@ -160,4 +186,9 @@ fn library_variants(study: &Study<'_>) -> Result<Vec<Variant>> {
             })
         })
         .collect()
+}
+
+/// Whether the study calibrates on the stand-in's mock data (`[run.stand_in] mock_delta_f`).
+fn mock_study(study: &Study<'_>) -> bool {
+    StandInRun::of(study.run).ok().flatten().is_some_and(|s| s.mock_study())
 }
