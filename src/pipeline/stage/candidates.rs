@@ -31,12 +31,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Candidates {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Candidates
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[StageId::Design]
-    }
+    const ID: StageId = StageId::Candidates;
+    const UPSTREAM: &'static [StageId] = &[StageId::Design];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         setup::with_candidates(study)
     }

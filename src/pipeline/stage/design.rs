@@ -26,12 +26,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Design {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Design
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[]
-    }
+    const ID: StageId = StageId::Design;
+    const UPSTREAM: &'static [StageId] = &[];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.design().join("design.parquet"), study.paths.validation_design().join("design.parquet")])
     }

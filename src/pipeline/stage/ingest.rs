@@ -19,12 +19,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Ingest {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Ingest
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[StageId::Simulate]
-    }
+    const ID: StageId = StageId::Ingest;
+    const UPSTREAM: &'static [StageId] = &[StageId::Simulate];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.training(), study.paths.validation()])
     }

@@ -39,9 +39,9 @@ pub(in crate::pipeline) enum Presence {
 pub(in crate::pipeline) trait Stage: Sync {
     /// What defines its output beyond its upstream keys; serialized into its key.
     type Settings: serde::Serialize;
-    fn id(&self) -> StageId;
+    const ID: StageId;
     /// The stages whose outputs it reads, when the study has them.
-    fn upstream(&self) -> &'static [StageId];
+    const UPSTREAM: &'static [StageId];
     fn present(&self, _study: &Study<'_>) -> Result<Presence> {
         Ok(Presence::Runs)
     }
@@ -63,10 +63,10 @@ pub(in crate::pipeline) trait AnyStage: Sync {
 
 impl<S: Stage> AnyStage for S {
     fn id(&self) -> StageId {
-        Stage::id(self)
+        S::ID
     }
     fn upstream(&self) -> &'static [StageId] {
-        Stage::upstream(self)
+        S::UPSTREAM
     }
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         Stage::present(self, study)

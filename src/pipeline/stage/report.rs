@@ -18,12 +18,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Report {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Report
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[StageId::Calibrate]
-    }
+    const ID: StageId = StageId::Report;
+    const UPSTREAM: &'static [StageId] = &[StageId::Calibrate];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.out.join("report.html")])
     }

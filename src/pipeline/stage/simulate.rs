@@ -21,12 +21,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Simulate {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Simulate
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[StageId::Design]
-    }
+    const ID: StageId = StageId::Simulate;
+    const UPSTREAM: &'static [StageId] = &[StageId::Design];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.design().join("runs"), study.paths.validation_design().join("runs")])
     }
@@ -41,7 +37,7 @@ impl Stage for Simulate {
         // Settings changed since the last run: its runs are not these. Forced
         // with the same settings, finished points are kept and only the
         // failed ones run again, with fresh attempts.
-        let previous = read_stamp(&study.paths.stamp(StageId::Simulate.name()));
+        let previous = read_stamp(&study.paths.stamp(Self::ID.name()));
         let stale = previous.as_ref().is_some_and(|s| s.key != keys.this);
         let forced = previous.is_some() && !stale;
         for (dir, label) in [(study.paths.design(), "design"), (study.paths.validation_design(), "validation design")] {

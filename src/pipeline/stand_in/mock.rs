@@ -24,12 +24,8 @@ pub(super) struct Settings {
 
 impl Stage for Mock {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Mock
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[]
-    }
+    const ID: StageId = StageId::Mock;
+    const UPSTREAM: &'static [StageId] = &[];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         Ok(if super::mock_study(study) {
             Presence::Runs

@@ -29,12 +29,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Calibrate {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Calibrate
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[StageId::Emulator, StageId::Mock, StageId::Refine]
-    }
+    const ID: StageId = StageId::Calibrate;
+    const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock, StageId::Refine];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         let assessment = setup::systems().iter().find_map(|s| s.assessment(study));
         Ok(vec![assessment.unwrap_or_else(|| study.paths.calibrate().join("cases.json"))])

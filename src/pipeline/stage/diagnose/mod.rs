@@ -25,12 +25,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Diagnose {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Diagnose
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[StageId::Emulator, StageId::Mock, StageId::Refine, StageId::Candidates]
-    }
+    const ID: StageId = StageId::Diagnose;
+    const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock, StageId::Refine, StageId::Candidates];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         setup::with_candidates(study)
     }

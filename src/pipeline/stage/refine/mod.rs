@@ -32,12 +32,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Refine {
     type Settings = Settings;
-    fn id(&self) -> StageId {
-        StageId::Refine
-    }
-    fn upstream(&self) -> &'static [StageId] {
-        &[StageId::Emulator, StageId::Mock]
-    }
+    const ID: StageId = StageId::Refine;
+    const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         Ok(if study.run.refine.is_some() {
             Presence::Runs
