@@ -8,7 +8,6 @@ use crate::base::progress::Bars;
 use crate::engine::calibrate::{self, summary::Summary, Overrides, Problem, SamplerKind};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::{compare, diagnose, report};
-use crate::systems;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
@@ -44,7 +43,7 @@ pub fn calibrate(
     sampler: Option<SamplerKind>,
     time_limit: Option<f64>,
 ) -> Result<()> {
-    let analysis = crate::pipeline::load(&args.config)?;
+    let analysis = crate::pipeline::load(&args.config, &super::systems())?;
     let overrides = parse_overrides(args.data, kernel, observables, sampler)?;
     let problem = Problem::new(&analysis, &overrides)?;
     if let Some(t) = time_limit.filter(|t| !(t.is_finite() && *t >= 0.0)) {
@@ -67,7 +66,7 @@ pub fn calibrate(
 }
 
 pub fn compare(args: CalibrationArgs, sampler: Option<SamplerKind>, replicates: Option<usize>) -> Result<()> {
-    let analysis = crate::pipeline::load(&args.config)?;
+    let analysis = crate::pipeline::load(&args.config, &super::systems())?;
     artifacts::check_writable(&args.out)?;
     if let Some(n) = replicates {
         if args.data.is_some() {
@@ -87,7 +86,7 @@ pub fn compare(args: CalibrationArgs, sampler: Option<SamplerKind>, replicates: 
 }
 
 pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool) -> Result<()> {
-    let analysis = crate::pipeline::load(&args.config)?;
+    let analysis = crate::pipeline::load(&args.config, &super::systems())?;
     let overrides = parse_overrides(args.data, None, None, None)?;
     artifacts::check_writable(&args.out)?;
     let discover = match (discover, no_discover) {
@@ -108,7 +107,7 @@ pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool) -> Res
         std::slice::from_ref(&args.out),
         &args.out.join("report.html"),
         "mdpipe diagnose",
-        &systems::figures(),
+        &super::systems().figures(),
     )?;
     println!("wrote {0}/diagnosis.json and {0}/report.html", args.out.display());
     Ok(())
@@ -158,7 +157,7 @@ pub fn validate_emulator(emulator: &Path, validation: Option<&Path>, folds: usiz
 }
 
 pub fn report(dirs: &[PathBuf], out: &Path, png: Option<&Path>) -> Result<()> {
-    let html = report::build(dirs, "mdpipe report", &systems::figures())?;
+    let html = report::build(dirs, "mdpipe report", &super::systems().figures())?;
     artifacts::write_text_atomic(out, &html)?;
     println!("wrote {}", out.display());
     if let Some(dir) = png {
@@ -197,7 +196,7 @@ pub fn run_study(
         mdpipe: std::env::current_exe()?,
         case,
     };
-    let outcomes = crate::pipeline::run(&config, &opts)?;
+    let outcomes = crate::pipeline::run(&config, &opts, &super::systems())?;
     let ran: Vec<&str> = outcomes.iter().filter(|o| o.ran).map(|o| o.stage.as_str()).collect();
     println!(
         "ran {} stage(s) [{}] in {:.1} s; outputs in {}",

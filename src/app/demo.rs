@@ -101,7 +101,7 @@ pub fn run(seed: u64, full: bool, out: &Path) -> Result<()> {
         &[diag_dir.clone(), grid_dir.clone()],
         &report,
         "mdpipe demo: a ball drop with concealed drag",
-        &systems::figures(),
+        &super::systems().figures(),
     )?;
     println!("\nVerdict: {}", run.diagnosis.verdict.statement);
     println!("Artifacts: {}/ and {}/", grid_dir.display(), diag_dir.display());

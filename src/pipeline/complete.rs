@@ -5,6 +5,7 @@
 use super::rounds::Rounds;
 use super::run_config::RunConfig;
 use super::study::{absolute, RunPaths};
+use super::system::Systems;
 use crate::base::config::Config;
 use crate::engine::calibrate::Analysis;
 use crate::systems;
@@ -23,17 +24,17 @@ pub fn study_out(config: &Config, run: &RunConfig, cli: Option<&Path>) -> PathBu
 
 /// Reads a config and resolves it with the built-in families, with what its
 /// `[run]` study built filled in where the config leaves it out.
-pub fn load(path: &Path) -> Result<Analysis> {
+pub fn load(path: &Path, systems: &Systems) -> Result<Analysis> {
     let mut config = Config::load(path)?;
-    fill_in_from_study(&mut config)?;
+    fill_in_from_study(&mut config, systems)?;
     systems::resolve(&config)
 }
 
 /// Fills in, for a config with a `[run]` table: `[model] artifact` (the
 /// study's emulator, refined when `[run.refine]` ran) and each
 /// `[[candidates]]` `emulator` (its variant), when not given; and the
-/// stand-in's library candidates that `[run.stand_in] candidates` names.
-pub fn fill_in_from_study(config: &mut Config) -> Result<()> {
+/// library candidates a system's table names (`[run.stand_in] candidates`).
+pub fn fill_in_from_study(config: &mut Config, systems: &Systems) -> Result<()> {
     let Some(table) = &config.run else { return Ok(()) };
     let run = RunConfig::decode(config, table)?;
     let paths = RunPaths { out: study_out(config, &run, None) };
@@ -64,7 +65,7 @@ pub fn fill_in_from_study(config: &mut Config) -> Result<()> {
             c.insert("emulator".into(), emulator.display().to_string().into());
         }
     }
-    for system in super::setup::systems() {
+    for system in systems.iter() {
         config.candidates.extend(system.library_declarations(&run, &paths)?);
     }
     Ok(())

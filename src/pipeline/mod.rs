@@ -34,6 +34,8 @@
 //! with the cases it had not finished.
 
 mod complete;
+#[cfg(test)]
+mod free_fall;
 mod plan;
 mod points;
 mod rounds;
@@ -55,16 +57,19 @@ pub use rounds::Rounds;
 pub use run_config::{RefineConfig, RunConfig};
 use stage::StageLoop;
 pub use stage::{StageId, StageOutcome};
+pub(crate) use stand_in::StandIn;
 use study::Study;
 pub use study::{RunOptions, RunPaths};
+pub use system::Systems;
 
-/// Every stage a study may have, in order (`--stage` takes these names).
-pub fn stages() -> Vec<&'static str> {
-    plan::stages().iter().map(|s| s.id().name()).collect()
+/// Every stage a study with these systems may have, in order (`--stage` takes these names).
+pub fn stages(systems: &Systems) -> Vec<&'static str> {
+    plan::stages(systems).iter().map(|s| s.id().name()).collect()
 }
 
-/// Runs the study (or one stage of it). Returns what ran and what was skipped.
-pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
+/// Runs the study (or one stage of it) with the systems `app::systems()`
+/// lists. Returns what ran and what was skipped.
+pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<StageOutcome>> {
     let table = config.run.as_ref().ok_or_else(|| {
         anyhow!(
             "{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)",
@@ -79,7 +84,7 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     }
     execute::spec::seconds_of(&run.calibration_time_limit).context("[run] calibration_time_limit")?;
     run.validate(&design_parameters).with_context(|| format!("{}: [run]", config.path.display()))?;
-    setup::check_system_tables(run).with_context(|| format!("{}", config.path.display()))?;
+    setup::check_system_tables(run, systems).with_context(|| format!("{}", config.path.display()))?;
     variants::check_priors_inside_design(config, &spec).with_context(|| format!("{}", config.path.display()))?;
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
@@ -89,10 +94,11 @@ pub fn run(config: &Config, opts: &RunOptions) -> Result<Vec<StageOutcome>> {
     // Canonical, so that `--out ../x` and `--out /abs/x` key their stages alike.
     let out = std::fs::canonicalize(&opts.out).unwrap_or_else(|_| study::absolute(&opts.out));
     let paths = RunPaths { out };
-    let study = Study { config, run, emulator, paths, opts };
+    let queries = systems.queries();
+    let study = Study { config, run, emulator, paths, opts, systems: &queries };
     // Every candidate's declaration is checked before anything runs.
     study.variants()?;
-    let planned = plan::plan(&study)?;
+    let planned = plan::plan(&study, systems)?;
     let mut stages = StageLoop::new(&planned);
     for stage in planned {
         stages.run(&study, stage)?;

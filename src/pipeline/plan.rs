@@ -1,10 +1,10 @@
 //! The stages a study has, in the order it runs them: the generic stages
 //! (one module each under `stage/`) and those its systems add.
 
-use super::setup::systems;
 use super::stage::{calibrate, candidates, design, diagnose, emulator, ingest, refine, report, simulate};
 use super::stage::{AnyStage, Presence};
 use super::study::Study;
+use super::system::Systems;
 use anyhow::{bail, Result};
 
 /// The stages every study may have (a system adds its own).
@@ -23,9 +23,9 @@ fn generic() -> [&'static dyn AnyStage; 9] {
 }
 
 /// Every stage, the generic ones and those the systems add, in the order a study runs them.
-pub(super) fn stages() -> Vec<&'static dyn AnyStage> {
+pub(super) fn stages(systems: &Systems) -> Vec<&'static dyn AnyStage> {
     let mut stages = generic().to_vec();
-    for system in systems() {
+    for system in systems.iter() {
         stages.extend(system.stages());
     }
     stages.sort_by_key(|s| s.id());
@@ -33,9 +33,9 @@ pub(super) fn stages() -> Vec<&'static dyn AnyStage> {
 }
 
 /// The stages this study has, in order; `--stage` naming one it has not is refused.
-pub(super) fn plan(study: &Study<'_>) -> Result<Vec<&'static dyn AnyStage>> {
+pub(super) fn plan(study: &Study<'_>, systems: &Systems) -> Result<Vec<&'static dyn AnyStage>> {
     let mut planned = Vec::new();
-    for stage in stages() {
+    for stage in stages(systems) {
         match stage.present(study)? {
             Presence::Runs => planned.push(stage),
             Presence::Absent(why) if study.opts.stage == Some(stage.id()) => {
@@ -56,7 +56,7 @@ mod tests {
     /// only stages that run before it; every id is some stage's.
     #[test]
     fn every_stage_reads_only_earlier_stages() {
-        let stages = stages();
+        let stages = stages(&Systems::new(vec![&crate::pipeline::stand_in::StandIn]));
         for (i, stage) in stages.iter().enumerate() {
             assert!(stages[..i].iter().all(|s| s.id() < stage.id()), "{}", stage.id());
             for u in stage.upstream() {

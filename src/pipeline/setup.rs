@@ -1,12 +1,12 @@
 //! The study as its systems complete it (`system::StudySystem`): what its
 //! simulate stage runs, what they add to its stages' keys, its candidates, the data and the
-//! analysis its calibrations use. The one list of the systems `mdpipe run`
-//! knows is here.
+//! analysis its calibrations use. The systems are the run's
+//! (`Study::systems`, the list `app::systems()` passes in).
 
 use super::run_config::{with_config_dir, RunConfig};
 use super::stage::{Presence, StageId};
-use super::study::{absolute, Study};
-use super::system::StudySystem;
+use super::study::{absolute, Study, StudySystem};
+use super::system::Systems;
 use super::variants::{check_declaration, design_parameter, Variant};
 use crate::base::artifacts;
 use crate::base::config::Config;
@@ -20,19 +20,14 @@ use anyhow::{anyhow, bail, Context, Result};
 use std::path::Path;
 use std::sync::Arc;
 
-/// Every system `mdpipe run` knows.
-pub(super) fn systems() -> &'static [&'static dyn StudySystem] {
-    &[&super::stand_in::StandIn]
+/// The first answer any of the study's systems gives.
+fn first<T>(study: &Study<'_>, ask: impl Fn(&dyn StudySystem) -> Option<T>) -> Option<T> {
+    study.systems.iter().find_map(|s| ask(*s))
 }
 
-/// The first answer any system gives.
-fn first<T>(ask: impl Fn(&dyn StudySystem) -> Option<T>) -> Option<T> {
-    systems().iter().find_map(|s| ask(*s))
-}
-
-/// The first answer any system gives, or its first error.
-fn first_ok<T>(ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Option<T>> {
-    for s in systems() {
+/// The first answer any of the study's systems gives, or its first error.
+fn first_ok<T>(study: &Study<'_>, ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Option<T>> {
+    for s in study.systems {
         if let Some(t) = ask(*s)? {
             return Ok(Some(t));
         }
@@ -42,24 +37,29 @@ fn first_ok<T>(ask: impl Fn(&dyn StudySystem) -> Result<Option<T>>) -> Result<Op
 
 /// Every table of `[run]` that is not its own belongs to a system, which
 /// checks it; and without `[run.simulator]` some system must run the points.
-pub(super) fn check_system_tables(run: &RunConfig) -> Result<()> {
-    let known: Vec<&str> = systems().iter().filter_map(|s| s.run_table()).collect();
+pub(super) fn check_system_tables(run: &RunConfig, systems: &Systems) -> Result<()> {
+    let known: Vec<&str> = systems.iter().filter_map(|s| s.run_table()).collect();
     if let Some(name) = run.systems.keys().find(|name| !known.contains(&name.as_str())) {
         bail!("[run.{name}]: no system of that name (the systems: {})", known.join(", "));
     }
     if run.simulator.is_none() && run.systems.is_empty() {
-        bail!("[run]: give a [run.simulator] table (or [run.stand_in] with `events` for the heavy-ion stand-in)");
+        bail!("[run]: give a [run.simulator] table, or the table of a system that runs its own ({})", tables(&known));
     }
-    for system in systems() {
+    for system in systems.iter() {
         system.validate(run)?;
     }
     Ok(())
 }
 
+/// Systems' tables as a config writes them: `[run.stand_in]`.
+fn tables(names: &[&str]) -> String {
+    names.iter().map(|n| format!("[run.{n}]")).collect::<Vec<_>>().join(", ")
+}
+
 /// What the systems add to a generic stage's key.
 pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::Map<String, serde_json::Value> {
     let mut settings = serde_json::Map::new();
-    for system in systems() {
+    for system in study.systems {
         settings.extend(system.key_settings(study, stage));
     }
     settings
@@ -69,8 +69,9 @@ pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::
 pub(super) fn with_candidates(study: &Study<'_>) -> Result<Presence> {
     Ok(if study.variants()?.is_empty() {
         Presence::Absent(format!(
-            "{} declares no candidates ([[candidates]] or [run.stand_in] candidates)",
-            study.config.path.display()
+            "{} declares no candidates ([[candidates]], or a system's library: {})",
+            study.config.path.display(),
+            tables(&study.systems.iter().filter_map(|s| s.run_table()).collect::<Vec<_>>())
         ))
     } else {
         Presence::Runs
@@ -84,10 +85,12 @@ impl Study<'_> {
         if let Some(s) = &self.run.simulator {
             return Ok(s.clone());
         }
-        first_ok(|s| s.default_simulator(self, validation))?.ok_or_else(|| {
+        first_ok(self, |s| s.default_simulator(self, validation))?.ok_or_else(|| {
+            let known: Vec<&str> = self.systems.iter().filter_map(|s| s.run_table()).collect();
             anyhow!(
-                "{}: give a [run.simulator] table (or [run.stand_in] with `events` for the heavy-ion stand-in)",
-                self.config.path.display()
+                "{}: give a [run.simulator] table, or the table of a system that runs its own ({})",
+                self.config.path.display(),
+                tables(&known)
             )
         })
     }
@@ -106,7 +109,7 @@ impl Study<'_> {
         let mut model = if emulator_kind { c.model.clone() } else { toml::Table::new() };
         model.extend(EmulatorFamily::model_table(&absolute(emulator)));
         c.model = model;
-        if let Some(data) = first(|s| s.data(self)) {
+        if let Some(data) = first(self, |s| s.data(self)) {
             c.data.measurements = data.measurements;
             c.data.covariance = data.covariance;
         }
@@ -118,12 +121,12 @@ impl Study<'_> {
     pub(super) fn analysis(&self, config: &Config) -> Result<Analysis> {
         let mut families = Registry::new();
         families.register(Arc::new(EmulatorFamily));
-        for family in systems().iter().filter_map(|s| s.family()) {
+        for family in self.systems.iter().filter_map(|s| s.family()) {
             families.register(family);
         }
         let mut analysis = Analysis::resolve(config, &families)?;
         // The emulator knows no units; the system's come first, as in its figures.
-        if let Some(units) = first(|s| s.units(self)) {
+        if let Some(units) = first(self, |s| s.units(self)) {
             analysis.units = units.or(&analysis.units);
         }
         Ok(analysis)
@@ -132,7 +135,7 @@ impl Study<'_> {
     /// SHA-256 of the measurements the calibrations use (the config's, when
     /// no system made them: the key of the stage that did covers those).
     pub(super) fn data_hash(&self) -> Result<String> {
-        if first(|s| s.data(self)).is_some() {
+        if first(self, |s| s.data(self)).is_some() {
             return Ok(String::new());
         }
         let path = self.config.resolve(&self.config.data.measurements);
@@ -145,7 +148,7 @@ impl Study<'_> {
     /// declared `[[candidates]]`.
     pub(super) fn variants(&self) -> Result<Vec<Variant>> {
         let mut variants = Vec::new();
-        for system in systems() {
+        for system in self.systems {
             variants.extend(system.library_variants(self)?);
         }
         if self.config.candidates.is_empty() {

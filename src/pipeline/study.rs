@@ -1,16 +1,22 @@
 //! What every stage of `mdpipe run` reads: the study (its config, `[run]`
-//! table and options) and where it writes (`RunPaths`).
+//! table, options and systems) and where it writes (`RunPaths`); and what a
+//! system brings to it (`StudySystem`), in the same file because each names
+//! the other.
 
 use super::run_config::RunConfig;
+use super::variants::Variant;
 use crate::base::choices::StageId;
 
 use crate::base::artifacts;
 use crate::base::config::Config;
 use crate::engine::calibrate;
 use crate::engine::emulator::EmulatorSettings;
-use crate::engine::execute::Executor;
+use crate::engine::execute::{Executor, SimulatorSpec};
+use crate::engine::model::{ModelFamily, Units};
+use crate::engine::report::SystemFigures;
 use anyhow::{anyhow, Context, Result};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Where and how to run.
 pub struct RunOptions {
@@ -68,13 +74,86 @@ impl RunPaths {
 /// What every stage reads: the config, its `[run]` table, where the run
 /// writes and how. Read only: stages change
 /// nothing in it.
-pub(super) struct Study<'a> {
+pub(crate) struct Study<'a> {
     pub(super) config: &'a Config,
     pub(super) run: &'a RunConfig,
     /// `[emulator]`, decoded once.
     pub(super) emulator: Option<EmulatorSettings>,
     pub(super) paths: RunPaths,
     pub(super) opts: &'a RunOptions,
+    /// The systems of this run, which complete the study (`setup`).
+    pub(super) systems: &'a [&'a dyn StudySystem],
+}
+
+/// Data a system made for the study (mock data with a known truth).
+pub(crate) struct StudyData {
+    pub(crate) measurements: PathBuf,
+    /// Their covariance (`[data] covariance`), when the system measured it.
+    pub(crate) covariance: Option<PathBuf>,
+}
+
+/// What a simulator system brings to a study beyond its command line, as
+/// `report::SystemFigures` brings figures to a report: the runner and its
+/// stages know no system and ask the ones the study holds (`Study::systems`,
+/// the list `app::systems()` passes in; the stages a system adds are
+/// `system::System::stages`). Every method has a default that adds nothing,
+/// so a system implements only what it brings.
+pub(crate) trait StudySystem: Sync {
+    /// The name of its own table in `[run]` (`[run.<name>]`), if it has one.
+    fn run_table(&self) -> Option<&'static str> {
+        None
+    }
+    /// Checks its table of `run` before any stage runs.
+    fn validate(&self, _run: &RunConfig) -> Result<()> {
+        Ok(())
+    }
+    /// The declarations of its library candidates that `run` names, each
+    /// pointing at its variant emulator under `paths` (what the standalone
+    /// commands take from a study, `complete::fill_in_from_study`).
+    fn library_declarations(&self, _run: &RunConfig, _paths: &RunPaths) -> Result<Vec<toml::Table>> {
+        Ok(Vec::new())
+    }
+    /// What it adds to a generic stage's key: its own `[run]` settings that
+    /// shape that stage's output (the generic stages know only their own).
+    fn key_settings(&self, _study: &Study<'_>, _stage: StageId) -> serde_json::Map<String, serde_json::Value> {
+        serde_json::Map::new()
+    }
+    /// What the simulate stage runs when the study has no `[run.simulator]`.
+    fn default_simulator(&self, _study: &Study<'_>, _validation: bool) -> Result<Option<SimulatorSpec>> {
+        Ok(None)
+    }
+    /// Candidate physics from its own library (`[run.stand_in] candidates`), as variants of its simulator.
+    fn library_variants(&self, _study: &Study<'_>) -> Result<Vec<Variant>> {
+        Ok(Vec::new())
+    }
+    /// The data the study calibrates on, when the system made them.
+    fn data(&self, _study: &Study<'_>) -> Option<StudyData> {
+        None
+    }
+    /// A model family the study's configs may name (its `[truth]` process).
+    fn family(&self) -> Option<Arc<dyn ModelFamily>> {
+        None
+    }
+    /// Units of its parameters and observables, first in the study's figures.
+    fn units(&self, _study: &Study<'_>) -> Option<Units> {
+        None
+    }
+    /// Where its assessment of the calibrations against the truth goes,
+    /// when it assesses this study (else the calibrate stage tables the cases).
+    fn assessment(&self, _study: &Study<'_>) -> Option<PathBuf> {
+        None
+    }
+    /// Writes that assessment from the calibrations in `dirs`.
+    fn assess(&self, _study: &Study<'_>, _config: &Config, _dirs: &[PathBuf]) -> Result<()> {
+        Ok(())
+    }
+    /// Its report figures, and the section its assessment puts above them.
+    fn figures(&self) -> Option<&'static dyn SystemFigures> {
+        None
+    }
+    fn report_section(&self, _study: &Study<'_>) -> Result<Option<String>> {
+        Ok(None)
+    }
 }
 
 impl Study<'_> {

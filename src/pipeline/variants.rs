@@ -18,7 +18,7 @@ use std::collections::BTreeMap;
 
 /// A candidate physics as a variant of the simulator.
 #[derive(Clone, Debug, serde::Serialize)]
-pub(super) struct Variant {
+pub(crate) struct Variant {
     pub name: String,
     /// Its `[[candidates]]` table for diagnose, `emulator` filled in.
     pub declaration: toml::Table,

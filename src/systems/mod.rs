@@ -11,7 +11,6 @@ pub mod heavy_ion;
 use crate::base::config::Config;
 use crate::engine::calibrate::Analysis;
 use crate::engine::model::Registry;
-use crate::engine::report::SystemFigures;
 use anyhow::Result;
 use std::path::Path;
 use std::sync::Arc;
@@ -24,11 +23,6 @@ pub fn registry() -> Registry {
     r.register(Arc::new(declared::DeclaredFamily::EXPRESSION));
     r.register(Arc::new(declared::DeclaredFamily::ODE));
     r
-}
-
-/// Figures the systems add to reports of their own runs.
-pub fn figures() -> Vec<&'static dyn SystemFigures> {
-    vec![&heavy_ion::figures::HeavyIonFigures]
 }
 
 /// Resolves a config with the built-in families.

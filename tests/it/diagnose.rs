@@ -57,7 +57,7 @@ fn names_quadratic_drag_and_recovers_k_and_g() {
         assert!(!json[key].is_null(), "diagnosis.json lacks {key}");
     }
     // The report is self-contained: every figure inline, nothing fetched from the network.
-    let html = mdpipe::report::build(std::slice::from_ref(&out), "test", &mdpipe::systems::figures()).unwrap();
+    let html = mdpipe::report::build(std::slice::from_ref(&out), "test", &mdpipe::app::systems().figures()).unwrap();
     let figures = html.matches("<svg").count();
     // Mismatch map, BF chart, 2 × (3 δ bands + 3 predictions), a corner plot per observable set.
     assert!(figures >= 15, "{figures} figures");

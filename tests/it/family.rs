@@ -151,7 +151,7 @@ fn a_family_defined_outside_the_crate_runs_the_whole_pipeline() {
     assert!((c.median - CURVATURE).abs() < 4.0 * c.sd, "c = {} ± {}", c.median, c.sd);
 
     // The report draws it with the family's units, knowing nothing of the family.
-    let html = mdpipe::report::build(&[dir.join("diagnose")], "line", &mdpipe::systems::figures()).unwrap();
+    let html = mdpipe::report::build(&[dir.join("diagnose")], "line", &mdpipe::app::systems().figures()).unwrap();
     assert!(html.contains("x [m]") && html.contains("y [V]"), "units missing from the report");
     let _ = std::fs::remove_dir_all(&dir);
 }

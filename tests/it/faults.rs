@@ -27,7 +27,7 @@ fn run_to_end(config: &Path, out: &Path) {
 
 /// Seconds each stage took in a finished run, from its stamps.
 fn stage_seconds(out: &Path) -> BTreeMap<String, f64> {
-    stages()
+    stages(&mdpipe::app::systems())
         .iter()
         .map(|s| {
             let stamp: serde_json::Value =
@@ -65,7 +65,7 @@ fn kill_during(config: &Path, out: &Path, target: &str, delay: Duration) -> Land
             }
         }
     });
-    let order = |s: &str| stages().iter().position(|x| *x == s).unwrap();
+    let order = |s: &str| stages(&mdpipe::app::systems()).iter().position(|x| *x == s).unwrap();
     let mut running: Option<String> = None;
     let note = |line: &str, running: &mut Option<String>| {
         let stage = line.strip_prefix('[').and_then(|l| l.split(']').next()).map(str::to_string);
@@ -200,7 +200,7 @@ fn run_killed_at_random_points_of_every_stage_resumes_to_the_same_outputs() {
     let mut kills: Vec<(String, f64, Landed)> = Vec::new();
     let mut landed_in: BTreeMap<String, usize> = BTreeMap::new();
     let mut folders = 0;
-    for stage in stages() {
+    for stage in stages(&mdpipe::app::systems()) {
         let (mut inside, mut misses) = (0, 0);
         let mut out = dir.join(format!("killed-{folders}"));
         for _ in 0..12 {

@@ -5,7 +5,7 @@
 //! script are the runs the simulate stage would have made.
 
 use mdpipe::config::Config;
-use mdpipe::pipeline::{run, stages, RunOptions, StageOutcome};
+use mdpipe::pipeline::{stages, RunOptions, StageOutcome};
 use std::path::{Path, PathBuf};
 
 pub(crate) fn tmpdir(tag: &str) -> PathBuf {
@@ -191,6 +191,11 @@ fn relative_to_cwd(path: &Path) -> PathBuf {
     rel
 }
 
+/// `mdpipe run` with the systems the command line has.
+fn run(config: &Config, opts: &RunOptions) -> anyhow::Result<Vec<StageOutcome>> {
+    mdpipe::pipeline::run(config, opts, &mdpipe::app::systems())
+}
+
 fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
     RunOptions {
         out: out.to_path_buf(),
@@ -218,7 +223,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     // study must find what it wrote (the variant emulators, at its diagnose
     // stage) where it wrote it, not relative to the config.
     let first = run(&config, &opts(&relative_to_cwd(&dir).join("out"), None, false)).unwrap();
-    assert_eq!(ran(&first), stages());
+    assert_eq!(ran(&first), stages(&mdpipe::app::systems()));
     for p in [
         "design/design.parquet",
         "validation_design/design.parquet",
@@ -301,7 +306,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     // Unchanged: nothing runs.
     let second = run(&config, &opts(&out, None, false)).unwrap();
     assert!(ran(&second).is_empty(), "reran {:?}", ran(&second));
-    assert_eq!(second.len(), stages().len());
+    assert_eq!(second.len(), stages(&mdpipe::app::systems()).len());
 
     // --stage with --force reruns that stage only.
     let forced = run(&config, &opts(&out, Some("calibrate"), true)).unwrap();

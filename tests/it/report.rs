@@ -98,7 +98,7 @@ log_observables = ["ch_spectrum"]
     let truth = pred.column("truth").unwrap().f64().unwrap().clone();
     assert!(truth.iter().all(|t| t.is_some_and(f64::is_finite)), "truth column: {truth:?}");
     let html =
-        mdpipe::report::build(std::slice::from_ref(&dir), "heavy-ion test", &mdpipe::systems::figures()).unwrap();
+        mdpipe::report::build(std::slice::from_ref(&dir), "heavy-ion test", &mdpipe::app::systems().figures()).unwrap();
     let figures = html.matches("<svg").count();
     // 2 corner plots... one per observable set: corner, η/s(T) + inset, 2 runs × 2 observables of boxes;
     // emulator: one z-score histogram (cv4) and a parity plot per observable.

@@ -265,7 +265,7 @@ fn measure(dir: &Path, k: usize, effect: Effect, activity: f64, half_life: f64) 
 /// study's emulators (the study in `dir` must have run); returns (hidden
 /// effect, verdict, noise-free size) for the data sets `pick` keeps.
 fn decay_blind(dir: &Path, pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str, String, f64)> {
-    let analysis = mdpipe::pipeline::load(&dir.join("study.toml")).unwrap();
+    let analysis = mdpipe::pipeline::load(&dir.join("study.toml"), &mdpipe::app::systems()).unwrap();
     let mut rows = Vec::new();
     for k in 0..BLIND_SETS {
         let (effect, activity, half_life) = blind_case(k);

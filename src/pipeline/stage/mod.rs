@@ -30,7 +30,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// Whether a study has a stage, and if not, why (for `--stage`).
-pub(in crate::pipeline) enum Presence {
+pub(crate) enum Presence {
     Runs,
     Absent(String),
 }
@@ -52,7 +52,7 @@ pub(in crate::pipeline) trait Stage: Sync {
 }
 
 /// A [`Stage`] as the loop holds it, its settings already serialized.
-pub(in crate::pipeline) trait AnyStage: Sync {
+pub(crate) trait AnyStage: Sync {
     fn id(&self) -> StageId;
     fn upstream(&self) -> &'static [StageId];
     fn present(&self, study: &Study<'_>) -> Result<Presence>;
@@ -84,7 +84,7 @@ impl<S: Stage> AnyStage for S {
 
 /// What a stage body may know of the loop: the keys of the stages before it
 /// (what their outputs were) and its own key.
-pub(in crate::pipeline) struct Keys<'k> {
+pub(crate) struct Keys<'k> {
     pub(in crate::pipeline) upstream: &'k BTreeMap<String, String>,
     pub(in crate::pipeline) this: &'k str,
 }

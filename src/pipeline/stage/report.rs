@@ -4,7 +4,6 @@
 
 use super::{Keys, Stage, StageId};
 use crate::base::artifacts;
-use crate::pipeline::setup;
 use crate::pipeline::study::Study;
 use anyhow::Result;
 use std::path::PathBuf;
@@ -31,7 +30,7 @@ impl Stage for Report {
         // A system that assessed the study adds its section and its figures.
         let mut figures = Vec::new();
         let mut sections = String::new();
-        for system in setup::systems() {
+        for system in study.systems {
             if let Some(section) = system.report_section(study)? {
                 sections.push_str(&section);
                 figures.extend(system.figures());

@@ -10,7 +10,7 @@ mod settings;
 use super::run_config::RunConfig;
 use super::stage::{AnyStage, StageId};
 use super::study::*;
-use super::system::{StudyData, StudySystem};
+use super::system::System;
 use super::variants::Variant;
 use crate::base::artifacts;
 use crate::base::config::Config;
@@ -27,7 +27,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 /// The heavy-ion stand-in.
-pub(super) struct StandIn;
+pub(crate) struct StandIn;
 
 impl StudySystem for StandIn {
     fn run_table(&self) -> Option<&'static str> {
@@ -50,10 +50,6 @@ impl StudySystem for StandIn {
                 heavy_ion::candidate(name)?.declaration(emulator).to_table()
             })
             .collect()
-    }
-
-    fn stages(&self) -> &'static [&'static dyn AnyStage] {
-        &[&mock::Mock]
     }
 
     /// Its keys of `[run]` that shape the runs: events per point, Cooper–Frye
@@ -132,6 +128,12 @@ impl StudySystem for StandIn {
         let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
         let assessed: heavy_ion::study::Study = serde_json::from_str(&text)?;
         Ok(Some(assessed.html()))
+    }
+}
+
+impl System for StandIn {
+    fn stages(&self) -> &'static [&'static dyn AnyStage] {
+        &[&mock::Mock]
     }
 }
 

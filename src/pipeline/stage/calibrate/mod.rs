@@ -11,7 +11,6 @@ use super::{Keys, Stage, StageId};
 use crate::base::artifacts::{self, Provenance};
 use crate::base::choices::Kernel;
 use crate::engine::execute::Executor;
-use crate::pipeline::setup;
 use crate::pipeline::study::Study;
 use anyhow::{anyhow, Result};
 use std::path::PathBuf;
@@ -32,7 +31,7 @@ impl Stage for Calibrate {
     const ID: StageId = StageId::Calibrate;
     const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock, StageId::Refine];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
-        let assessment = setup::systems().iter().find_map(|s| s.assessment(study));
+        let assessment = study.systems.iter().find_map(|s| s.assessment(study));
         Ok(vec![assessment.unwrap_or_else(|| study.paths.calibrate().join("cases.json"))])
     }
     fn settings(&self, study: &Study<'_>) -> Result<Settings> {
@@ -68,7 +67,7 @@ impl Stage for Calibrate {
             }
             dirs.push(c.dir.clone());
         }
-        match setup::systems().iter().find(|s| s.assessment(study).is_some()) {
+        match study.systems.iter().find(|s| s.assessment(study).is_some()) {
             Some(system) => system.assess(study, &config, &dirs),
             None => write_cases(study, &dirs),
         }

@@ -92,7 +92,7 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
         std::slice::from_ref(&out),
         &out.join("report.html"),
         &format!("mdpipe run: {} (diagnose)", study.config.name),
-        &setup::systems().iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
+        &study.systems.iter().filter_map(|s| s.figures()).collect::<Vec<_>>(),
     )?;
     crate::base::messages::say!("  {}", out.join("report.html").display());
     Ok(())
