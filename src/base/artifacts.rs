@@ -238,7 +238,10 @@ pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
 /// Measurements from a CSV or Parquet long table, each row checked.
 fn read_measurements_table(path: &Path) -> Result<Vec<Measurement>> {
     let raw = super::table::RawTable::read(path)?;
-    let expected = |e: anyhow::Error| anyhow!("{e:#} (expected columns: observable, x, value, error)");
+    let expected = |e: anyhow::Error| match e.downcast::<super::error::ColumnError>() {
+        Ok(missing) => missing.expecting(&["observable", "x", "value", "error"]).into(),
+        Err(other) => other,
+    };
     let observables = raw.strings(path, "observable").map_err(expected)?;
     let num = |name: &str| raw.numbers(path, name).map_err(expected);
     let (x, value, error) = (num("x")?, num("value")?, num("error")?);

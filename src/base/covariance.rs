@@ -51,11 +51,8 @@ pub fn read_noise_correlation(path: &Path) -> Result<Vec<CovarianceEntry>> {
     let rows = read_csv_rows(path, CORRELATION_COLUMNS)?;
     for e in &rows {
         if !(e.x_a.is_finite() && e.x_b.is_finite() && e.covariance.abs() <= 1.0 + 1e-9) {
-            bail!(
-                "{}, field 'correlation': {} is not a correlation (finite, within [-1, 1])",
-                e.location(path),
-                e.covariance
-            );
+            let problem = format!("{} is not a correlation (finite, within [-1, 1])", e.covariance);
+            return Err(e.field_error(path, "correlation", problem));
         }
     }
     Ok(rows)
@@ -88,7 +85,8 @@ fn read_csv_rows(path: &Path, columns: [&str; 5]) -> Result<Vec<CovarianceEntry>
         let field = |k: usize| rec.get(idx[k]).unwrap_or("");
         let num = |k: usize| -> Result<f64> {
             field(k).parse::<f64>().map_err(|_| {
-                anyhow!("{file}: line {line}, field '{}': cannot parse {:?} as a number", columns[k], field(k))
+                let problem = format!("cannot parse {:?} as a number", field(k));
+                anyhow::Error::from(super::error::FieldError::new(path, format!("line {line}"), columns[k], problem))
             })
         };
         out.push(CovarianceEntry {

@@ -1,7 +1,8 @@
 //! One measured value, and the checks every reader applies to it; one
 //! entry of a covariance between two measured values.
 
-use anyhow::{bail, Result};
+use super::error::FieldError;
+use anyhow::Result;
 use std::path::Path;
 
 /// One measured value.
@@ -26,26 +27,36 @@ impl Measurement {
         Measurement { observable: observable.to_string(), x, value, error, line: 0 }
     }
 
-    /// "line N" for CSV, "row N" for Parquet, for error messages.
+    /// "FILE: line N" for CSV, "FILE: row N" for Parquet, for error messages.
     pub fn location(&self, path: &Path) -> String {
-        let is_parquet = path.extension().map(|e| e == "parquet" || e == "pq").unwrap_or(false);
-        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
+        format!("{}: {}", path.display(), at(path, self.line))
     }
+
+    /// A bad value in this measurement's field.
+    pub fn field_error(&self, path: &Path, field: &str, problem: impl std::fmt::Display) -> anyhow::Error {
+        FieldError::new(path, at(path, self.line), field, problem).into()
+    }
+}
+
+/// "row N" in a Parquet file, "line N" in a CSV file.
+fn at(path: &Path, line: usize) -> String {
+    let is_parquet = path.extension().is_some_and(|e| e == "parquet" || e == "pq");
+    format!("{} {line}", if is_parquet { "row" } else { "line" })
 }
 
 /// A row's fields: a named observable, finite numbers, a positive error.
 pub(super) fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
-    let file = path.display();
+    let bad = |field: &str, problem: String| Err(FieldError::new(path, where_, field, problem).into());
     if m.observable.trim().is_empty() {
-        bail!("{file}: {where_}, field 'observable': empty observable name");
+        return bad("observable", "empty observable name".into());
     }
     for (field, v) in [("x", m.x), ("value", m.value), ("error", m.error)] {
         if !v.is_finite() {
-            bail!("{file}: {where_}, field '{field}': value is {v}, must be a finite number");
+            return bad(field, format!("value is {v}, must be a finite number"));
         }
     }
     if m.error <= 0.0 {
-        bail!("{file}: {where_}, field 'error': {} is not a positive 1-sigma error", m.error);
+        return bad("error", format!("{} is not a positive 1-sigma error", m.error));
     }
     Ok(())
 }
@@ -64,7 +75,11 @@ pub struct CovarianceEntry {
 
 impl CovarianceEntry {
     pub fn location(&self, path: &Path) -> String {
-        let is_parquet = path.extension().is_some_and(|e| e == "parquet" || e == "pq");
-        format!("{}: {} {}", path.display(), if is_parquet { "row" } else { "line" }, self.line)
+        format!("{}: {}", path.display(), at(path, self.line))
+    }
+
+    /// A bad value in this entry's field.
+    pub fn field_error(&self, path: &Path, field: &str, problem: impl std::fmt::Display) -> anyhow::Error {
+        FieldError::new(path, at(path, self.line), field, problem).into()
     }
 }

@@ -6,6 +6,7 @@ pub mod choices;
 pub mod columns;
 pub mod config;
 pub mod covariance;
+pub mod error;
 pub mod hepdata;
 pub mod measurement;
 pub mod messages;

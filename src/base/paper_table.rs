@@ -3,7 +3,7 @@
 //! A measurements format like CSV, read where measurements are read.
 
 use super::measurement::{validate_row, Measurement};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{bail, Context, Result};
 use std::path::Path;
 
 /// Observable names of the paper's heavy-ion measurement tables, in column
@@ -41,7 +41,8 @@ pub fn read(path: &Path) -> Result<Vec<Measurement>> {
         }
         let num = |c: usize, field: String| -> Result<f64> {
             cells[c].parse::<f64>().map_err(|_| {
-                anyhow!("{file}: line {line_no}, field '{field}': cannot parse {:?} as a number", cells[c])
+                let problem = format!("cannot parse {:?} as a number", cells[c]);
+                anyhow::Error::from(super::error::FieldError::new(path, format!("line {line_no}"), &field, problem))
             })
         };
         let pt = num(0, "pT".into())?;

@@ -3,6 +3,7 @@
 //! the file, the line or row, and the field. Every long or wide table mdpipe
 //! reads (measurements, a simulator's outputs, training tables) goes through it.
 
+use super::error::{ColumnError, FieldError};
 use anyhow::{anyhow, Context, Result};
 use polars::prelude::{DataFrame, ParquetReader, SerReader};
 use std::path::Path;
@@ -77,19 +78,26 @@ impl RawTable {
     }
 
     pub fn missing(&self, path: &Path, name: &str) -> anyhow::Error {
-        anyhow!("{}: missing column '{name}' (found: {})", path.display(), self.columns().join(", "))
+        ColumnError::Missing { file: path.to_path_buf(), column: name.into(), found: self.columns(), expected: &[] }
+            .into()
     }
 
     pub fn numbers(&self, path: &Path, name: &str) -> Result<Vec<f64>> {
-        let file = path.display();
         match self {
             RawTable::Csv { headers, rows } => {
                 let k = headers.iter().position(|h| h == name).ok_or_else(|| self.missing(path, name))?;
                 rows.iter()
                     .map(|(line, cells)| {
                         let s = cells.get(k).map(String::as_str).unwrap_or("");
-                        s.parse::<f64>()
-                            .map_err(|_| anyhow!("{file}: line {line}, field '{name}': cannot parse {s:?} as a number"))
+                        s.parse::<f64>().map_err(|_| {
+                            FieldError::new(
+                                path,
+                                format_args!("line {line}"),
+                                name,
+                                format_args!("cannot parse {s:?} as a number"),
+                            )
+                            .into()
+                        })
                     })
                     .collect()
             }

@@ -380,3 +380,32 @@ fn every_bad_input_gets_a_clear_error_and_writes_nothing() {
     assert!(cases().len() >= 25);
     assert!(failures.is_empty(), "{}", failures.join("\n---\n"));
 }
+
+/// A caller that is not the terminal finds what was wrong, typed: the file,
+/// the line and the field of a bad value, the column a table lacks, and why
+/// a sampler stopped, under whatever context the library added.
+#[test]
+fn bad_input_errors_are_typed_for_callers() {
+    use mdpipe::base::error::{ColumnError, FieldError};
+    let dir = std::env::temp_dir().join(format!("mdpipe-typed-errors-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, "observable,x,value,error\nh,0.1,1.0,0.1\nh,0.2,one,0.1\n").unwrap();
+    let err = mdpipe::artifacts::read_measurements(&bad).unwrap_err();
+    let field = err.chain().find_map(|e| e.downcast_ref::<FieldError>()).unwrap_or_else(|| panic!("{err:#}"));
+    assert_eq!((field.file.as_path(), field.at.as_str(), field.field.as_str()), (bad.as_path(), "line 3", "value"));
+    assert!(format!("{err:#}").contains("bad.csv: line 3, field 'value'"), "{err:#}");
+
+    let lacking = dir.join("lacking.csv");
+    std::fs::write(&lacking, "observable,x,value\nh,0.1,1.0\n").unwrap();
+    let err = mdpipe::artifacts::read_measurements(&lacking).unwrap_err();
+    match err.chain().find_map(|e| e.downcast_ref::<ColumnError>()) {
+        Some(ColumnError::Missing { column, found, expected, .. }) => {
+            assert_eq!(column, "error");
+            assert_eq!(found, &["observable", "x", "value"]);
+            assert_eq!(expected, &["observable", "x", "value", "error"]);
+        }
+        other => panic!("{other:?}: {err:#}"),
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

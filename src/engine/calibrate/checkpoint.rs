@@ -86,27 +86,6 @@ impl Checkpointing {
     }
 }
 
-/// The run stopped before its end: at its time limit, or because it could
-/// not go on (`reason`), with its state saved in `dir` when it had one.
-#[derive(Debug)]
-pub struct Stopped {
-    pub dir: PathBuf,
-    pub seconds: f64,
-    /// Why it could not go on; `None` for the time limit.
-    pub reason: Option<String>,
-}
-
-impl std::fmt::Display for Stopped {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match &self.reason {
-            None => write!(f, "stopped at the time limit after {:.0} s with its state saved in {}; run the same command again to resume", self.seconds, self.dir.display()),
-            Some(why) if self.dir.as_os_str().is_empty() => write!(f, "stopped after {:.0} s: {why}", self.seconds),
-            Some(why) => write!(f, "stopped after {:.0} s: {why} (the last state is kept in {})", self.seconds, self.dir.display()),
-        }
-    }
-}
-impl std::error::Error for Stopped {}
-
 /// `#[serde(with = "f64_bits")]`: a `Vec<f64>` stored as its bit patterns.
 pub mod f64_bits {
     use serde::{Deserialize, Deserializer, Serializer};

@@ -50,6 +50,12 @@ impl<'a> PointIndex<'a> {
 }
 
 /// Index of `x` in `sorted` within `same_x`'s tolerance.
+/// An entry that gives a pair a covariance other than an earlier entry did.
+fn contradiction(path: &Path, e: &CovarianceEntry, earlier: f64) -> anyhow::Error {
+    let problem = format!("{} contradicts the entry for the same pair given earlier ({earlier})", e.covariance);
+    e.field_error(path, "covariance", problem)
+}
+
 fn position_of(sorted: &[f64], x: f64) -> Option<usize> {
     let i = sorted.partition_point(|&v| v < x);
     [i.checked_sub(1), Some(i)].into_iter().flatten().find(|&k| k < sorted.len() && same_x(sorted[k], x))
@@ -88,12 +94,9 @@ pub fn attach(
             let cross = CrossEntry { block_a: ba, index_a: i, block_b: bb, index_b: j, covariance: e.covariance };
             let key = if (ba, i) <= (bb, j) { (ba, i, bb, j) } else { (bb, j, ba, i) };
             match across.get(&key) {
-                Some((c, _)) if !same_x(c.covariance, e.covariance) => bail!(
-                    "{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})",
-                    e.location(path),
-                    e.covariance,
-                    c.covariance
-                ),
+                Some((c, _)) if !same_x(c.covariance, e.covariance) => {
+                    return Err(contradiction(path, e, c.covariance))
+                }
                 Some(_) => {}
                 None => {
                     across.insert(key, (cross, k));
@@ -105,12 +108,7 @@ pub fn attach(
         let n = block.len();
         let c = block.covariance.get_or_insert_with(|| vec![0.0; n * n]);
         if set[ba][j * n + i] && !same_x(c[j * n + i], e.covariance) {
-            bail!(
-                "{}, field 'covariance': {} contradicts the entry for the same pair given earlier ({})",
-                e.location(path),
-                e.covariance,
-                c[j * n + i]
-            );
+            return Err(contradiction(path, e, c[j * n + i]));
         }
         c[j * n + i] = e.covariance;
         c[i * n + j] = e.covariance;

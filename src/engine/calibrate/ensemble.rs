@@ -2,8 +2,8 @@
 //! updated in two halves as in emcee (Foreman-Mackey et al. 2013) so that
 //! each half's walkers move in parallel.
 
-use super::checkpoint::{f64_bit, f64_bits, Checkpointing, Stopped};
-use super::kernel::{drive, SamplerKernel};
+use super::checkpoint::{f64_bit, f64_bits, Checkpointing};
+use super::kernel::{drive, SamplerError, SamplerKernel, Stopped};
 use super::prior::UniformPrior;
 use super::{Chains, LogLikelihood};
 use crate::base::progress::Observer;
@@ -154,7 +154,7 @@ impl SamplerKernel for Stretch<'_> {
         EnsembleState { walkers, step: 0, evaluations: n_walkers as u64 }
     }
 
-    fn step(&self, st: &mut EnsembleState, observer: &dyn Observer) -> Result<bool, String> {
+    fn step(&self, st: &mut EnsembleState, observer: &dyn Observer) -> Result<bool, SamplerError> {
         if st.step >= self.total_steps() {
             return Ok(true);
         }

@@ -5,8 +5,20 @@
 //! the same for every sampler. A state is one serializable value: saved
 //! whole, it resumes to exactly the draws of an uninterrupted run.
 
-use super::checkpoint::{Checkpointing, Stopped};
+use super::checkpoint::Checkpointing;
 use crate::base::progress::Observer;
+use std::path::PathBuf;
+
+/// Why a sampler cannot go on.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SamplerError {
+    /// Every particle's likelihood is −∞ or NaN: the weights are undefined.
+    #[error("tempering made no progress at β = {beta:.3e}: no particle has a finite likelihood")]
+    NoFiniteLikelihood { beta: f64 },
+    /// β has not reached 1 in the sampler's limit of tempering steps.
+    #[error("tempering made no progress: β = {beta:.3e} after {steps} steps; the likelihood is too sharp or nearly nowhere finite under this prior")]
+    TemperingStalled { beta: f64, steps: usize },
+}
 
 pub trait SamplerKernel {
     type State: serde::Serialize + serde::de::DeserializeOwned;
@@ -16,7 +28,7 @@ pub trait SamplerKernel {
     fn init(&self, seed: u64) -> Self::State;
     /// Moves the state one step; `Ok(true)` once it is finished, an error
     /// when it cannot go on.
-    fn step(&self, state: &mut Self::State, observer: &dyn Observer) -> Result<bool, String>;
+    fn step(&self, state: &mut Self::State, observer: &dyn Observer) -> Result<bool, SamplerError>;
     /// The result of a finished state.
     fn finish(&self, state: Self::State) -> Self::Output;
     /// The progress units a whole run reports (given at once for a run whose
@@ -24,13 +36,37 @@ pub trait SamplerKernel {
     fn progress_units(&self) -> u64;
 }
 
+/// The run stopped before its end: at its time limit, or because it could
+/// not go on (`cause`), with its state saved in `dir` when it had one.
+#[derive(Debug)]
+pub struct Stopped {
+    pub dir: PathBuf,
+    pub seconds: f64,
+    /// The chain that stopped, as the message names it ("replicate 2: "), or "".
+    pub chain: String,
+    /// Why it could not go on; `None` for the time limit.
+    pub cause: Option<SamplerError>,
+}
+
+impl std::fmt::Display for Stopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (secs, chain) = (self.seconds, &self.chain);
+        match &self.cause {
+            None => write!(f, "stopped at the time limit after {secs:.0} s with its state saved in {}; run the same command again to resume", self.dir.display()),
+            Some(why) if self.dir.as_os_str().is_empty() => write!(f, "stopped after {secs:.0} s: {chain}{why}"),
+            Some(why) => write!(f, "stopped after {secs:.0} s: {chain}{why} (the last state is kept in {})", self.dir.display()),
+        }
+    }
+}
+impl std::error::Error for Stopped {}
+
 /// How a driven run ended.
 pub enum End<O> {
     Done(O),
     /// Stopped at the checkpoint's time limit, the state saved.
     OutOfTime,
     /// Could not go on (the reason); the last state is saved when checkpointing.
-    Stuck(String),
+    Stuck(SamplerError),
 }
 
 impl<O> End<O> {
@@ -42,15 +78,16 @@ impl<O> End<O> {
         started: std::time::Instant,
         chain: &str,
     ) -> Result<O, Stopped> {
-        let stopped = |reason| Stopped {
+        let stopped = |cause| Stopped {
             dir: ck.map(|c| c.dir.clone()).unwrap_or_default(),
             seconds: started.elapsed().as_secs_f64(),
-            reason,
+            chain: chain.to_string(),
+            cause,
         };
         match self {
             End::Done(out) => Ok(out),
             End::OutOfTime => Err(stopped(None)),
-            End::Stuck(why) => Err(stopped(Some(format!("{chain}{why}")))),
+            End::Stuck(why) => Err(stopped(Some(why))),
         }
     }
 }

@@ -221,13 +221,13 @@ fn check_observables_known(
 ) -> Result<()> {
     let model_obs = simulator.observable_names();
     if let Some(m) = measurements.iter().find(|m| !model_obs.contains(&m.observable)) {
-        bail!(
-            "{}, field 'observable': unknown observable '{}' (model '{}' predicts: {})",
-            m.location(data_path),
+        let problem = format!(
+            "unknown observable '{}' (model '{}' predicts: {})",
             m.observable,
             analysis.name,
             model_obs.join(", ")
         );
+        return Err(m.field_error(data_path, "observable", problem));
     }
     Ok(())
 }
@@ -368,7 +368,7 @@ pub fn run_and_write(
 /// As `run`; with `checkpoint` the SMC sampler saves its state as it goes and
 /// resumes from a matching saved state (the caller clears it once the
 /// outputs are safe: [`run_and_write`]). Stopped at the checkpoint's time
-/// limit it returns a `checkpoint::Stopped` error.
+/// limit it returns a `kernel::Stopped` error.
 pub fn run_checkpointed(
     problem: &Problem,
     seed: u64,

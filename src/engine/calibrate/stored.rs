@@ -16,7 +16,7 @@ use super::{checkpoint_key, Calibration, Chains, Problem};
 use crate::base::artifacts;
 use crate::base::columns::{f64_column, str_column};
 use crate::engine::model::Simulator;
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
 pub const KEY_FILE: &str = "fit.key";
@@ -64,7 +64,8 @@ fn read_chains(path: &Path, names: &[String]) -> Result<Chains> {
     for (row, &c) in chain.iter().enumerate() {
         let c = c as usize;
         if c > chains.len() {
-            bail!("{}: row {}, field 'chain': chains must come in order", path.display(), row + 1);
+            let at = format!("row {}", row + 1);
+            return Err(crate::base::error::FieldError::new(path, at, "chain", "chains must come in order").into());
         }
         if c == chains.len() {
             chains.push(Vec::new());
@@ -96,7 +97,14 @@ fn read_predictions(path: &Path) -> Result<Vec<PredictionRow>> {
                     "grid" => "grid",
                     "data" => "data",
                     other => {
-                        bail!("{}: row {}, field 'kind': '{other}' is neither grid nor data", path.display(), i + 1)
+                        let problem = format!("'{other}' is neither grid nor data");
+                        return Err(crate::base::error::FieldError::new(
+                            path,
+                            format!("row {}", i + 1),
+                            "kind",
+                            problem,
+                        )
+                        .into());
                     }
                 },
                 x: x[i],

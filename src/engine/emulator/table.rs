@@ -8,6 +8,7 @@
 //! Wide: one row per design point, `design_id`, the parameter columns, and
 //! one column per output named `observable[x]` (or just `observable`, x = 0).
 
+use crate::base::error::FieldError;
 use crate::base::table::RawTable;
 use anyhow::{anyhow, bail, Result};
 use polars::prelude::*;
@@ -227,12 +228,13 @@ impl TrainingTable {
 
 fn check_finite(path: &Path, raw: &RawTable, field: &str, values: &[f64]) -> Result<()> {
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-        bail!(
-            "{}: {}, field '{field}': value is {}, must be a finite number",
-            path.display(),
+        return Err(FieldError::new(
+            path,
             raw.location(i),
-            values[i]
-        );
+            field,
+            format_args!("value is {}, must be a finite number", values[i]),
+        )
+        .into());
     }
     Ok(())
 }
@@ -319,7 +321,9 @@ pub fn read_training_table_selected(
     let ids_f = raw.numbers(path, "design_id")?;
     for (i, v) in ids_f.iter().enumerate() {
         if v.fract() != 0.0 || !v.is_finite() {
-            bail!("{file}: {}, field 'design_id': {v} is not an integer", raw.location(i));
+            return Err(
+                FieldError::new(path, raw.location(i), "design_id", format_args!("{v} is not an integer")).into()
+            );
         }
     }
     let ids: Vec<i64> = ids_f.iter().map(|&v| v as i64).collect();
@@ -411,7 +415,7 @@ fn read_long(raw: &RawTable, path: &Path, ids: &[i64], keep: &dyn Fn(&str) -> bo
     let mut cells = Cells::default();
     for i in 0..raw.height() {
         if obs[i].trim().is_empty() {
-            bail!("{}: {}, field 'observable': empty observable name", path.display(), raw.location(i));
+            return Err(FieldError::new(path, raw.location(i), "observable", "empty observable name").into());
         }
         if keep(&obs[i]) {
             cells.add(
@@ -477,15 +481,8 @@ fn point_inputs(
             if slot.is_nan() {
                 *slot = v;
             } else if *slot != v {
-                bail!(
-                    "{}: {}, field '{}': design point {} has {} here but {} on an earlier row",
-                    path.display(),
-                    raw.location(i),
-                    parameter_names[k],
-                    ids[i],
-                    v,
-                    slot
-                );
+                let problem = format!("design point {} has {} here but {} on an earlier row", ids[i], v, slot);
+                return Err(FieldError::new(path, raw.location(i), &parameter_names[k], problem).into());
             }
         }
     }
@@ -533,12 +530,13 @@ fn ordered_values(path: &Path, cells: &Cells, observables: &[String]) -> Result<
 /// left empty by a failed jackknife is caught here, not in the likelihood).
 fn check_run_errors(path: &Path, raw: &RawTable, errors: &[f64]) -> Result<()> {
     match errors.iter().position(|e| !e.is_finite() || *e < 0.0) {
-        Some(i) => bail!(
-            "{}: {}, field 'error': {} is not a statistical error (it must be finite and ≥ 0)",
-            path.display(),
+        Some(i) => Err(FieldError::new(
+            path,
             raw.location(i),
-            errors[i]
-        ),
+            "error",
+            format_args!("{} is not a statistical error (it must be finite and ≥ 0)", errors[i]),
+        )
+        .into()),
         None => Ok(()),
     }
 }
@@ -568,12 +566,8 @@ pub fn check_against_design(table: &TrainingTable, design: &Path) -> Result<()> 
             let i = table.design_ids.iter().position(|d| d == id).expect("checked above");
             let t = table.input(i)[k];
             if (t - v).abs() > 1e-9 * v.abs().max(1.0) {
-                bail!(
-                    "{}: {}, field '{name}': design point {id} has {v} in the design but {t} in {}",
-                    design.display(),
-                    raw.location(row),
-                    table.path.display()
-                );
+                let problem = format!("design point {id} has {v} in the design but {t} in {}", table.path.display());
+                return Err(FieldError::new(design, raw.location(row), name, problem).into());
             }
         }
     }

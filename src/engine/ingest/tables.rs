@@ -79,7 +79,7 @@ fn read_table(id: i64, path: &Path) -> Result<Vec<IngestedRow>> {
     let (xs, values) = (raw.numbers(path, "x").map_err(hint)?, raw.numbers(path, "value").map_err(hint)?);
     let errors = if raw.has("error") { raw.numbers(path, "error")? } else { vec![0.0; raw.height()] };
     if let Some(i) = xs.iter().position(|x| !x.is_finite()) {
-        bail!("{}: {}, field 'x': not finite", path.display(), raw.location(i));
+        return Err(crate::base::error::FieldError::new(path, raw.location(i), "x", "not finite").into());
     }
     if raw.height() == 0 {
         bail!("{}: no rows", path.display());

@@ -22,8 +22,8 @@
 //! the R̂/ESS diagnostics, with each replicate's draws ordered by ancestor so
 //! that copies of one particle that the moves failed to separate lower the ESS.
 
-use super::checkpoint::{f64_bit, f64_bits, Checkpointing, Stopped};
-use super::kernel::{drive, End, SamplerKernel};
+use super::checkpoint::{f64_bit, f64_bits, Checkpointing};
+use super::kernel::{drive, End, SamplerError, SamplerKernel, Stopped};
 use super::prior::UniformPrior;
 use super::{Chains, LogLikelihood, TermStructure};
 use crate::base::progress::Observer;
@@ -266,7 +266,7 @@ impl SamplerKernel for Kernel<'_> {
         self.init_replicate(seed)
     }
 
-    fn step(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<bool, String> {
+    fn step(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<bool, SamplerError> {
         match self.temper(st, observer)? {
             Some(weights) => {
                 st.final_weights = weights;
@@ -353,15 +353,12 @@ impl<'a> Kernel<'a> {
     /// error when tempering cannot go on: no particle has a finite likelihood
     /// (the weights are undefined), or β has not reached 1 in
     /// [`MAX_TEMPERING_STEPS`] steps.
-    fn temper(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<Option<Vec<f64>>, String> {
+    fn temper(&self, st: &mut ReplicateState, observer: &dyn Observer) -> Result<Option<Vec<f64>>, SamplerError> {
         if !st.cloud.loglik.iter().any(|l| l.is_finite()) {
-            return Err(format!(
-                "tempering made no progress at β = {:.3e}: no particle has a finite likelihood",
-                st.beta
-            ));
+            return Err(SamplerError::NoFiniteLikelihood { beta: st.beta });
         }
         if st.stages >= MAX_TEMPERING_STEPS {
-            return Err(format!("tempering made no progress: β = {:.3e} after {} steps; the likelihood is too sharp or nearly nowhere finite under this prior", st.beta, st.stages));
+            return Err(SamplerError::TemperingStalled { beta: st.beta, steps: st.stages });
         }
         let n = self.n;
         let delta = next_increment(&st.cloud.loglik, st.beta, self.target_ess);
