@@ -67,6 +67,10 @@ pub enum StageId {
     /// `diagnose` with the candidates' variants.
     #[value(name = "diagnose")]
     Diagnose,
+    /// A stage of the tests only (`pipeline::stage::probe`).
+    #[cfg(test)]
+    #[value(name = "probe")]
+    Probe,
 }
 
 impl StageId {
@@ -83,6 +87,8 @@ impl StageId {
             StageId::Report => "report",
             StageId::Candidates => "candidates",
             StageId::Diagnose => "diagnose",
+            #[cfg(test)]
+            StageId::Probe => "probe",
         }
     }
 }

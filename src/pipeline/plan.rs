@@ -1,6 +1,8 @@
 //! The stages a study has, in the order it runs them: the generic stages
 //! (one module each under `stage/`) and those its systems add.
 
+#[cfg(test)]
+use super::stage::probe;
 use super::stage::{calibrate, candidates, design, diagnose, emulator, ingest, refine, report, simulate};
 use super::stage::{AnyStage, Presence};
 use super::study::Study;
@@ -8,8 +10,8 @@ use super::system::Systems;
 use anyhow::{bail, Result};
 
 /// The stages every study may have (a system adds its own).
-fn generic() -> [&'static dyn AnyStage; 9] {
-    [
+fn generic() -> Vec<&'static dyn AnyStage> {
+    vec![
         &design::Design,
         &simulate::Simulate,
         &ingest::Ingest,
@@ -19,12 +21,14 @@ fn generic() -> [&'static dyn AnyStage; 9] {
         &report::Report,
         &candidates::Candidates,
         &diagnose::Diagnose,
+        #[cfg(test)]
+        &probe::Probe,
     ]
 }
 
 /// Every stage, the generic ones and those the systems add, in the order a study runs them.
 pub(super) fn stages(systems: &Systems) -> Vec<&'static dyn AnyStage> {
-    let mut stages = generic().to_vec();
+    let mut stages = generic();
     for system in systems.iter() {
         stages.extend(system.stages());
     }

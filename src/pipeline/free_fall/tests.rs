@@ -1,7 +1,8 @@
 //! A study of the second system end to end, with the systems list the test
 //! gives: its table is refused by the command line's list (which does not
 //! hold it), claimed by a list with it; its simulator, stage, data and keys
-//! are used by the generic stages.
+//! are used by the generic stages; and the stage of the tests
+//! (`stage::probe`, a folder and one line in the stage list) runs with them.
 
 use super::FreeFall;
 use crate::base::choices::Executor;
@@ -84,7 +85,7 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     // One line: the list with it.
     let systems = Systems::new(vec![&StandIn, &FreeFall]);
     let first = run(&config, &options(out.clone()), &systems).unwrap();
-    assert_eq!(ran(&first), ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report"]);
+    assert_eq!(ran(&first), ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report", "probe"]);
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("calibrate/v__nomd/summary.json")).unwrap()).unwrap();
     let g = &summary["parameters"]["g"];
@@ -93,12 +94,16 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     assert!(lo < 9.81 && 9.81 < hi && hi - lo < 0.2, "g in [{lo}, {hi}]");
     assert_eq!(summary["units"]["parameters"]["g"], "m/s²", "the system's units reach the fit");
     assert!(std::fs::read_to_string(out.join("mock/measurements.csv")).unwrap().lines().count() == 11);
+    // The stage of the tests (`stage::probe`) ran after the calibrations it reads.
+    let probe: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("probe.json")).unwrap()).unwrap();
+    assert_eq!(probe["cases"], 1);
 
     // Unchanged, nothing reruns; its own setting that shapes the runs
     // (what it adds to the design's key) reruns the design and what follows.
     assert!(ran(&run(&config, &options(out.clone()), &systems).unwrap()).is_empty());
     let config = study(&dir, 12);
     let again = run(&config, &options(out.clone()), &systems).unwrap();
-    assert_eq!(ran(&again), ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report"]);
+    assert_eq!(ran(&again), ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report", "probe"]);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -18,6 +18,8 @@ pub(super) mod design;
 pub(super) mod diagnose;
 pub(super) mod emulator;
 pub(super) mod ingest;
+#[cfg(test)]
+pub(super) mod probe;
 pub(super) mod refine;
 pub(super) mod report;
 pub(super) mod simulate;
