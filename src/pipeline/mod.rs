@@ -25,7 +25,7 @@
 //! (`variants`), or the stand-in's library names in `[run.stand_in] candidates`.
 //! Each stage is one module of `stage/` (a type implementing `stage::Stage`:
 //! its `StageId`, upstream stages, outputs, typed settings and body), and a
-//! system adds its own through `system::StudySystem` (the stand-in's mock
+//! system adds its own through `system::System::stages` (the stand-in's mock
 //! stage); `stage::StageLoop` owns the keys and stamps:
 //! a stage whose stamp (`OUT/stages/<stage>.json`) holds the key of its
 //! settings and upstream keys, and whose outputs exist, is skipped. Within

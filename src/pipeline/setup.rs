@@ -1,4 +1,4 @@
-//! The study as its systems complete it (`system::StudySystem`): what its
+//! The study as its systems complete it (`study::StudySystem`): what its
 //! simulate stage runs, what they add to its stages' keys, its candidates, the data and the
 //! analysis its calibrations use. The systems are the run's
 //! (`Study::systems`, the list `app::systems()` passes in).

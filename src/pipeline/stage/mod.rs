@@ -7,7 +7,7 @@
 //! files); what two stages share (a design run through the executor and
 //! ingested) is the service module `pipeline::points`. The generic stages
 //! are listed in `pipeline::plan`; a system adds its own through
-//! `system::StudySystem::stages`. The loop owns the keys: a stage's key
+//! `system::System::stages`. The loop owns the keys: a stage's key
 //! hashes its settings and its upstream stages' keys; a stage whose stamp
 //! (`OUT/stages/<stage>.json`) holds the same key, and whose outputs exist,
 //! is skipped.

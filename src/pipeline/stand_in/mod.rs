@@ -1,4 +1,4 @@
-//! The heavy-ion stand-in as a system of `mdpipe run` (`system::StudySystem`):
+//! The heavy-ion stand-in as a system of `mdpipe run` (`study::StudySystem`, `system::System`):
 //! its command as the default simulator, its mock data with the truth known
 //! (the mock stage, `mock.rs`), its library of candidate physics as
 //! simulator variants, and the assessment of the calibrations against that
