@@ -6,7 +6,8 @@
 //! `calibrate`, `[emulator]` by `emulator`, `[run]` by the study runner), each
 //! with errors that name this file and the table.
 
-use anyhow::{anyhow, bail, Context, Result};
+use super::error::ConfigError;
+use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -189,7 +190,7 @@ impl Config {
     pub fn load(path: &Path) -> Result<Config> {
         let bytes = std::fs::read(path).with_context(|| format!("reading config {}", path.display()))?;
         let text = String::from_utf8(bytes.clone()).with_context(|| format!("{}: not UTF-8", path.display()))?;
-        let mut cfg: Config = toml::from_str(&text).map_err(|e| anyhow!("{}: {}", path.display(), e))?;
+        let mut cfg: Config = toml::from_str(&text).map_err(|e| ConfigError::new(path, "", e))?;
         cfg.path = path.to_path_buf();
         cfg.hash = crate::base::artifacts::sha256_hex(&bytes);
         cfg.validate()?;
@@ -197,18 +198,24 @@ impl Config {
     }
 
     fn validate(&self) -> Result<()> {
-        let file = self.path.display();
+        let bad = |place: String, problem: String| Err(ConfigError::new(&self.path, place, problem).into());
         for (name, p) in &self.parameters {
-            p.check(&format!("{file}: [parameters.{name}]"))?;
+            if !(p.min.is_finite() && p.max.is_finite() && p.min < p.max) {
+                let problem = format!("bounds must satisfy min < max, got min = {}, max = {}", p.min, p.max);
+                return bad(format!("[parameters.{name}]"), problem);
+            }
         }
         for (name, b) in &self.discrepancy.bounds {
             if !(b[0].is_finite() && b[1].is_finite() && b[0] < b[1]) {
-                bail!("{file}: [discrepancy.bounds] {name}: bounds must satisfy min < max, got [{}, {}]", b[0], b[1]);
+                let problem = format!("bounds must satisfy min < max, got [{}, {}]", b[0], b[1]);
+                return bad(format!("[discrepancy.bounds] {name}"), problem);
             }
         }
         for (name, t) in &self.discrepancy.inputs {
             if !(t.shift.is_finite() && t.scale.is_finite() && t.scale > 0.0) {
-                bail!("{file}: [discrepancy.inputs.{name}]: need a finite shift and a positive scale, got shift = {}, scale = {}", t.shift, t.scale);
+                let problem =
+                    format!("need a finite shift and a positive scale, got shift = {}, scale = {}", t.shift, t.scale);
+                return bad(format!("[discrepancy.inputs.{name}]"), problem);
             }
         }
         let p = &self.predictions;
@@ -218,7 +225,8 @@ impl Config {
             || p.x_min.is_some_and(|m| !m.is_finite())
             || p.x_max.is_some_and(|m| !(m.is_finite() && m > x_min))
         {
-            bail!("{file}: [predictions]: need points >= 2, draws >= 1 and finite x_min < x_max, got points = {}, draws = {}, x_min = {:?}, x_max = {:?}", p.points, p.draws, p.x_min, p.x_max);
+            let problem = format!("need points >= 2, draws >= 1 and finite x_min < x_max, got points = {}, draws = {}, x_min = {:?}, x_max = {:?}", p.points, p.draws, p.x_min, p.x_max);
+            return bad("[predictions]".into(), problem);
         }
         self.model_kind()?;
         Ok(())
@@ -226,10 +234,9 @@ impl Config {
 
     /// The `kind` of a raw table (`[model]`, `[truth]`), named in errors by `table`.
     pub fn kind_of<'a>(&self, table: &'a toml::Table, name: &str) -> Result<&'a str> {
-        table
-            .get("kind")
-            .and_then(|k| k.as_str())
-            .ok_or_else(|| anyhow!("{}: [{name}] needs a `kind` (a model family's name)", self.path.display()))
+        table.get("kind").and_then(|k| k.as_str()).ok_or_else(|| {
+            ConfigError::new(&self.path, format_args!("[{name}]"), "needs a `kind` (a model family's name)").into()
+        })
     }
 
     /// `[model] kind`.
@@ -239,7 +246,7 @@ impl Config {
 
     /// Decodes a raw table into `T`, naming this file and the table in errors.
     pub fn decode<T: serde::de::DeserializeOwned>(&self, table: &toml::Table, name: &str) -> Result<T> {
-        table.clone().try_into().map_err(|e| anyhow!("{}: [{name}]: {e}", self.path.display()))
+        table.clone().try_into().map_err(|e| ConfigError::new(&self.path, format_args!("[{name}]"), e).into())
     }
 
     /// As `decode`, for a family's table (`[model]`, `[truth]`): its `kind`,

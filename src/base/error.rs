@@ -3,7 +3,7 @@
 //! the column a table lacks. The library returns them inside `anyhow::Error`
 //! (which carries the context of what was being done when they happened);
 //! a caller finds them with `error.downcast_ref::<FieldError>()` or
-//! `ColumnError`, and `app` prints the whole chain as the message. The
+//! `ColumnError` (or `ConfigError` for a config), and `app` prints the whole chain as the message. The
 //! samplers' `SamplerError` and `Stopped` (`engine::calibrate`) and the
 //! choices' `UnknownChoice` (`base::choices`) are typed the same way.
 
@@ -45,6 +45,23 @@ impl ColumnError {
 impl FieldError {
     pub fn new(file: &Path, at: impl Display, field: &str, problem: impl Display) -> FieldError {
         FieldError { file: file.to_path_buf(), at: at.to_string(), field: field.into(), problem: problem.to_string() }
+    }
+}
+
+/// A config that is not what mdpipe reads: its file, where in it (a table,
+/// a table and key: "[discrepancy.bounds] cbar"; empty for the TOML
+/// syntax, whose message says where) and what is wrong.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{}: {}{problem}", file.display(), if place.is_empty() { String::new() } else { format!("{place}: ") })]
+pub struct ConfigError {
+    pub file: PathBuf,
+    pub place: String,
+    pub problem: String,
+}
+
+impl ConfigError {
+    pub fn new(file: &Path, place: impl Display, problem: impl Display) -> ConfigError {
+        ConfigError { file: file.to_path_buf(), place: place.to_string(), problem: problem.to_string() }
     }
 }
 

@@ -386,7 +386,7 @@ fn every_bad_input_gets_a_clear_error_and_writes_nothing() {
 /// a sampler stopped, under whatever context the library added.
 #[test]
 fn bad_input_errors_are_typed_for_callers() {
-    use mdpipe::base::error::{ColumnError, FieldError};
+    use mdpipe::base::error::{ColumnError, ConfigError, FieldError};
     let dir = std::env::temp_dir().join(format!("mdpipe-typed-errors-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let bad = dir.join("bad.csv");
@@ -407,5 +407,12 @@ fn bad_input_errors_are_typed_for_callers() {
         }
         other => panic!("{other:?}: {err:#}"),
     }
+
+    let config = dir.join("bad.toml");
+    let text = ball_drop_toml().replace("cbar = [0.0, 10.0]", "cbar = [2.0, 1.0]");
+    std::fs::write(&config, text).unwrap();
+    let err = mdpipe::config::Config::load(&config).unwrap_err();
+    let bad = err.chain().find_map(|e| e.downcast_ref::<ConfigError>()).unwrap_or_else(|| panic!("{err:#}"));
+    assert_eq!((bad.file.as_path(), bad.place.as_str()), (config.as_path(), "[discrepancy.bounds] cbar"));
     let _ = std::fs::remove_dir_all(&dir);
 }
