@@ -30,7 +30,8 @@ pub fn likelihood_throughput(
     kernel: Option<DiscrepancyKernel>,
     evaluations: usize,
 ) -> Result<LikelihoodBench> {
-    let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..Default::default() })?;
+    let problem =
+        Problem::new(analysis, &Overrides { kernel: Some(DiscrepancyKernel::choice(kernel)), ..Default::default() })?;
     let dim = problem.prior.dim();
     let points = problem.prior.draws(&mut Xoshiro256PlusPlus::seed_from_u64(7), 1024);
     let mut sink = 0.0;

@@ -19,7 +19,6 @@
 
 use crate::engine::calibrate::{Overrides, Problem};
 use crate::engine::emulator::{train, EmulatedModel, EmulatorSettings, OutputKey, TrainingTable};
-use crate::engine::gp::DiscrepancyKernel;
 use anyhow::{Context, Result};
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -119,7 +118,7 @@ pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingR
         let config = write_problem(&out.join(format!("n{n}")), n)?;
         let start = Instant::now();
         let analysis = crate::systems::load(&config)?;
-        let overrides = Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() };
+        let overrides = Overrides { kernel: Some(crate::base::choices::Kernel::II), ..Default::default() };
         let mut problem = Problem::new(&analysis, &overrides)?;
         let setup_seconds = start.elapsed().as_secs_f64();
         let rank = problem.likelihood.structure.as_ref().map(|s| s.rank);

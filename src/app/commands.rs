@@ -6,7 +6,6 @@ use crate::base::choices::{Executor, Kernel};
 use crate::base::config::Config;
 use crate::base::progress::Bars;
 use crate::engine::calibrate::{self, summary::Summary, Overrides, Problem, SamplerKind};
-use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::{compare, diagnose, report};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -33,7 +32,7 @@ pub fn parse_overrides(
     observables: Option<Vec<String>>,
     sampler: Option<SamplerKind>,
 ) -> Result<Overrides> {
-    Ok(Overrides { data, kernel: kernel.map(DiscrepancyKernel::of), observables, sampler })
+    Ok(Overrides { data, kernel, observables, sampler })
 }
 
 pub fn calibrate(

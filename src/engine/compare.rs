@@ -2,6 +2,7 @@
 //! Kernel II}, on the analysis' data or on replicate mock data sets.
 
 use crate::base::artifacts::{self, Measurement};
+use crate::base::choices::Kernel;
 use crate::base::progress::{Observer, Silent};
 use crate::engine::calibrate::{run, write_outputs, Analysis, Calibration, Overrides, Problem};
 use crate::engine::gp::DiscrepancyKernel;
@@ -24,7 +25,7 @@ pub struct CompareCase {
 pub fn observable_sets(analysis: &Analysis, overrides: &Overrides) -> Result<Vec<Vec<String>>> {
     let all = match &overrides.observables {
         Some(o) => o.clone(),
-        None => Problem::new(analysis, &Overrides { kernel: Some(None), ..overrides.clone() })?.observables(),
+        None => Problem::new(analysis, &Overrides { kernel: Some(Kernel::None), ..overrides.clone() })?.observables(),
     };
     Ok((1..=all.len()).map(|k| all[..k].to_vec()).collect())
 }
@@ -52,7 +53,11 @@ pub fn run_grid(
     let mut cases = Vec::new();
     for (i, obs) in observable_sets(analysis, overrides)?.into_iter().enumerate() {
         for (j, kernel) in KERNELS.iter().enumerate() {
-            let ov = Overrides { kernel: Some(*kernel), observables: Some(obs.clone()), ..overrides.clone() };
+            let ov = Overrides {
+                kernel: Some(DiscrepancyKernel::choice(*kernel)),
+                observables: Some(obs.clone()),
+                ..overrides.clone()
+            };
             let problem = Problem::new(analysis, &ov)?;
             let case_seed = seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
             let calibration = run(&problem, case_seed, observer)?;

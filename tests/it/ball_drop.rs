@@ -75,7 +75,7 @@ fn paper_findings_hold_on_bundled_data() {
 #[test]
 fn smc_and_ensemble_agree_on_ball_drop() {
     let cfg = config();
-    for kernel in [None, Some(DiscrepancyKernel::KernelII)] {
+    for kernel in [mdpipe::base::choices::Kernel::None, mdpipe::base::choices::Kernel::II] {
         let mut runs = Vec::new();
         for sampler in [SamplerKind::Smc, SamplerKind::Ensemble] {
             let ov = Overrides {
@@ -116,7 +116,7 @@ fn smc_and_ensemble_agree_on_ball_drop() {
 fn calibrate_writes_artifacts_with_provenance() {
     let cfg = config();
     let problem =
-        Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() })
+        Problem::new(&cfg, &Overrides { kernel: Some(mdpipe::base::choices::Kernel::II), ..Default::default() })
             .unwrap();
     let cal = calibrate::run(&problem, 5, &Silent).unwrap();
     let out = tmp("artifacts");

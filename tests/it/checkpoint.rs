@@ -6,7 +6,6 @@
 use mdpipe::calibrate::checkpoint::Checkpointing;
 use mdpipe::calibrate::smc::Smc;
 use mdpipe::calibrate::{Overrides, Problem};
-use mdpipe::gp::DiscrepancyKernel;
 use mdpipe::progress::Silent;
 use std::path::Path;
 use std::time::Duration;
@@ -17,7 +16,7 @@ fn problem() -> Problem {
     cfg.sampler.smc.particles = 300;
     cfg.sampler.adapt = false;
     cfg.sampler.smc.replicates = 2;
-    Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() }).unwrap()
+    Problem::new(&cfg, &Overrides { kernel: Some(mdpipe::base::choices::Kernel::II), ..Default::default() }).unwrap()
 }
 
 /// A checkpoint that saves after every step and stops at once.
@@ -171,7 +170,7 @@ fn a_stored_fit_reads_back_whole_and_is_found_only_for_its_own_problem() {
     cfg.sampler.adapt = false;
     cfg.sampler.smc.replicates = 2;
     let kernel_i =
-        Problem::new(&cfg, &Overrides { kernel: Some(Some(DiscrepancyKernel::KernelI)), ..Default::default() });
+        Problem::new(&cfg, &Overrides { kernel: Some(mdpipe::base::choices::Kernel::I), ..Default::default() });
     assert!(stored::find(std::slice::from_ref(&dir), &kernel_i.unwrap()).is_none());
     // Another model under the same config: only its answers tell it apart.
     let mut other = problem();

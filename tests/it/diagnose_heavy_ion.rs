@@ -279,9 +279,11 @@ fn heavy_ion_grad_fit_covers_the_truth_over_seeds() {
         grad_event_mock(&mut cfg, &seed_dir, 1000 + s as u64);
         let analysis = mdpipe::systems::resolve(&cfg).unwrap();
         let grad = analysis.candidates().unwrap().into_iter().find(|c| c.name == "grad_shear_delta_f").unwrap();
-        let problem =
-            Problem::new(&analysis.with_candidate(&grad), &Overrides { kernel: Some(None), ..Default::default() })
-                .unwrap();
+        let problem = Problem::new(
+            &analysis.with_candidate(&grad),
+            &Overrides { kernel: Some(mdpipe::base::choices::Kernel::None), ..Default::default() },
+        )
+        .unwrap();
         let cal = calibrate::run(&problem, s as u64, &Silent).unwrap();
         let mut line = format!("data set {s:2}:");
         for (k, (name, truth)) in [("eta_s", 0.1), ("e_sw", 0.2)].into_iter().enumerate() {

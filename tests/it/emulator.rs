@@ -333,7 +333,11 @@ fn calibration_through_an_emulator_matches_the_exact_model() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let exact_cfg = mdpipe::systems::load(&root.join("pipeline/ball_drop.toml")).unwrap();
     let obs = vec!["velocity".to_string(), "acceleration".to_string()];
-    let overrides = Overrides { kernel: Some(None), observables: Some(obs.clone()), ..Default::default() };
+    let overrides = Overrides {
+        kernel: Some(mdpipe::base::choices::Kernel::None),
+        observables: Some(obs.clone()),
+        ..Default::default()
+    };
     let exact = Problem::new(&exact_cfg, &overrides).unwrap();
     // Training runs of the drag-free model over the prior box, at the data times.
     let times: Vec<f64> = exact.likelihood.blocks[0].x.clone();

@@ -120,7 +120,9 @@ curvature = 0.5
 fn a_family_defined_outside_the_crate_runs_the_whole_pipeline() {
     let (dir, analysis) = setup("pipeline");
     // Calibrate: the truth curve and the family's units reach the artifacts.
-    let problem = Problem::new(&analysis, &Overrides { kernel: Some(None), ..Default::default() }).unwrap();
+    let problem =
+        Problem::new(&analysis, &Overrides { kernel: Some(mdpipe::base::choices::Kernel::None), ..Default::default() })
+            .unwrap();
     let cal = calibrate::run(&problem, 1, &Silent).unwrap();
     calibrate::write_outputs(&dir.join("calibrate"), &problem, &cal).unwrap();
     assert_eq!(cal.summary.units.x, "m");

@@ -14,7 +14,6 @@ use mdpipe::calibrate::diagnostics;
 use mdpipe::calibrate::smc::Smc;
 use mdpipe::calibrate::summary::ParamSummary;
 use mdpipe::calibrate::{Chains, Overrides, Problem};
-use mdpipe::gp::DiscrepancyKernel;
 use mdpipe::progress::Silent;
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
@@ -91,7 +90,7 @@ fn the_structured_posterior_equals_the_dense_one_on_a_200_point_cut() {
     write_problem(&dir.join("problem"), 1000).unwrap();
     let config = cut(&dir.join("problem"), &dir.join("cut"), 8);
     let analysis = mdpipe::systems::load(&config).unwrap();
-    let overrides = Overrides { kernel: Some(Some(DiscrepancyKernel::KernelII)), ..Default::default() };
+    let overrides = Overrides { kernel: Some(mdpipe::base::choices::Kernel::II), ..Default::default() };
     let structured = Problem::new(&analysis, &overrides).unwrap();
     assert_eq!(structured.likelihood.blocks.iter().map(|b| b.len()).sum::<usize>(), 200);
     assert!(structured.likelihood.structure.is_some(), "the cut's covariance has the structured form");

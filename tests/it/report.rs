@@ -3,7 +3,6 @@
 //! PNG copies of every figure.
 
 use mdpipe::calibrate::{self, Overrides, Problem};
-use mdpipe::gp::DiscrepancyKernel;
 use mdpipe::systems::heavy_ion::{analysis_pt, observables, DeltaF, HeavyIonParams};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -87,7 +86,7 @@ log_observables = ["ch_spectrum"]
     mdpipe::emulator::train_and_save(&dir.join("hi.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1).unwrap();
     mdpipe::emulator::validate::run(&dir.join("emu"), None, 4, 1).unwrap();
     let cfg = mdpipe::systems::load(&dir.join("hi.toml")).unwrap();
-    for (kernel, name) in [(None, "none"), (Some(DiscrepancyKernel::KernelII), "II")] {
+    for (kernel, name) in [(mdpipe::base::choices::Kernel::None, "none"), (mdpipe::base::choices::Kernel::II, "II")] {
         let problem = Problem::new(&cfg, &Overrides { kernel: Some(kernel), ..Default::default() }).unwrap();
         let cal = calibrate::run(&problem, 2, &mdpipe::progress::Silent).unwrap();
         calibrate::write_outputs(&dir.join(name), &problem, &cal).unwrap();

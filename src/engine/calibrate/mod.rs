@@ -29,6 +29,7 @@ pub mod summary;
 pub mod target;
 
 use crate::base::artifacts::{self, Measurement, Provenance};
+use crate::base::choices::Kernel;
 use crate::base::config::KernelInput;
 use crate::base::progress::Observer;
 use crate::engine::gp::DiscrepancyKernel;
@@ -78,7 +79,8 @@ impl Chains {
 #[derive(Clone, Debug, Default)]
 pub struct Overrides {
     pub data: Option<PathBuf>,
-    pub kernel: Option<Option<DiscrepancyKernel>>,
+    /// The kernel, `Kernel::None` for the fit without MD; `None` keeps the config's.
+    pub kernel: Option<Kernel>,
     pub observables: Option<Vec<String>>,
     pub sampler: Option<SamplerKind>,
 }
@@ -145,7 +147,7 @@ impl Problem {
             Some(record) => record.measurements(),
             None => artifacts::read_measurements(&data_path)?,
         };
-        let kernel = overrides.kernel.unwrap_or(analysis.kernel);
+        let kernel = overrides.kernel.map_or(analysis.kernel, DiscrepancyKernel::of);
         check_observables_known(analysis, &simulator, &measurements, &data_path)?;
         let selected: Vec<String> = match (&overrides.observables, &analysis.observables) {
             (Some(o), _) | (None, Some(o)) => o.clone(),

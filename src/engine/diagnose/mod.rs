@@ -133,7 +133,10 @@ impl Diagnoser<'_> {
         seed: u64,
         name: &str,
     ) -> Result<(Problem, Calibration)> {
-        let problem = Problem::new(analysis, &Overrides { kernel: Some(kernel), ..self.overrides.clone() })?;
+        let problem = Problem::new(
+            analysis,
+            &Overrides { kernel: Some(DiscrepancyKernel::choice(kernel)), ..self.overrides.clone() },
+        )?;
         let cal = match self.reuse.get(name, &problem, seed) {
             Some((cal, whence)) => {
                 crate::base::messages::say!("  {name}: the same problem was fitted in {whence}; that fit is used");

@@ -39,6 +39,15 @@ impl DiscrepancyKernel {
         }
     }
 
+    /// The user's choice a kernel (or none) is.
+    pub fn choice(kernel: Option<DiscrepancyKernel>) -> Kernel {
+        match kernel {
+            None => Kernel::None,
+            Some(DiscrepancyKernel::KernelI) => Kernel::I,
+            Some(DiscrepancyKernel::KernelII) => Kernel::II,
+        }
+    }
+
     pub fn label(kernel: Option<DiscrepancyKernel>) -> &'static str {
         match kernel {
             None => "none",

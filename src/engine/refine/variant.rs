@@ -100,8 +100,10 @@ pub fn refine_variant(
         let round_dir = out.join(format!("round_{r}"));
         let model = Arc::new(EmulatedModel::load(&dir).with_context(|| format!("refining {}", candidate.name))?);
         let variant = CandidateModel { simulator: model.clone(), ..candidate.clone() };
-        let problem =
-            Problem::new(&analysis.with_candidate(&variant), &Overrides { kernel: Some(None), ..overrides.clone() })?;
+        let problem = Problem::new(
+            &analysis.with_candidate(&variant),
+            &Overrides { kernel: Some(crate::base::choices::Kernel::None), ..overrides.clone() },
+        )?;
         let round_seed = seed.wrapping_add(r as u64);
         let cal = calibrate::run(&problem, round_seed, observer)?;
         calibrate::write_outputs(&round_dir.join("pilot"), &problem, &cal)?;

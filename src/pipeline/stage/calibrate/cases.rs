@@ -57,7 +57,11 @@ pub(super) fn case_done(study: &Study<'_>, c: &Case) -> bool {
 }
 
 pub(super) fn calibrate_case(study: &Study<'_>, analysis: &Analysis, c: &Case) -> Result<()> {
-    let ov = Overrides { kernel: Some(c.kernel), observables: Some(c.set.clone()), ..Default::default() };
+    let ov = Overrides {
+        kernel: Some(DiscrepancyKernel::choice(c.kernel)),
+        observables: Some(c.set.clone()),
+        ..Default::default()
+    };
     let problem = Problem::new(analysis, &ov)?;
     // Killed mid-case, the case resumes from its last saved tempering step.
     let checkpoint = calibrate::checkpoint::Checkpointing::new(

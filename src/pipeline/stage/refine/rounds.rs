@@ -141,7 +141,11 @@ fn pilot_draws(
         let out = round_dir.join("pilots").join(&name);
         let problem = Problem::new(
             &analysis,
-            &Overrides { kernel: Some(*kernel), observables: Some(study.diagnose_observables()), ..Default::default() },
+            &Overrides {
+                kernel: Some(DiscrepancyKernel::choice(*kernel)),
+                observables: Some(study.diagnose_observables()),
+                ..Default::default()
+            },
         )?;
         let seed = study.opts.seed.wrapping_add(5_000 + 10 * round as u64 + i as u64);
         let checkpoint = calibrate::checkpoint::Checkpointing::new(
