@@ -250,14 +250,16 @@ pub struct Proposal {
     pub candidate: CandidateModel,
     /// The term as a physicist would write it, and where it joins the model.
     pub formula: String,
+    /// What the term is to a physicist, in a line.
+    pub meaning: String,
     /// The `[[candidates]]` block that declares it.
     pub toml: String,
     /// χ² of the base model's best fit minus that of the model with the term.
     pub delta_chi2: f64,
     /// `delta_chi2` less the term's parameters times ln(number of data).
     pub delta_bic: f64,
-    /// Prior log odds against the base model, paying for the search: ln(1/N)
-    /// for one of N single terms, ln(2/(N(N−1))) for one of the pairs.
+    /// Prior log odds against the base model, paying for the search: the
+    /// term's share of a prior over every term searched (or pair of them).
     pub prior_log_odds: f64,
 }
 

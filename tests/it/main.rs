@@ -11,6 +11,7 @@ mod declared;
 mod diagnose;
 mod diagnose_heavy_ion;
 mod discover;
+mod discover_reach;
 mod doc_commands;
 mod emulator;
 mod family;

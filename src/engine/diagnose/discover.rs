@@ -1,7 +1,8 @@
 //! The search for physics nobody declared, as `diagnose` runs it: the
 //! model's discoverer screens its grammar against the data at the base fit,
 //! and the terms it proposes are judged as declared candidates are, by full
-//! calibration and evidence, each with prior odds ln(1/N) for N searched.
+//! calibration and evidence, each with its prior odds: its share of a prior
+//! over every term searched.
 
 use super::*;
 use crate::engine::calibrate::ObservableBlock;
@@ -52,6 +53,7 @@ pub(super) fn screen(
             .map(|p| ScreenedTerm {
                 name: p.candidate.name.clone(),
                 formula: p.formula.clone(),
+                meaning: p.meaning.clone(),
                 delta_chi2: p.delta_chi2,
                 delta_bic: p.delta_bic,
                 prior_log_odds: p.prior_log_odds,
@@ -80,8 +82,9 @@ pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
     let found = report.screened.iter().find(|s| s.name == verdict.best);
     verdict.statement.push_str(&match found {
         Some(s) => format!(
-            " It was discovered, not declared: {} (one of {} terms searched; prior odds 1:{:.0} paid). Declare it with:\n{}",
+            " It was discovered, not declared: {} ({}; one of {} terms searched; prior odds 1:{:.0} paid). Declare it with:\n{}",
             s.formula,
+            s.meaning,
             report.searched,
             (-s.prior_log_odds).exp(),
             s.toml

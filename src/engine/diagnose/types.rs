@@ -218,6 +218,9 @@ pub struct DiscoveryReport {
 pub struct ScreenedTerm {
     pub name: String,
     pub formula: String,
+    /// What the term is to a physicist, from the grammar.
+    #[serde(default)]
+    pub meaning: String,
     pub delta_chi2: f64,
     pub delta_bic: f64,
     #[serde(default)]

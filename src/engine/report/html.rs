@@ -348,8 +348,9 @@ fn discovery_section(html: &mut String, diag: &Diagnosis) {
     html.push_str("</table>\n");
     if let Some(t) = d.screened.iter().find(|t| t.name == diag.verdict.best) {
         html.push_str(&format!(
-            "<p>Discovered: <b>{}</b>. Declare it in the config to use it from now on:</p><pre>{}</pre>\n",
+            "<p>Discovered: <b>{}</b> ({}). Declare it in the config to use it from now on:</p><pre>{}</pre>\n",
             html_escape(&t.formula),
+            html_escape(&t.meaning),
             html_escape(&t.toml)
         ));
     }

@@ -102,6 +102,10 @@ pub struct CandidateTable {
     pub observables: BTreeMap<String, String>,
     #[serde(default)]
     pub rates: BTreeMap<String, String>,
+    /// Parameters that vary: a parameter of the model → the formula that
+    /// replaces it in every rate and observable (`k = "k*(1 + c*T)"`).
+    #[serde(default)]
+    pub vary: BTreeMap<String, String>,
     /// Uniform priors of the candidate's own parameters.
     #[serde(default)]
     pub parameters: BTreeMap<String, ParamSpec>,
@@ -241,6 +245,7 @@ impl Declared {
             &candidate.observables,
             &candidate.rates,
         )?;
+        d.vary(file, &format!("[[candidates]] {}", candidate.name), &candidate.vary)?;
         for (name, spec) in &candidate.parameters {
             spec.check(&format!("{file}: [[candidates]] {}: [candidates.parameters.{name}]", candidate.name))?;
             if d.parameters.contains(name) || d.constants.iter().any(|(c, _)| c == name) {
@@ -283,6 +288,27 @@ impl Declared {
             d.constants.push((name.clone(), *value));
         }
         d.add_terms(file, "[truth]", &truth.observables, &truth.rates)
+    }
+
+    /// Each parameter of `vary` replaced, in every rate and observable, by
+    /// its formula (which may use the parameter itself: `k*(1 + c*T)`).
+    /// Initial values keep the parameter as declared: they hold at one time.
+    fn vary(&mut self, file: &str, from: &str, vary: &BTreeMap<String, String>) -> Result<()> {
+        for (name, by) in vary {
+            if !self.parameters.contains(name) {
+                bail!("{file}: {from}: vary.{name}: the model has no parameter '{name}' (vary replaces one of [parameters])");
+            }
+            let place = format!("{from}: vary.{name}");
+            let replace = |w: &mut Written| {
+                let text = super::notation::rename(&w.text, name, by);
+                if text != w.text {
+                    *w = Written { text, place: format!("{} with {place}", w.place) };
+                }
+            };
+            self.observables.iter_mut().for_each(|(_, w)| replace(w));
+            self.states.iter_mut().for_each(|s| replace(&mut s.rate));
+        }
+        Ok(())
     }
 
     fn add_terms(

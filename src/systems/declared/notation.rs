@@ -171,6 +171,59 @@ fn read_number(chars: &[char], mut i: usize) -> (String, usize) {
     (chars[start..i].iter().collect(), i)
 }
 
+/// `text` with every use of the name `name` (not a function of that name,
+/// nor a longer name containing it) replaced by `(by)`: a parameter made a
+/// function of the input wherever the model uses it.
+pub fn rename(text: &str, name: &str, by: &str) -> String {
+    let chars: Vec<char> = text.chars().collect();
+    let mut out = String::with_capacity(text.len());
+    let mut i = 0;
+    while i < chars.len() {
+        let c = chars[i];
+        if c.is_ascii_digit() || (c == '.' && chars.get(i + 1).is_some_and(|d| d.is_ascii_digit())) {
+            let (number, next) = read_number(&chars, i);
+            out.push_str(&number);
+            i = next;
+        } else if c.is_alphabetic() || c == '_' {
+            let start = i;
+            while i < chars.len() && (chars[i].is_alphanumeric() || chars[i] == '_') {
+                i += 1;
+            }
+            let word: String = chars[start..i].iter().collect();
+            let called = chars[i..].iter().find(|c| !c.is_whitespace()) == Some(&'(');
+            if word == name && !called {
+                out.push_str(&format!("({by})"));
+            } else {
+                out.push_str(&word);
+            }
+        } else {
+            out.push(c);
+            i += 1;
+        }
+    }
+    out
+}
+
+impl Expr {
+    /// How many operations the formula has (operators, signs and function
+    /// calls but `abs`, a whole power `x^k` as its k − 1 products, so `c*x^3`
+    /// is the size of `c*x*x*x`): the size a prior over forms charges for.
+    pub fn operations(&self) -> usize {
+        match self {
+            Expr::Number(_) | Expr::Name(_) => 0,
+            Expr::Neg(a) => 1 + a.operations(),
+            Expr::Binary('^', a, b) => match b.as_ref() {
+                Expr::Number(k) if k.fract() == 0.0 && (2.0..=64.0).contains(k) => *k as usize - 1 + a.operations(),
+                _ => 1 + a.operations() + b.operations(),
+            },
+            Expr::Binary(_, a, b) => 1 + a.operations() + b.operations(),
+            // abs is free: `v*abs(v)` is how physics writes an even power of
+            // a signed quantity (drag against the motion), no rarer than `v*v`.
+            Expr::Call(f, args) => usize::from(f != "abs") + args.iter().map(Expr::operations).sum::<usize>(),
+        }
+    }
+}
+
 fn starts_operand(t: &Token) -> bool {
     matches!(t, Token::Number(_) | Token::Name(_) | Token::Open)
 }
@@ -383,5 +436,19 @@ mod tests {
             assert!(parse(&text).unwrap_err().to_string().contains("levels deep"), "{}", &text[..20]);
         }
         assert!(parse(&"a+".repeat(100_000)).unwrap_err().to_string().contains("more than 2000"));
+    }
+
+    #[test]
+    fn rename_replaces_the_name_only() {
+        assert_eq!(
+            rename("-k*y + k2*exp(k) + 1e-3*k", "k", "k*(1 + c*T)"),
+            "-(k*(1 + c*T))*y + k2*exp((k*(1 + c*T))) + 1e-3*(k*(1 + c*T))"
+        );
+        // A function of the same name and a number's exponent are not the name.
+        assert_eq!(rename("e(x) + 2e5 + e", "e", "q"), "e(x) + 2e5 + (q)");
+        assert_eq!(parse("a*sin(w*t) + b*cos(w*t)").unwrap().operations(), 7);
+        assert_eq!(parse("-c*x^2").unwrap().operations(), 3);
+        assert_eq!(parse("c*x^4").unwrap().operations(), parse("c*x*x*x*x").unwrap().operations());
+        assert_eq!(parse("c*v*abs(v)").unwrap().operations(), parse("c*v^2").unwrap().operations());
     }
 }

@@ -20,15 +20,36 @@ struct GrammarFile {
     terms: Vec<TermForm>,
 }
 
+/// Where a form's terms go (`to` in grammar.toml).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum To {
+    /// Added to each state's rate of an ODE (not to a kinematic identity).
+    Rates,
+    /// Added to each observable of an expression model, built from the input.
+    Observables,
+    /// Added to each observable of any model, built from the observable
+    /// itself: the physics of the measurement (offset, gain, dead time).
+    Measured,
+    /// Replacing a parameter everywhere the model uses it: a parameter that
+    /// varies with the input or a state.
+    Parameters,
+}
+
 /// One form of the grammar, as written.
 #[derive(Clone, Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TermForm {
     pub name: String,
     pub form: String,
-    /// "rates" or "observables".
-    pub to: String,
+    pub to: To,
+    /// What the form means to a physicist, for the verdict.
+    #[serde(default)]
+    pub meaning: String,
     pub parameters: BTreeMap<String, ParameterForm>,
+    /// The form's size, for the prior over forms (set when read).
+    #[serde(skip)]
+    pub operations: usize,
 }
 
 #[derive(Clone, Debug, serde::Deserialize)]
@@ -59,11 +80,8 @@ pub fn forms(extra: Option<&std::path::Path>) -> Result<Vec<TermForm>> {
 }
 
 fn parse(text: &str, what: &str) -> Result<Vec<TermForm>> {
-    let file: GrammarFile = toml::from_str(text).map_err(|e| anyhow!("{what}: {e}"))?;
-    for f in &file.terms {
-        if f.to != "rates" && f.to != "observables" {
-            bail!("{what}: [[terms]] {}: to = {:?}; use \"rates\" or \"observables\"", f.name, f.to);
-        }
+    let mut file: GrammarFile = toml::from_str(text).map_err(|e| anyhow!("{what}: {e}"))?;
+    for f in &mut file.terms {
         // The form's syntax, with every placeholder standing for a name.
         let mut plain = f.form.clone();
         while let (Some(a), Some(b)) = (plain.find('{'), plain.find('}')) {
@@ -72,42 +90,46 @@ fn parse(text: &str, what: &str) -> Result<Vec<TermForm>> {
             }
             plain.replace_range(a..=b, "q");
         }
-        if let Err(e) = super::super::notation::parse(&plain) {
-            bail!("{what}: [[terms]] {}: form = {:?} is not a formula ({e})", f.name, f.form);
+        match super::super::notation::parse(&plain) {
+            Ok(tree) => f.operations = tree.operations(),
+            Err(e) => bail!("{what}: [[terms]] {}: form = {:?} is not a formula ({e})", f.name, f.form),
+        }
+        if f.to == To::Parameters && !(f.form.contains("{theta}") && f.form.contains("{u}")) {
+            bail!("{what}: [[terms]] {}: a form with to = \"parameters\" uses {{theta}} (the parameter) and {{u}} (what it varies with)", f.name);
         }
         for (p, spec) in &f.parameters {
-            if !f.form.contains(&format!("{{{p}}}")) {
-                bail!(
-                    "{what}: [[terms]] {}: parameter '{p}' is not in the form {:?} (write it {{{p}}})",
-                    f.name,
-                    f.form
-                );
-            }
-            match spec {
-                ParameterForm::Kind(k) if k != "coefficient" => bail!(
-                    "{what}: [[terms]] {}: parameter '{p}' = {k:?}; use \"coefficient\" or {{ min, max }}",
-                    f.name
-                ),
-                ParameterForm::Kind(_) => {}
-                ParameterForm::Range { starts, .. } if !(1..=MAX_STARTS).contains(starts) => bail!(
-                    "{what}: [[terms]] {}: parameters.{p}.starts = {starts}; use 1 to {MAX_STARTS} (each start is a fit)",
-                    f.name
-                ),
-                ParameterForm::Range { min, max, .. } => {
-                    for (key, text) in [("min", min), ("max", max)] {
-                        let place = format!("{what}: [[terms]] {}: parameters.{p}.{key}", f.name);
-                        Formula::parse(text, &bound_scope(), &place)?;
-                    }
-                }
-            }
+            check_parameter(what, f, p, spec)?;
         }
     }
     Ok(file.terms)
 }
 
-/// The names a parameter's bounds may use (`span`, `n`, `smax`; see grammar.toml).
+fn check_parameter(what: &str, f: &TermForm, p: &str, spec: &ParameterForm) -> Result<()> {
+    if !f.form.contains(&format!("{{{p}}}")) {
+        bail!("{what}: [[terms]] {}: parameter '{p}' is not in the form {:?} (write it {{{p}}})", f.name, f.form);
+    }
+    match spec {
+        ParameterForm::Kind(k) if k != "coefficient" => {
+            bail!("{what}: [[terms]] {}: parameter '{p}' = {k:?}; use \"coefficient\" or {{ min, max }}", f.name)
+        }
+        ParameterForm::Kind(_) => {}
+        ParameterForm::Range { starts, .. } if !(1..=MAX_STARTS).contains(starts) => bail!(
+            "{what}: [[terms]] {}: parameters.{p}.starts = {starts}; use 1 to {MAX_STARTS} (each start is a fit)",
+            f.name
+        ),
+        ParameterForm::Range { min, max, .. } => {
+            for (key, text) in [("min", min), ("max", max)] {
+                let place = format!("{what}: [[terms]] {}: parameters.{p}.{key}", f.name);
+                Formula::parse(text, &bound_scope(), &place)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The names a parameter's bounds may use (`span`, `n`, `smax`, `ymax`; see grammar.toml).
 pub fn bound_scope() -> Scope {
-    Scope::new(["span", "n", "smax"].map(String::from))
+    Scope::new(["span", "n", "smax", "ymax"].map(String::from))
 }
 
 /// A form with the model's symbols put in; its parameters still in braces.
@@ -116,14 +138,18 @@ pub struct Instance {
     /// e.g. `signed_square_v_on_v`.
     pub name: String,
     pub form: String,
-    /// The state (rates) or observable (observables) the term joins.
+    /// The state (rates), observable (observables, measured) or parameter
+    /// (parameters) the term joins.
     pub target: String,
-    pub on_rate: bool,
+    pub to: To,
     /// The form's place in the grammar: earlier forms are simpler.
     pub rank: usize,
     /// The symbols the form's placeholders took, for `smax`.
     pub symbols: Vec<String>,
     pub parameters: Vec<(String, ParameterForm)>,
+    pub meaning: String,
+    /// The form's size (operations), for the prior over forms.
+    pub operations: usize,
 }
 
 impl Instance {
@@ -137,53 +163,113 @@ impl Instance {
     }
 
     pub fn place(&self) -> String {
-        if self.on_rate {
-            format!("d{}/dt", self.target)
-        } else {
-            self.target.clone()
+        match self.to {
+            To::Rates => format!("d{}/dt", self.target),
+            _ => self.target.clone(),
         }
     }
 }
 
 /// Every instance of `forms` for the model `d`: rate forms for an ODE,
-/// observable forms for an expression model.
+/// observable forms for an expression model, measured and parameter forms
+/// for both.
 pub fn instances(forms: &[TermForm], d: &Declared) -> Vec<Instance> {
     let ode = !d.states.is_empty();
-    let symbols: Vec<String> =
-        if ode { d.states.iter().map(|s| s.name.clone()).collect() } else { vec![d.input.clone()] };
     let mut out = Vec::new();
-    for (rank, f) in forms.iter().enumerate().filter(|(_, f)| (f.to == "rates") == ode) {
-        let targets: Vec<(String, String)> = if ode {
-            d.states.iter().map(|s| (s.name.clone(), s.rate.text.clone())).collect()
-        } else {
-            d.observables.iter().map(|(n, w)| (n.clone(), w.text.clone())).collect()
+    for (rank, f) in forms.iter().enumerate() {
+        let (symbols, targets) = match f.to {
+            To::Rates if ode => (state_names(d), laws(d)),
+            To::Observables if !ode => (vec![d.input.clone()], observables(d)),
+            To::Measured => (Vec::new(), observables(d)),
+            To::Parameters => (std::iter::once(d.input.clone()).chain(state_names(d)).collect(), varying(d)),
+            _ => continue,
         };
-        let arity = ["{s3}", "{s2}", "{s}"].iter().position(|p| f.form.contains(p)).map(|i| 3 - i).unwrap_or(0);
         for (target, own) in &targets {
-            for combo in combinations(&symbols, arity) {
-                let mut form = f.form.replace("{rate}", &format!("({own})")).replace("{y}", &format!("({own})"));
-                form = form.replace("{t}", &d.input);
-                for (k, s) in combo.iter().enumerate() {
-                    form = form.replace(["{s}", "{s2}", "{s3}"][k], s);
+            for combo in combinations(&symbols, arity(f)) {
+                for (origin, from) in origins(f, d, combo.first()) {
+                    let mut form = f.form.replace("{rate}", &format!("({own})")).replace("{y}", &format!("({own})"));
+                    form = form.replace("{t}", &d.input).replace("{theta}", target).replace("{s0}", &from);
+                    for (k, s) in combo.iter().enumerate() {
+                        form = form.replace(["{s}", "{s2}", "{s3}", "{s4}"][k], s).replace("{u}", s);
+                    }
+                    let mut name = f.name.clone();
+                    for s in combo.iter().chain(&origin) {
+                        name.push('_');
+                        name.push_str(s);
+                    }
+                    let joint = if f.to == To::Parameters { "of" } else { "on" };
+                    out.push(Instance {
+                        name: format!("{name}_{joint}_{target}"),
+                        form,
+                        target: target.clone(),
+                        to: f.to,
+                        rank,
+                        symbols: combo.clone(),
+                        parameters: f.parameters.iter().map(|(k, v)| (k.clone(), v.clone())).collect(),
+                        meaning: f.meaning.clone(),
+                        operations: f.operations,
+                    });
                 }
-                let mut name = f.name.clone();
-                for s in &combo {
-                    name.push('_');
-                    name.push_str(s);
-                }
-                out.push(Instance {
-                    name: format!("{name}_on_{target}"),
-                    form,
-                    target: target.clone(),
-                    on_rate: ode,
-                    rank,
-                    symbols: combo,
-                    parameters: f.parameters.iter().map(|(k, v)| (k.clone(), v.clone())).collect(),
-                });
             }
         }
     }
     out
+}
+
+/// How many symbols a form takes: `{s}` … `{s4}`, or `{u}`.
+fn arity(f: &TermForm) -> usize {
+    if f.form.contains("{u}") {
+        return 1;
+    }
+    ["{s4}", "{s3}", "{s2}", "{s}"].iter().position(|p| f.form.contains(p)).map_or(0, |i| 4 - i)
+}
+
+/// The values `{s0}` may take for the symbol `s`: each constant of the
+/// model, and for a state its initial value (where it rests before the
+/// law acts). Named by the constant, or `initial`. One empty origin when
+/// the form has no `{s0}`.
+fn origins(f: &TermForm, d: &Declared, s: Option<&String>) -> Vec<(Option<String>, String)> {
+    if !f.form.contains("{s0}") {
+        return vec![(None, String::new())];
+    }
+    let mut out: Vec<(Option<String>, String)> =
+        d.constants.iter().map(|(c, _)| (Some(c.clone()), c.clone())).collect();
+    if let Some(state) = s.and_then(|s| d.states.iter().find(|st| &st.name == s)) {
+        out.push((Some("initial".into()), format!("({})", state.initial.text)));
+    }
+    out
+}
+
+fn state_names(d: &Declared) -> Vec<String> {
+    d.states.iter().map(|s| s.name.clone()).collect()
+}
+
+fn observables(d: &Declared) -> Vec<(String, String)> {
+    d.observables.iter().map(|(n, w)| (n.clone(), w.text.clone())).collect()
+}
+
+/// The states whose rate is a law, with the rate: not a kinematic identity
+/// (`dh/dt = v`), which is a definition and exact.
+fn laws(d: &Declared) -> Vec<(String, String)> {
+    use super::super::notation::{parse, Expr};
+    let identity = |text: &str| match parse(text) {
+        Ok(Expr::Name(n)) => d.states.iter().any(|s| s.name == n),
+        Ok(Expr::Neg(a)) => matches!(*a, Expr::Name(ref n) if d.states.iter().any(|s| &s.name == n)),
+        _ => false,
+    };
+    d.states.iter().filter(|s| !identity(&s.rate.text)).map(|s| (s.name.clone(), s.rate.text.clone())).collect()
+}
+
+/// The parameters some rate or observable uses: those that can vary.
+fn varying(d: &Declared) -> Vec<(String, String)> {
+    let formulas: Vec<&str> = d
+        .observables
+        .iter()
+        .map(|(_, w)| w.text.as_str())
+        .chain(d.states.iter().map(|s| s.rate.text.as_str()))
+        .collect();
+    let used = |p: &str| formulas.iter().any(|f| super::super::notation::rename(f, p, "") != *f);
+    d.parameters.iter().filter(|p| used(p)).map(|p| (p.clone(), String::new())).collect()
 }
 
 /// Every multiset of `k` of `symbols` (s ≤ s2 ≤ s3 in their order).
@@ -208,8 +294,16 @@ mod tests {
     #[test]
     fn the_bundled_grammar_parses_and_every_form_names_its_parameters() {
         let forms = forms(None).unwrap();
-        assert!(forms.iter().any(|f| f.name == "periodic" && f.to == "rates"));
-        assert!(forms.iter().any(|f| f.name == "signed_square" && f.to == "observables"));
+        assert!(forms.iter().any(|f| f.name == "periodic" && f.to == To::Rates));
+        assert!(forms.iter().any(|f| f.name == "signed_square" && f.to == To::Observables));
+        // Every bundled form says what it means to a physicist.
+        assert!(forms.iter().all(|f| !f.meaning.is_empty()), "a bundled form without its meaning");
+        let bad = "[[terms]]\nname = \"x\"\nform = \"{c}\"\nto = \"state\"\nparameters = { c = \"coefficient\" }\n";
+        let e = parse(bad, "my.toml").unwrap_err().to_string();
+        assert!(e.contains("my.toml") && e.contains("measured"), "{e}");
+        let bad = "[[terms]]\nname = \"x\"\nform = \"{theta}*{c}\"\nto = \"parameters\"\nparameters = { c = \"coefficient\" }\n";
+        let e = parse(bad, "my.toml").unwrap_err().to_string();
+        assert!(e.contains("{u}"), "{e}");
         let bad = "[[terms]]\nname = \"x\"\nform = \"c*t\"\nto = \"rates\"\nparameters = { c = \"coefficient\" }\n";
         let e = parse(bad, "my.toml").unwrap_err().to_string();
         assert!(e.contains("my.toml") && e.contains("write it {c}"), "{e}");

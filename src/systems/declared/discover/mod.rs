@@ -13,6 +13,7 @@
 
 mod fit;
 pub mod grammar;
+mod prior;
 
 use super::declaration::{CandidateTable, Declared, Written};
 use super::formula;
@@ -23,7 +24,8 @@ use crate::engine::model::{
 };
 use anyhow::Result;
 use fit::{Fitted, LeastSquares};
-use grammar::{Instance, ParameterForm, TermForm};
+use grammar::{Instance, ParameterForm, TermForm, To};
+use prior::FormPrior;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -96,14 +98,21 @@ impl Discoverer for DeclaredDiscoverer {
         all.extend(singles);
         all.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let all = distinct(all, data);
+        let prior = FormPrior::over(&instances);
         let proposals = all
             .into_iter()
             .filter(|s| bic(s) > 0.0)
             .take(PROPOSALS)
-            .map(|s| proposal(s, base_fit.chi2, &bic, searched))
+            .map(|s| proposal(s, base_fit.chi2, &bic, &prior))
             .collect();
-        let forms = self.forms.iter().filter(|f| (f.to == "rates") != self.base.states.is_empty());
-        Ok(Screening { searched, forms: forms.map(|f| f.form.clone()).collect(), proposals })
+        let mut forms: Vec<String> = Vec::new();
+        for i in &instances {
+            let form = &self.forms[i.rank].form;
+            if !forms.contains(form) {
+                forms.push(form.clone());
+            }
+        }
+        Ok(Screening { searched, forms, proposals })
     }
 }
 
@@ -111,15 +120,14 @@ fn bic_of(base_chi2: f64, points: f64) -> impl Fn(&Screened) -> f64 {
     move |s| base_chi2 - s.fitted.chi2 - (s.table.parameters.len() as f64) * points.ln()
 }
 
-/// A screened term as a candidate. Its prior odds pay for the search: the
-/// pairs were chosen after the data ranked the singles, so a pair pays for
-/// every pair the grammar could make, not only the ten fitted.
-fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, singles: usize) -> Proposal {
+/// A screened term as a candidate, with its prior odds.
+fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, prior: &FormPrior) -> Proposal {
     let delta_bic = bic(&s);
-    let n = singles.max(2) as f64;
-    let prior_log_odds = if s.instances.len() == 1 { -n.ln() } else { -(n * (n - 1.0) / 2.0).ln() };
+    let prior_log_odds = prior.log_odds(&s.instances);
     let formula = describe(&s.table);
+    let meaning = s.instances.iter().map(|i| i.meaning.as_str()).collect::<Vec<_>>().join("; and ");
     Proposal {
+        meaning,
         toml: candidate_toml(&s.table),
         formula: formula.clone(),
         delta_chi2: base_chi2 - s.fitted.chi2,
@@ -138,8 +146,9 @@ fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, singles
 /// predictions differ by a χ² < ln N (their difference standardized by the
 /// data's errors or covariance; ln N is the price BIC asks of one
 /// parameter: the data could not pay for telling them apart), the simpler
-/// stands for both (fewer parameters, then fewer terms, then earlier in the
-/// grammar: `v*abs(v)` before `h*v*v` when h barely changes).
+/// stands for both (fewer parameters, then fewer terms, then fewer
+/// operations, then earlier in the grammar: `v*abs(v)` before `h*v*v`
+/// when h barely changes).
 fn distinct(ranked: Vec<Screened>, data: &ScreeningData) -> Vec<Screened> {
     let points: usize = data.blocks.iter().map(|b| b.x.len()).sum();
     let threshold = (points as f64).ln();
@@ -166,8 +175,9 @@ impl Screened {
         self.table.parameters.keys().zip(&self.fitted.phi[theta..]).map(|(n, v)| (format!("{n}{suffix}"), *v)).collect()
     }
 
-    fn complexity(&self) -> (usize, usize, usize) {
-        (self.table.parameters.len(), self.instances.len(), self.instances.iter().map(|i| i.rank).sum())
+    fn complexity(&self) -> (usize, usize, usize, usize) {
+        let operations = self.instances.iter().map(|i| i.operations).sum();
+        (self.table.parameters.len(), self.instances.len(), operations, self.instances.iter().map(|i| i.rank).sum())
     }
 }
 
@@ -178,6 +188,8 @@ struct Scales {
     span: f64,
     n: f64,
     smax: BTreeMap<String, f64>,
+    /// Each observable's largest |y| over the data.
+    ymax: BTreeMap<String, f64>,
 }
 
 impl DeclaredDiscoverer {
@@ -202,7 +214,13 @@ impl DeclaredDiscoverer {
                 smax.insert(s.name.clone(), out.iter().fold(0.0f64, |m, v| m.max(v.abs())));
             }
         }
-        Ok(Scales { span: (hi - lo).max(f64::MIN_POSITIVE), n, smax })
+        let mut ymax: BTreeMap<String, f64> = BTreeMap::new();
+        for b in &data.blocks {
+            let name = self.base.observables.get(b.model_index).map_or(String::new(), |(o, _)| o.clone());
+            let size = b.y.iter().fold(0.0f64, |m, y| m.max(y.abs()));
+            ymax.entry(name).and_modify(|m| *m = m.max(size)).or_insert(size);
+        }
+        Ok(Scales { span: (hi - lo).max(f64::MIN_POSITIVE), n, smax, ymax })
     }
 
     /// Fits the model with `terms` added; None when the term cannot be
@@ -215,6 +233,12 @@ impl DeclaredDiscoverer {
         scales: &Scales,
         also_from: Option<(&[f64], BTreeMap<String, f64>)>,
     ) -> Option<Screened> {
+        if let [a, b] = terms {
+            // One parameter cannot vary two ways at once.
+            if a.to == To::Parameters && b.to == To::Parameters && a.target == b.target {
+                return None;
+            }
+        }
         let suffixes: Vec<String> = if terms.len() > 1 {
             vec!["1".into(), "2".into()]
         } else if terms[0].parameters.iter().any(|(p, _)| self.base.knows(p)) {
@@ -260,7 +284,12 @@ impl DeclaredDiscoverer {
             ParameterForm::Range { min, max, starts } => {
                 let smax = term.symbols.iter().filter_map(|s| scales.smax.get(s)).fold(0.0f64, |m, v| m.max(*v));
                 let scope = grammar::bound_scope();
-                let values = [scales.span, scales.n, smax.max(f64::MIN_POSITIVE)];
+                let all = scales.ymax.values().fold(0.0f64, |m, v| m.max(*v));
+                let ymax = match term.to {
+                    To::Observables | To::Measured => scales.ymax.get(&term.target).copied().unwrap_or(all),
+                    To::Rates | To::Parameters => all,
+                };
+                let values = [scales.span, scales.n, smax.max(f64::MIN_POSITIVE), ymax.max(f64::MIN_POSITIVE)];
                 let eval = |text: &str| formula::Formula::parse(text, &scope, "grammar").ok().map(|f| f.eval(&values));
                 let (lo, hi) = (eval(min)?, eval(max)?);
                 (lo.is_finite() && hi.is_finite() && hi > lo).then_some(Range::Span(lo, hi, (*starts).max(1)))
@@ -303,8 +332,13 @@ impl DeclaredDiscoverer {
     ) -> CandidateTable {
         let mut rates: BTreeMap<String, String> = BTreeMap::new();
         let mut observables: BTreeMap<String, String> = BTreeMap::new();
+        let mut vary: BTreeMap<String, String> = BTreeMap::new();
         for (term, suffix) in terms.iter().zip(suffixes) {
-            let to = if term.on_rate { &mut rates } else { &mut observables };
+            let to = match term.to {
+                To::Rates => &mut rates,
+                To::Observables | To::Measured => &mut observables,
+                To::Parameters => &mut vary,
+            };
             let text = term.render(suffix);
             let joined = match to.get(&term.target) {
                 Some(before) => format!("{before} + {text}"),
@@ -323,7 +357,7 @@ impl DeclaredDiscoverer {
             })
             .collect();
         let name = terms.iter().map(|t| t.name.as_str()).collect::<Vec<_>>().join("+");
-        CandidateTable { description: String::new(), name, observables, rates, parameters }
+        CandidateTable { description: String::new(), name, observables, rates, vary, parameters }
     }
 
     fn compile(&self, table: &CandidateTable) -> Option<Arc<dyn Simulator>> {
@@ -372,13 +406,14 @@ fn round_up(x: f64) -> f64 {
 fn describe(table: &CandidateTable) -> String {
     let rates = table.rates.iter().map(|(s, t)| format!("{t} in d{s}/dt"));
     let observables = table.observables.iter().map(|(o, t)| format!("{t} in {o}"));
-    rates.chain(observables).collect::<Vec<_>>().join("; ")
+    let vary = table.vary.iter().map(|(p, t)| format!("{p} → {t} wherever {p} is used"));
+    rates.chain(observables).chain(vary).collect::<Vec<_>>().join("; ")
 }
 
 /// The `[[candidates]]` block that declares `table`.
 fn candidate_toml(table: &CandidateTable) -> String {
     let mut out = format!("[[candidates]]\nname = {:?}\ndescription = {:?}\n", table.name, describe(table));
-    for (key, map) in [("rates", &table.rates), ("observables", &table.observables)] {
+    for (key, map) in [("rates", &table.rates), ("observables", &table.observables), ("vary", &table.vary)] {
         if !map.is_empty() {
             let items: Vec<String> = map.iter().map(|(k, v)| format!("{k} = {v:?}")).collect();
             out.push_str(&format!("{key} = {{ {} }}\n", items.join(", ")));
