@@ -38,9 +38,14 @@ pub(super) fn runner_up<'c>(winner: &CandidateResult, ranked: &'c [CandidateResu
 
 /// The best candidate, when it beats the base model by more than
 /// `strong_log_bf`, fits adequately and is not itself beaten by the MD fit
-/// by more than `strong_log_bf`. A discovered term is judged the same way,
-/// its evidence carrying the search's prior odds: a flexible δ that fits as
-/// well is no reason to withhold the term that says what δ was.
+/// by more than `strong_log_bf`. A discovered term's evidence carries the
+/// search's prior odds against the base model (the look-elsewhere price
+/// that keeps nulls clean); against the MD fit it is weighed without them:
+/// that check asks whether the term captures what δ captured (fit and
+/// Occam factor), not how many terms were tried, and a flexible δ that fits
+/// as well is no reason to withhold the term that says what δ was. With the
+/// price charged there too, a term fitting at χ²/dof 0.55 lost to δ by 3.1
+/// (a T⁴ radiation term at 20σ; docs/diagnose.md).
 pub(super) fn named_candidate<'c>(
     candidates: &'c [CandidateResult],
     settings: &DiagnoseSettings,
@@ -49,7 +54,7 @@ pub(super) fn named_candidate<'c>(
     candidates.first().filter(|c| {
         c.log_bayes_factor > settings.strong_log_bf
             && c.p_value >= settings.min_p_value
-            && c.log_evidence > z_md - settings.strong_log_bf
+            && c.log_evidence - c.prior_log_odds > z_md - settings.strong_log_bf
     })
 }
 

@@ -181,7 +181,11 @@ pub fn instances(forms: &[TermForm], d: &Declared) -> Vec<Instance> {
             To::Rates if ode => (state_names(d), laws(d)),
             To::Observables if !ode => (vec![d.input.clone()], observables(d)),
             To::Measured => (Vec::new(), observables(d)),
-            To::Parameters => (std::iter::once(d.input.clone()).chain(state_names(d)).collect(), varying(d)),
+            // A law's coefficient depends on the state of the system (its
+            // temperature, speed), not on the clock: in an ODE it varies
+            // with a state; a drift in time is the transient forms' business.
+            To::Parameters if ode => (state_names(d), varying(d)),
+            To::Parameters => (vec![d.input.clone()], varying(d)),
             _ => continue,
         };
         for (target, own) in &targets {
