@@ -1,7 +1,7 @@
 //! The calibration engine. It knows no particular system: a model reaches it
 //! through [`model::ModelFamily`] and [`model::Simulator`].
 //!
-//! Inside the engine, from the bottom up: `gp`, `model` → `emulator`,
+//! Inside the engine, from the bottom up: `gp`, `formula`, `model` → `emulator`,
 //! `design`, `ingest` → `calibrate` → `compare`, `diagnose` → `report`.
 
 pub mod calibrate;
@@ -10,6 +10,7 @@ pub mod design;
 pub mod diagnose;
 pub mod emulator;
 pub mod execute;
+pub mod formula;
 pub mod gp;
 pub mod ingest;
 pub mod maximin;

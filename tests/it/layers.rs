@@ -7,9 +7,10 @@
 use std::path::{Path, PathBuf};
 
 /// Units from the bottom up, with their rank.
-const UNITS: [(&str, u32); 18] = [
+const UNITS: [(&str, u32); 19] = [
     ("base", 0),
     ("engine::gp", 1),
+    ("engine::formula", 1),
     ("engine::model", 2),
     ("engine::execute", 2),
     ("engine::design", 3),

@@ -138,7 +138,7 @@ pub struct Written {
 
 impl Written {
     fn plus(&self, term: &str, place: &str) -> Written {
-        Written { text: super::formula::plus(&self.text, term), place: format!("{} + {place}", self.place) }
+        Written { text: crate::engine::formula::plus(&self.text, term), place: format!("{} + {place}", self.place) }
     }
 }
 
@@ -300,7 +300,7 @@ impl Declared {
             }
             let place = format!("{from}: vary.{name}");
             let replace = |w: &mut Written| {
-                let text = super::notation::rename(&w.text, name, by);
+                let text = crate::engine::formula::notation::rename(&w.text, name, by);
                 if text != w.text {
                     *w = Written { text, place: format!("{} with {place}", w.place) };
                 }
@@ -381,7 +381,7 @@ fn check_solver(file: &str, s: &SolverSettings) -> Result<()> {
 
 /// Every θ must appear in some formula: a parameter that none uses would
 /// come back with its prior as its posterior, and is most likely a typo.
-pub fn check_parameters_used(file: &str, d: &Declared, formulas: &[&super::formula::Formula]) -> Result<()> {
+pub fn check_parameters_used(file: &str, d: &Declared, formulas: &[&crate::engine::formula::Formula]) -> Result<()> {
     for (i, (name, place)) in d.parameters.iter().zip(&d.declared_at).enumerate() {
         if !formulas.iter().any(|f| f.uses(1 + i)) {
             bail!("{file}: {place}: the model has no parameter '{name}': no formula uses it (remove it, or use it in a formula)");
@@ -440,7 +440,7 @@ impl Variables {
         names.extend(d.states.iter().map(|s| format!("d_{}", s.name)));
         // PI, E, e, TAU and their Greek spellings are constants in every
         // formula; a variable of that name would be silently shadowed.
-        if let Some(n) = names.iter().find(|n| super::tape::Tape::constant(n).is_some()) {
+        if let Some(n) = names.iter().find(|n| crate::engine::formula::tape::Tape::constant(n).is_some()) {
             bail!("{file}: [model]: '{n}' is a mathematical constant in formulas (PI, π, E, e, TAU, τ); give the variable another name");
         }
         if names.len() > MAX_NAMES {
@@ -454,8 +454,8 @@ impl Variables {
     }
 
     /// The names formulas of `upto` variables may use (a prefix of all).
-    pub fn scope(&self, upto: usize) -> super::formula::Scope {
-        super::formula::Scope::new(self.names[..upto].iter().cloned())
+    pub fn scope(&self, upto: usize) -> crate::engine::formula::Scope {
+        crate::engine::formula::Scope::new(self.names[..upto].iter().cloned())
     }
 
     /// Sets θ and the constants of `v` in place, leaving its other slots as

@@ -2,7 +2,7 @@
 //! formula of the input x, the parameters θ and constants.
 
 use super::declaration::{check_parameters_used, corners, describe, Declared, Variables};
-use super::formula::Formula;
+use crate::engine::formula::Formula;
 use crate::engine::model::Simulator;
 use anyhow::{bail, Result};
 

@@ -15,15 +15,10 @@
 //! compiled (`tape`) to evaluate without allocation; `formula` binds them to names, `declaration` reads the tables, and
 //! `expression` and `ode` compile a declaration into a `Simulator`.
 
-mod closures;
 mod declaration;
 pub mod discover;
 pub mod expression;
-pub mod formula;
-mod notation;
 pub mod ode;
-mod ops;
-mod tape;
 
 use crate::base::config::Config;
 use crate::engine::model::{CandidateModel, Discoverer, ModelFamily, ModelSetup, PlainSetup, Simulator, Units};

@@ -3,7 +3,7 @@
 //! declared as a `[[candidates]]` table.
 
 use super::super::declaration::Declared;
-use super::super::formula::{Formula, Scope};
+use crate::engine::formula::{Formula, Scope};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 
@@ -90,7 +90,7 @@ fn parse(text: &str, what: &str) -> Result<Vec<TermForm>> {
             }
             plain.replace_range(a..=b, "q");
         }
-        match super::super::notation::parse(&plain) {
+        match crate::engine::formula::notation::parse(&plain) {
             Ok(tree) => f.operations = tree.operations(),
             Err(e) => bail!("{what}: [[terms]] {}: form = {:?} is not a formula ({e})", f.name, f.form),
         }
@@ -255,7 +255,7 @@ fn observables(d: &Declared) -> Vec<(String, String)> {
 /// The states whose rate is a law, with the rate: not a kinematic identity
 /// (`dh/dt = v`), which is a definition and exact.
 fn laws(d: &Declared) -> Vec<(String, String)> {
-    use super::super::notation::{parse, Expr};
+    use crate::engine::formula::notation::{parse, Expr};
     let identity = |text: &str| match parse(text) {
         Ok(Expr::Name(n)) => d.states.iter().any(|s| s.name == n),
         Ok(Expr::Neg(a)) => matches!(*a, Expr::Name(ref n) if d.states.iter().any(|s| &s.name == n)),
@@ -272,7 +272,7 @@ fn varying(d: &Declared) -> Vec<(String, String)> {
         .map(|(_, w)| w.text.as_str())
         .chain(d.states.iter().map(|s| s.rate.text.as_str()))
         .collect();
-    let used = |p: &str| formulas.iter().any(|f| super::super::notation::rename(f, p, "") != *f);
+    let used = |p: &str| formulas.iter().any(|f| crate::engine::formula::notation::rename(f, p, "") != *f);
     d.parameters.iter().filter(|p| used(p)).map(|p| (p.clone(), String::new())).collect()
 }
 

@@ -16,7 +16,7 @@ pub mod grammar;
 mod prior;
 
 use super::declaration::{CandidateTable, Declared, Written};
-use super::formula;
+use crate::engine::formula;
 use super::DeclaredFamily;
 use crate::base::config::ParamSpec;
 use crate::engine::model::{

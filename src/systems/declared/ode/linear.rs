@@ -21,8 +21,8 @@
 //! so the division is exact and the rounding of b is small beside A's).
 
 use super::super::declaration::{Variables, MAX_NAMES};
-use super::super::formula::{Formula, Scope};
-use super::super::notation::Expr;
+use crate::engine::formula::{Formula, Scope};
+use crate::engine::formula::notation::Expr;
 use super::grid::Grid;
 use nalgebra::allocator::Allocator;
 use nalgebra::{Const, DefaultAllocator, Dim, DimMin, DimMinimum, OMatrix};

@@ -33,7 +33,7 @@ mod grid;
 mod linear;
 
 use super::declaration::{check_parameters_used, corners, describe, Declared, SolverSettings, Variables, MAX_NAMES};
-use super::formula::Formula;
+use crate::engine::formula::Formula;
 use crate::engine::model::Simulator;
 use anyhow::{bail, Result};
 use dense::Dense;

@@ -3,8 +3,12 @@
 //! and compiled (`tape`) to evaluate against the caller's vector of named
 //! values in place, without allocation.
 
-use super::notation;
-use super::tape::Tape;
+mod closures;
+pub mod notation;
+mod ops;
+pub mod tape;
+
+use tape::Tape;
 use anyhow::{bail, Result};
 
 /// The names a formula may use, in the order of the value vectors passed to
@@ -61,7 +65,7 @@ impl Formula {
     }
 
     /// A formula from its parsed tree (`text` is what errors quote).
-    pub(super) fn from_expr(text: &str, expr: notation::Expr, scope: &Scope, place: &str) -> Result<Formula> {
+    pub fn from_expr(text: &str, expr: notation::Expr, scope: &Scope, place: &str) -> Result<Formula> {
         let mut names = Vec::new();
         expr.names(&mut names);
         if let Some(unknown) = names.iter().find(|n| scope.index(n).is_none() && Tape::constant(n).is_none()) {
@@ -80,7 +84,7 @@ impl Formula {
     }
 
     /// The parsed tree.
-    pub(super) fn expr(&self) -> &notation::Expr {
+    pub fn expr(&self) -> &notation::Expr {
         &self.expr
     }
 
