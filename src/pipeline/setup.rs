@@ -144,8 +144,9 @@ impl Study<'_> {
         ))
     }
 
-    /// Every candidate of the study: the stand-in's library names, then the
-    /// declared `[[candidates]]`.
+    /// Every candidate of the study that is a variant of the simulator: the
+    /// systems' library names, then the declared `[[candidates]]` (not the
+    /// corrections of the emulated output, which need no runs).
     pub(super) fn variants(&self) -> Result<Vec<Variant>> {
         let mut variants = Vec::new();
         for system in self.systems {
@@ -159,6 +160,10 @@ impl Study<'_> {
         let base = self.simulator(false)?;
         for (k, table) in self.config.candidates.iter().enumerate() {
             let mut c: CandidateDeclaration = self.config.decode(table, "[candidates]")?;
+            if c.is_correction() {
+                // A correction of the emulated output: nothing to run.
+                continue;
+            }
             c.command = c.command.map(|command| with_config_dir(&command, self.config));
             let where_ = format!("{}: [[candidates]] {}", self.config.path.display(), c.name);
             let simulator = check_declaration(&c, &spec, &base).context(where_.clone())?;

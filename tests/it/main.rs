@@ -7,6 +7,7 @@ mod checkpoint;
 mod closed_form;
 mod cluster;
 mod common;
+mod correction;
 mod declared;
 mod diagnose;
 mod diagnose_heavy_ion;

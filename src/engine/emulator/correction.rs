@@ -162,7 +162,13 @@ impl Simulator for CorrectedModel {
         self.inner.model_covariance_spans_observables()
     }
 
-    fn add_joint_model_covariance(&self, points: &[(usize, f64)], inv_scales: &[f64], theta: &[f64], lower: &mut [f64]) {
+    fn add_joint_model_covariance(
+        &self,
+        points: &[(usize, f64)],
+        inv_scales: &[f64],
+        theta: &[f64],
+        lower: &mut [f64],
+    ) {
         SCRATCH.with(|s| {
             let scales = &mut s.borrow_mut().0;
             self.point_scales(points, inv_scales, theta, scales);
@@ -240,8 +246,8 @@ mod tests {
     #[test]
     fn a_dead_time_correction_changes_the_prediction_and_its_covariance() {
         let corrections = BTreeMap::from([("rate".to_string(), "rate/(1 + tau*rate)".to_string())]);
-        let m = CorrectedModel::new(Arc::new(Line), &corrections, &["tau".into()], "c.toml: [[candidates]] dt")
-            .unwrap();
+        let m =
+            CorrectedModel::new(Arc::new(Line), &corrections, &["tau".into()], "c.toml: [[candidates]] dt").unwrap();
         assert_eq!(m.parameter_names(), ["a", "tau"]);
         let (x, theta) = ([1.0, 10.0], [5.0, 0.01]);
         let mut out = [0.0; 2];

@@ -2,6 +2,7 @@
 //! `diagnose` candidates the variant emulators declared in `[[candidates]]`
 //! (trained on runs with extra physics switched on).
 
+use super::correction::CorrectedModel;
 use super::EmulatedModel;
 use crate::base::config::{Config, ParamSpec};
 use crate::engine::model::{CandidateModel, ModelFamily, ModelSetup, Simulator, Units};
@@ -60,6 +61,11 @@ pub struct CandidateDeclaration {
     /// or a command of its own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub command: Option<String>,
+    /// Or no variant at all: the model's output corrected by formulas of x,
+    /// the observable itself, θ and the candidate's own parameters, the
+    /// physics of the measurement (`{ rate = "rate/(1 + tau*rate)" }`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub correction: BTreeMap<String, String>,
 }
 
 impl CandidateDeclaration {
@@ -78,11 +84,18 @@ impl CandidateDeclaration {
             parameter_file: BTreeMap::new(),
             placeholders: BTreeMap::new(),
             command: None,
+            correction: BTreeMap::new(),
         }
     }
 }
 
 impl CandidateDeclaration {
+    /// Whether the candidate corrects the model's output instead of naming
+    /// a variant of the simulator.
+    pub fn is_correction(&self) -> bool {
+        !self.correction.is_empty()
+    }
+
     /// The declaration as a `[[candidates]]` table.
     pub fn to_table(&self) -> Result<toml::Table> {
         Ok(toml::Table::try_from(self)?)
@@ -139,20 +152,49 @@ impl ModelSetup for EmulatorSetup {
     }
 
     fn candidates(&self) -> Result<Vec<CandidateModel>> {
-        declared_candidates(&self.config)
+        declared_candidates(&self.config, &self.model)
     }
 }
 
-/// Every `[[candidates]]` table, a variant with its own emulator.
-fn declared_candidates(config: &Config) -> Result<Vec<CandidateModel>> {
+/// Every `[[candidates]]` table: a variant with its own emulator, or a
+/// correction of the model's output.
+fn declared_candidates(config: &Config, model: &Arc<EmulatedModel>) -> Result<Vec<CandidateModel>> {
     config
         .candidates
         .iter()
         .map(|t| {
             let c: CandidateDeclaration = config.decode(t, "[candidates]")?;
-            declared_candidate(config, &c)
+            if c.is_correction() {
+                corrected_candidate(config, model.clone(), &c)
+            } else {
+                declared_candidate(config, &c)
+            }
         })
         .collect()
+}
+
+/// A declared correction: the model's own emulator, its output corrected.
+fn corrected_candidate(config: &Config, model: Arc<EmulatedModel>, c: &CandidateDeclaration) -> Result<CandidateModel> {
+    let place = format!("{}: [[candidates]] {}", config.path.display(), c.name);
+    if c.emulator.is_some() || !c.parameter_file.is_empty() || !c.placeholders.is_empty() || c.command.is_some() {
+        bail!("{place}: a `correction` changes the model's output and needs no variant: leave out `emulator`, `parameter_file`, `placeholders` and `command`");
+    }
+    let mut extra = Vec::new();
+    for (n, spec) in &c.parameters {
+        spec.check(&format!("{place}: [candidates.parameters.{n}]"))?;
+        if config.parameters.contains_key(n) {
+            bail!("{place}: parameter '{n}' is already a parameter of the model");
+        }
+        extra.push((n.clone(), spec.clone()));
+    }
+    let names: Vec<String> = extra.iter().map(|(n, _)| n.clone()).collect();
+    let simulator = CorrectedModel::new(model, &c.correction, &names, &place)?;
+    Ok(CandidateModel {
+        name: c.name.clone(),
+        description: c.description.clone(),
+        extra_parameters: extra,
+        simulator: Arc::new(simulator),
+    })
 }
 
 /// A declared variant: its parameters must be the base θ plus the variant's

@@ -8,8 +8,8 @@ pub mod notation;
 mod ops;
 pub mod tape;
 
-use tape::Tape;
 use anyhow::{bail, Result};
+use tape::Tape;
 
 /// The names a formula may use, in the order of the value vectors passed to
 /// [`Formula::eval`].

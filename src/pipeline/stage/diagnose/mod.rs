@@ -53,7 +53,9 @@ impl Stage for Diagnose {
 /// variant_budget` allows, they are refined and the diagnosis made again.
 fn diagnose(study: &Study<'_>) -> Result<()> {
     let mut config = study.study_config()?;
-    config.candidates = study.variants()?.into_iter().map(|v| v.declaration).collect();
+    let corrections: Vec<toml::Table> =
+        config.candidates.iter().filter(|t| t.contains_key("correction")).cloned().collect();
+    config.candidates = study.variants()?.into_iter().map(|v| v.declaration).chain(corrections).collect();
     let out = study.paths.diagnose();
     // A previous run's refined variants are of other settings (its runs would mix with new ones).
     crate::engine::execute::attempt::remove_after_attempts(&out.join("refine"))

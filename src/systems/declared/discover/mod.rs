@@ -16,9 +16,9 @@ pub mod grammar;
 mod prior;
 
 use super::declaration::{CandidateTable, Declared, Written};
-use crate::engine::formula;
 use super::DeclaredFamily;
 use crate::base::config::ParamSpec;
+use crate::engine::formula;
 use crate::engine::model::{
     standardize_blocks, CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator,
 };

@@ -21,9 +21,9 @@
 //! so the division is exact and the rounding of b is small beside A's).
 
 use super::super::declaration::{Variables, MAX_NAMES};
-use crate::engine::formula::{Formula, Scope};
-use crate::engine::formula::notation::Expr;
 use super::grid::Grid;
+use crate::engine::formula::notation::Expr;
+use crate::engine::formula::{Formula, Scope};
 use nalgebra::allocator::Allocator;
 use nalgebra::{Const, DefaultAllocator, Dim, DimMin, DimMinimum, OMatrix};
 

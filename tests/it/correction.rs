@@ -1,0 +1,72 @@
+//! A candidate of an emulated model that corrects the emulator's output by
+//! a formula (`correction = { rate = "rate/(1 + tau*rate)" }`): the physics
+//! of the measurement, declared without running the simulator again.
+
+use mdpipe::diagnose::{self, DiagnoseSettings};
+use mdpipe::progress::Silent;
+use rand::{Rng, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
+use std::path::PathBuf;
+
+fn tmpdir(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("mdpipe-correction-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A counter's rate against source strength x, emulated from the
+/// simulator's runs r = 12 A x (no dead time in the simulator); the
+/// measured rate loses counts to a dead time tau, r / (1 + tau r).
+const COUNTER: &str = "name = \"counter\"\n[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\
+    [data]\nmeasurements = \"data.csv\"\n[parameters.A]\nmin = 0.5\nmax = 2.0\n\
+    [emulator]\nparameters = [\"A\"]\n\
+    [[candidates]]\nname = \"dead_time\"\ndescription = \"non-paralysable dead time: each count blinds the counter for tau\"\n\
+    correction = { rate = \"rate/(1 + tau*rate)\" }\nparameters.tau = { min = 0.0, max = 0.01 }\n\
+    [[candidates]]\nname = \"background\"\ndescription = \"a constant background rate b\"\n\
+    correction = { rate = \"rate + b\" }\nparameters.b = { min = -20.0, max = 20.0 }\n";
+
+/// First tier: runs of the simulator train the emulator; data (written in
+/// closed form here) carry a dead time of 2 ms at A = 1.2. `diagnose` names
+/// the dead-time correction, its tau covering 0.002 and A covering 1.2,
+/// over a background offset; and a correction with an emulator is refused.
+#[test]
+fn a_dead_time_correction_of_an_emulated_model_is_named() {
+    let dir = tmpdir("counter");
+    let xs: Vec<f64> = (1..=12).map(f64::from).collect();
+    let mut runs = String::from("design_id,observable,x,value,A\n");
+    for i in 0..12 {
+        let a = 0.45 + 1.6 * i as f64 / 11.0;
+        for x in &xs {
+            runs.push_str(&format!("{i},rate,{x},{},{a}\n", 12.0 * a * x));
+        }
+    }
+    std::fs::write(dir.join("runs.csv"), runs).unwrap();
+    let (a, tau) = (1.2, 0.002);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(21);
+    let mut data = String::from("observable,x,value,error\n");
+    for x in &xs {
+        let r = 12.0 * a * x;
+        let sigma = 0.01 * r + 0.2;
+        let z: f64 = rng.sample(rand_distr::StandardNormal);
+        data.push_str(&format!("rate,{x},{},{sigma}\n", r / (1.0 + tau * r) + sigma * z));
+    }
+    std::fs::write(dir.join("data.csv"), data).unwrap();
+    std::fs::write(dir.join("counter.toml"), COUNTER).unwrap();
+    mdpipe::emulator::train_and_save(&dir.join("counter.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1)
+        .unwrap();
+    let mut analysis = mdpipe::systems::load(&dir.join("counter.toml")).unwrap();
+    analysis.sampler.smc.particles = 600;
+    analysis.sampler.smc.replicates = 2;
+    let settings = DiagnoseSettings { repair: false, ..Default::default() };
+    let d = diagnose::run(&analysis, &Default::default(), 5, &settings, None, &Silent).unwrap().diagnosis;
+    assert_eq!(d.verdict.best, "dead_time", "{}", d.verdict.statement);
+    let c = &d.candidates[0];
+    assert!(c.parameters["tau"].covers(tau) && c.parameters["A"].covers(a), "{:?}", c.parameters);
+    // A correction is its own candidate: an emulator beside it is refused by name.
+    let both = COUNTER
+        .replace("correction = { rate = \"rate + b\" }", "correction = { rate = \"rate + b\" }\nemulator = \"emu\"");
+    std::fs::write(dir.join("both.toml"), both).unwrap();
+    let analysis = mdpipe::systems::load(&dir.join("both.toml")).unwrap();
+    let e = format!("{:#}", analysis.setup.candidates().err().expect("a correction with an emulator"));
+    assert!(e.contains("both.toml") && e.contains("background") && e.contains("needs no variant"), "{e}");
+}
