@@ -299,9 +299,12 @@ mod tests {
     #[test]
     fn run_switches_without_a_run_table_are_refused() {
         let c = config("[[candidates]]\nname = \"x\"\ncommand = \"sim {point}\"\nemulator = \"v\"\n");
-        let refusal = |c: &Config| match declared_candidates(c) {
-            Ok(_) => panic!("accepted"),
-            Err(e) => format!("{e:#}"),
+        let refusal = |c: &Config| {
+            let d: CandidateDeclaration = c.decode(&c.candidates[0], "[candidates]").unwrap();
+            match declared_candidate(c, &d) {
+                Ok(_) => panic!("accepted"),
+                Err(e) => format!("{e:#}"),
+            }
         };
         let msg = refusal(&c);
         assert!(msg.contains("study.toml") && msg.contains("no [run] table"), "{msg}");
