@@ -11,21 +11,19 @@
 //! candidates; `diagnose` then judges them by full calibration and evidence,
 //! with prior odds that pay for the number searched (`proposal`).
 
-mod fit;
 pub mod grammar;
-mod prior;
 
 use super::declaration::{CandidateTable, Declared, Written};
 use super::DeclaredFamily;
 use crate::base::config::ParamSpec;
 use crate::engine::formula;
+use crate::engine::model::fit::{Fitted, LeastSquares};
+use crate::engine::model::prior::FormPrior;
 use crate::engine::model::{
     standardize_blocks, CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator,
 };
 use anyhow::Result;
-use fit::{Fitted, LeastSquares};
 use grammar::{Instance, ParameterForm, TermForm, To};
-use prior::FormPrior;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -98,7 +96,7 @@ impl Discoverer for DeclaredDiscoverer {
         all.extend(singles);
         all.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let all = distinct(all, data);
-        let prior = FormPrior::over(&instances);
+        let prior = FormPrior::over(&instances.iter().map(|i| i.operations).collect::<Vec<_>>());
         let proposals = all
             .into_iter()
             .filter(|s| bic(s) > 0.0)
@@ -123,7 +121,7 @@ fn bic_of(base_chi2: f64, points: f64) -> impl Fn(&Screened) -> f64 {
 /// A screened term as a candidate, with its prior odds.
 fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, prior: &FormPrior) -> Proposal {
     let delta_bic = bic(&s);
-    let prior_log_odds = prior.log_odds(&s.instances);
+    let prior_log_odds = prior.log_odds(&s.instances.iter().map(|i| i.operations).collect::<Vec<_>>());
     let formula = describe(&s.table);
     let meaning = s.instances.iter().map(|i| i.meaning.as_str()).collect::<Vec<_>>().join("; and ");
     Proposal {

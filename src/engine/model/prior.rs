@@ -1,6 +1,5 @@
-//! The prior over forms the search charges each discovered term.
-
-use super::grammar::Instance;
+//! The prior over forms the search charges each discovered term, by each
+//! form's number of operations.
 
 /// The prior over forms: a term's prior weight falls by a factor e^λ with
 /// each operation of its form (a whole power x^k counting k − 1), as in the
@@ -21,20 +20,21 @@ pub struct FormPrior {
 const NATS_PER_OPERATION: f64 = 0.5;
 
 impl FormPrior {
-    fn weight(i: &Instance) -> f64 {
-        (-NATS_PER_OPERATION * i.operations as f64).exp()
+    fn weight(operations: usize) -> f64 {
+        (-NATS_PER_OPERATION * operations as f64).exp()
     }
 
-    pub fn over(instances: &[Instance]) -> FormPrior {
-        let w = instances.iter().map(FormPrior::weight);
+    /// The prior over every term searched, each given by its operations.
+    pub fn over(operations: &[usize]) -> FormPrior {
+        let w = operations.iter().map(|k| FormPrior::weight(*k));
         FormPrior { total: w.clone().sum(), squares: w.map(|w| w * w).sum() }
     }
 
     /// Prior log odds of a term (or a pair) against the model as it is. The
     /// pairs were chosen after the data ranked the singles, so a pair pays
     /// for every pair the grammar could make, not only the ten fitted.
-    pub fn log_odds(&self, terms: &[Instance]) -> f64 {
-        let own: f64 = terms.iter().map(|i| FormPrior::weight(i).ln()).sum();
+    pub fn log_odds(&self, terms: &[usize]) -> f64 {
+        let own: f64 = terms.iter().map(|k| FormPrior::weight(*k).ln()).sum();
         match terms.len() {
             1 => own - self.total.ln(),
             _ => own - (0.5 * (self.total * self.total - self.squares)).max(f64::MIN_POSITIVE).ln(),
@@ -45,41 +45,24 @@ impl FormPrior {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::systems::declared::discover::grammar::To;
-
-    fn instance(operations: usize) -> Instance {
-        Instance {
-            name: format!("f{operations}"),
-            form: String::new(),
-            target: "y".into(),
-            to: To::Rates,
-            rank: 0,
-            symbols: Vec::new(),
-            parameters: Vec::new(),
-            meaning: String::new(),
-            operations,
-        }
-    }
 
     #[test]
     fn the_search_pays_its_look_elsewhere_odds_and_simpler_forms_lead() {
-        let all: Vec<Instance> = [0, 1, 1, 3, 3, 4, 7, 7].map(instance).to_vec();
+        let all = [0, 1, 1, 3, 3, 4, 7, 7];
         let prior = FormPrior::over(&all);
         // Singles' odds sum to one against the model as it is; so do pairs'.
-        let singles: f64 = all.iter().map(|i| prior.log_odds(std::slice::from_ref(i)).exp()).sum();
+        let singles: f64 = all.iter().map(|k| prior.log_odds(&[*k]).exp()).sum();
         assert!((singles - 1.0).abs() < 1e-12, "{singles}");
         let mut pairs = 0.0;
-        for (k, a) in all.iter().enumerate() {
-            for b in &all[k + 1..] {
-                pairs += prior.log_odds(&[a.clone(), b.clone()]).exp();
+        for (i, a) in all.iter().enumerate() {
+            for b in &all[i + 1..] {
+                pairs += prior.log_odds(&[*a, *b]).exp();
             }
         }
         assert!((pairs - 1.0).abs() < 1e-12, "{pairs}");
         // Each operation costs NATS_PER_OPERATION.
-        let (a, b) = (prior.log_odds(&all[1..2]), prior.log_odds(&all[3..4]));
-        assert!((a - b - 2.0 * NATS_PER_OPERATION).abs() < 1e-12);
+        assert!((prior.log_odds(&[1]) - prior.log_odds(&[3]) - 2.0 * NATS_PER_OPERATION).abs() < 1e-12);
         // With every form the same size it is the uniform 1 : N.
-        let same: Vec<Instance> = (0..38).map(|_| instance(2)).collect();
-        assert!((FormPrior::over(&same).log_odds(&same[..1]) + 38f64.ln()).abs() < 1e-12);
+        assert!((FormPrior::over(&[2; 38]).log_odds(&[2]) + 38f64.ln()).abs() < 1e-12);
     }
 }

@@ -3,7 +3,7 @@
 //! It finds each term's best χ² in milliseconds; the evidence that judges a
 //! term comes later, from the full calibration.
 
-use crate::engine::model::{standardize_blocks, ScreeningBlock, Simulator};
+use super::{standardize_blocks, ScreeningBlock, Simulator};
 use rayon::prelude::*;
 
 /// A least-squares problem: the data, a model over φ, and φ's box.

@@ -6,6 +6,9 @@
 //!
 //! The engine calls only these traits; the families live in `crate::systems`.
 
+pub mod fit;
+pub mod prior;
+
 use crate::base::config::{Config, ParamSpec};
 use anyhow::{anyhow, bail, Result};
 use std::collections::BTreeMap;
