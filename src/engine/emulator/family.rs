@@ -3,9 +3,10 @@
 //! (trained on runs with extra physics switched on).
 
 use super::correction::CorrectedModel;
+use super::discover::EmulatedDiscoverer;
 use super::EmulatedModel;
 use crate::base::config::{Config, ParamSpec};
-use crate::engine::model::{CandidateModel, ModelFamily, ModelSetup, Simulator, Units};
+use crate::engine::model::{CandidateModel, Discoverer, ModelFamily, ModelSetup, Simulator, Units};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -130,7 +131,9 @@ impl ModelFamily for EmulatorFamily {
             &format!("{}: the emulator {}", config.path.display(), dir.display()),
         )?;
         let units = Units { x: table.units.x, observables: table.units.observables, parameters: Default::default() };
-        Ok(Arc::new(EmulatorSetup { model: Arc::new(model), units, config: config.clone() }))
+        let model = Arc::new(model);
+        let discoverer = EmulatedDiscoverer { model: model.clone() };
+        Ok(Arc::new(EmulatorSetup { model, units, config: config.clone(), discoverer }))
     }
 }
 
@@ -140,6 +143,7 @@ struct EmulatorSetup {
     model: Arc<EmulatedModel>,
     units: Units,
     config: Config,
+    discoverer: EmulatedDiscoverer,
 }
 
 impl ModelSetup for EmulatorSetup {
@@ -153,6 +157,10 @@ impl ModelSetup for EmulatorSetup {
 
     fn candidates(&self) -> Result<Vec<CandidateModel>> {
         declared_candidates(&self.config, &self.model)
+    }
+
+    fn discoverer(&self) -> Option<&dyn Discoverer> {
+        Some(&self.discoverer)
     }
 }
 

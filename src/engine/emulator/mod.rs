@@ -25,6 +25,7 @@ pub mod run_noise;
 
 pub mod budget;
 pub mod correction;
+pub mod discover;
 pub mod family;
 pub mod latent;
 pub mod low_rank;
