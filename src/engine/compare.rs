@@ -105,7 +105,12 @@ fn write_tables(analysis: &Analysis, cases: &[CompareCase], out: &Path) -> Resul
         md.push_str(&format!("| {} | {} |", case.observables.join(", "), s.kernel));
         for n in &theta_names {
             let p = &s.parameters[n];
-            md.push_str(&format!(" {:.3} [{:.3}, {:.3}] ({:.3}, {:.3}) |", p.median, p.q025, p.q975, p.q16, p.q84));
+            md.push_str(&format!(
+                " {} ({}, {}) |",
+                p.interval(),
+                crate::engine::calibrate::summary::readable(p.q16),
+                crate::engine::calibrate::summary::readable(p.q84)
+            ));
             c_obs.push(case.observables.join("+"));
             c_kernel.push(s.kernel.clone());
             c_param.push(n.clone());

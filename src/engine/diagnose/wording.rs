@@ -12,11 +12,7 @@ pub(super) fn ambiguous_statement(
     let who: Vec<String> = standing
         .iter()
         .map(|c| {
-            let fitted: Vec<String> = c
-                .parameters
-                .iter()
-                .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
-                .collect();
+            let fitted: Vec<String> = c.parameters.iter().map(|(n, p)| format!("{n} = {}", p.interval())).collect();
             format!(
                 "{} ({}; log BF {:.1} ± {:.1} against the model as it is; {})",
                 c.name,
@@ -91,10 +87,8 @@ pub(super) fn named_statement(
         .map(|(n, spec)| {
             let p = &c.parameters[n];
             format!(
-                "{n} = {:.3} [{:.3}, {:.3}]{}",
-                p.median,
-                p.q025,
-                p.q975,
+                "{n} = {}{}",
+                p.interval(),
                 if spec.units.is_empty() { String::new() } else { format!(" {}", spec.units) }
             )
         })
@@ -182,11 +176,7 @@ pub fn print(d: &Diagnosis) {
         // With MD the χ² is of η alone: what δ had to absorb, not the MD fit's misfit.
         crate::base::messages::say!("Repair (before → after; χ²/dof of the model part η alone, δ left out):");
         for f in imp.before.iter().chain(&imp.after) {
-            let g: Vec<String> = f
-                .parameters
-                .iter()
-                .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
-                .collect();
+            let g: Vec<String> = f.parameters.iter().map(|(n, p)| format!("{n} = {}", p.interval())).collect();
             let dmax = f.delta_max_sigma.values().cloned().fold(0.0, f64::max);
             crate::base::messages::say!(
                 "  {:<34} χ²/dof {:>6.2}  log Z {:>8.2}  max|δ| {:>4.1}σ  {}",

@@ -161,11 +161,7 @@ pub(super) fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[Run
 
 /// "name = median [q025, q975], …".
 pub(super) fn intervals(parameters: &BTreeMap<String, ParamSummary>) -> String {
-    parameters
-        .iter()
-        .map(|(n, p)| format!("{n} = {:.3} [{:.3}, {:.3}]", p.median, p.q025, p.q975))
-        .collect::<Vec<_>>()
-        .join(", ")
+    parameters.iter().map(|(n, p)| format!("{n} = {}", p.interval())).collect::<Vec<_>>().join(", ")
 }
 
 /// Per observable set: the corner plot of every kernel's run, the system's
@@ -248,7 +244,7 @@ pub(super) fn posterior_table(html: &mut String, group: &[&RunArtifacts], theta:
         html.push_str(&format!("<tr><td>{}</td>", r.summary.kernel));
         for t in theta {
             let p = &r.summary.parameters[t];
-            html.push_str(&format!("<td>{:.3} [{:.3}, {:.3}]</td>", p.median, p.q025, p.q975));
+            html.push_str(&format!("<td>{}</td>", p.interval()));
         }
         let z = r
             .summary

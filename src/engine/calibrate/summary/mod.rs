@@ -34,7 +34,23 @@ pub struct ParamSummary {
     pub sd: f64,
 }
 
+/// A value as a person reads it: three decimals where that keeps three
+/// significant figures' worth (0.001 to 10⁶), else scientific notation, so
+/// a dead time of 2.4e-6 s does not print as 0.000.
+pub fn readable(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-3..1e6).contains(&v.abs()) {
+        format!("{v:.3}")
+    } else {
+        format!("{v:.3e}")
+    }
+}
+
 impl ParamSummary {
+    /// `median [q025, q975]`, each `readable`.
+    pub fn interval(&self) -> String {
+        format!("{} [{}, {}]", readable(self.median), readable(self.q025), readable(self.q975))
+    }
+
     pub fn from_draws(draws: &[f64]) -> Self {
         let mut v = draws.to_vec();
         v.sort_by(|a, b| a.total_cmp(b));
@@ -300,6 +316,20 @@ pub fn summarize(
             adaptation: Vec::new(),
         },
         provenance: problem.provenance(seed, "calibrate"),
+    }
+}
+
+#[cfg(test)]
+mod readable_tests {
+    use super::readable;
+
+    #[test]
+    fn small_and_large_values_keep_their_figures() {
+        assert_eq!(readable(2.346), "2.346");
+        assert_eq!(readable(49679.906), "49679.906");
+        assert_eq!(readable(2.418e-6), "2.418e-6");
+        assert_eq!(readable(0.0), "0.000");
+        assert_eq!(readable(-3.2e7), "-3.200e7");
     }
 }
 
