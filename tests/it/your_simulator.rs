@@ -308,3 +308,77 @@ fn decay_counter_blind_test_confusion_matrix() {
     let alarms = rows.iter().filter(|r| r.0 == "none" && r.1 != "none").count();
     assert!(clopper_pearson(alarms, nulls).1 < 0.15, "false-alarm upper bound not below 15%");
 }
+
+/// Second tier: discovery on the emulated route. The decay-counter study
+/// with its `[[candidates]]` taken out, diagnosed with `--discover` on data
+/// sets from the simulator's own runs: 20 with a dead time of 3.5–6 µs and
+/// 20 with a background of 300–2000 counts/s, each at 5σ or more, and 20
+/// nulls. Right: for the dead time a counting loss, rate/(1 + c*rate) with
+/// c covering τ or rate + c*rate^2 with c covering −τ (the same loss to
+/// second order); for the background an offset rate + c with c covering it.
+#[test]
+#[ignore = "second tier: 60 emulated diagnoses with discovery; cargo test --release -- --ignored"]
+fn decay_counter_discovery_campaign() {
+    use mdpipe::diagnose::{self, DiagnoseSettings, Discover};
+    let dir = example_copy("decay-discover", "");
+    let study = std::fs::read_to_string(dir.join("study.toml")).unwrap();
+    let bare = study.split("[[candidates]]").next().unwrap().to_string();
+    std::fs::write(dir.join("study.toml"), bare).unwrap();
+    for stage in ["design", "simulate", "ingest", "emulator"] {
+        mdpipe_run(&dir, &["--stage", stage]);
+    }
+    let analysis = mdpipe::pipeline::load(&dir.join("study.toml"), &mdpipe::app::systems()).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7_500);
+    // right, ambiguous with a right form standing, total: dead time, background, nulls
+    let mut tally = [[0usize; 3]; 3];
+    for k in 0..600 {
+        if tally.iter().all(|t| t[2] >= 20) {
+            break;
+        }
+        let (activity, half_life) = (rng.random_range(35_000.0..65_000.0), rng.random_range(1.5..3.0));
+        let (effect, kind) = match k % 3 {
+            0 => (Effect::DeadTime(rng.random_range(3.5..6.0)), 0),
+            1 => (Effect::Background(rng.random_range(300.0..2_000.0)), 1),
+            _ => (Effect::None, 2),
+        };
+        let size = effect_size(effect, activity, half_life);
+        if tally[kind][2] >= 20 || (kind < 2 && size < 5.0) {
+            continue;
+        }
+        let data = measure(&dir, 100 + k, effect, activity, half_life);
+        let overrides = Overrides { data: Some(data), ..Default::default() };
+        let settings = DiagnoseSettings { repair: false, discover: Discover::Always, ..Default::default() };
+        let d = diagnose::run(&analysis, &overrides, 11 + k as u64, &settings, None, &mdpipe::progress::Silent)
+            .unwrap()
+            .diagnosis;
+        let named = d.candidates.iter().find(|c| c.name == d.verdict.best && c.prior_log_odds < 0.0);
+        let covers = |name: &str, value: f64| named.is_some_and(|c| c.name == name && c.parameters["c"].covers(value));
+        let standing = |names: &[&str]| {
+            d.verdict.best == "ambiguous" && d.verdict.standing.iter().any(|s| names.contains(&s.as_str()))
+        };
+        let (right, ambiguous) = match effect {
+            Effect::DeadTime(us) => (
+                covers("saturation_of_rate", us * 1e-6) || covers("square_loss_of_rate", -us * 1e-6),
+                standing(&["saturation_of_rate", "square_loss_of_rate"]),
+            ),
+            Effect::Background(b) => (covers("offset_of_rate", b), standing(&["offset_of_rate"])),
+            _ => (named.is_none(), false),
+        };
+        println!("  set {k}: {effect:?} {size:.1}σ → {} {}", d.verdict.best, if right { "right" } else { "WRONG" });
+        tally[kind][0] += usize::from(right);
+        tally[kind][1] += usize::from(!right && ambiguous);
+        tally[kind][2] += 1;
+    }
+    for (what, t) in ["dead time ≥ 5σ, a counting loss", "background ≥ 5σ, an offset", "nulls, nothing discovered"]
+        .iter()
+        .zip(&tally)
+    {
+        let (lo, hi) = clopper_pearson(t[0], t[2]);
+        println!(
+            "discovery, decay counter: {what}: {} of {} right, 95% interval [{:.0}%, {:.0}%]; {} ambiguous with a right form standing",
+            t[0], t[2], 100.0 * lo, 100.0 * hi, t[1]
+        );
+    }
+    assert!(tally[0][0] * 5 >= tally[0][2] * 4 && tally[1][0] * 5 >= tally[1][2] * 4, "{tally:?}");
+    assert!((tally[2][2] - tally[2][0]) * 20 <= tally[2][2], "{tally:?}");
+}
