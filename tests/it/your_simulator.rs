@@ -311,11 +311,13 @@ fn decay_counter_blind_test_confusion_matrix() {
 
 /// Second tier: discovery on the emulated route. The decay-counter study
 /// with its `[[candidates]]` taken out, diagnosed with `--discover` on data
-/// sets from the simulator's own runs: 20 with a dead time of 3.5–6 µs and
+/// sets from the simulator's own runs: 20 with a dead time of 5–20 µs and
 /// 20 with a background of 300–2000 counts/s, each at 5σ or more, and 20
 /// nulls. Right: for the dead time a counting loss, rate/(1 + c*rate) with
 /// c covering τ or rate + c*rate^2 with c covering −τ (the same loss to
 /// second order); for the background an offset rate + c with c covering it.
+/// (Dead times of 3.5–6 µs, the blind test's, stay below 5σ here: the fit
+/// absorbs them in a shorter half-life and a lower activity.)
 #[test]
 #[ignore = "second tier: 60 emulated diagnoses with discovery; cargo test --release -- --ignored"]
 fn decay_counter_discovery_campaign() {
@@ -337,7 +339,7 @@ fn decay_counter_discovery_campaign() {
         }
         let (activity, half_life) = (rng.random_range(35_000.0..65_000.0), rng.random_range(1.5..3.0));
         let (effect, kind) = match k % 3 {
-            0 => (Effect::DeadTime(rng.random_range(3.5..6.0)), 0),
+            0 => (Effect::DeadTime(rng.random_range(5.0..20.0)), 0),
             1 => (Effect::Background(rng.random_range(300.0..2_000.0)), 1),
             _ => (Effect::None, 2),
         };
