@@ -75,6 +75,46 @@ fn report(what: &str, outcomes: &[Outcome]) {
     assert!(count(Outcome::Right) * 5 >= n * 4, "{what}: right in {} of {n}", count(Outcome::Right));
 }
 
+/// One drawn data set: its rows, the effect's noise-free size in σ, the
+/// truth in words, and how to judge a diagnosis of it.
+struct Drawn {
+    rows: Vec<(&'static str, f64, f64, f64)>,
+    size: f64,
+    label: String,
+    judge: Box<dyn Fn(&Diagnosis) -> Outcome>,
+}
+
+/// A campaign: data sets drawn by `draw` (from `seed`) until 20 reach 5σ,
+/// each diagnosed (seed `diagnose_seed + k`), judged, printed and reported.
+fn campaign(
+    tag: &str,
+    config: &str,
+    seed: u64,
+    diagnose_seed: u64,
+    what: &str,
+    draw: impl Fn(&mut Xoshiro256PlusPlus) -> Drawn,
+) {
+    let dir = tmp(tag);
+    let analysis = load(&dir, config);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut outcomes = Vec::new();
+    for k in 1..200 {
+        if outcomes.len() == 20 {
+            break;
+        }
+        let set = draw(&mut rng);
+        if set.size < 5.0 {
+            continue;
+        }
+        let path = write_data(&dir, k, &set.rows);
+        let d = diagnose_file(&analysis, &path, diagnose_seed + k as u64, Discover::WhenUnexplained);
+        let o = (set.judge)(&d);
+        println!("  set {k}: {}, {:.1}σ → {} {o:?}", set.label, set.size, d.verdict.best);
+        outcomes.push(o);
+    }
+    report(what, &outcomes);
+}
+
 /// A filament's power balance declared as conduction alone, P = h (T − Ta)
 /// with T in units of 100 K from 400 K to 2500 K and Ta = 300 K; the truth
 /// also radiates, e (T⁴ − Ta⁴) (Stefan–Boltzmann).
@@ -108,31 +148,19 @@ fn filament_set(h: f64, e: f64, rng: &mut Xoshiro256PlusPlus) -> (Vec<(&'static 
 #[test]
 #[ignore = "second tier: 20 diagnoses with discovery; cargo test --release -- --ignored"]
 fn a_fourth_power_is_discovered_in_a_power_balance() {
-    let dir = tmp("filament");
-    let analysis = load(&dir, FILAMENT);
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(4040);
-    let mut outcomes = Vec::new();
-    for k in 1..200 {
-        if outcomes.len() == 20 {
-            break;
-        }
+    campaign("filament", FILAMENT, 4040, 900, "filament, radiation e (T^4 - Ta^4) ≥ 5σ", |rng| {
         let (h, e) = (0.5 + 1.5 * rng.random::<f64>(), 10f64.powf(-6.0 + 1.5 * rng.random::<f64>()));
-        let (rows, size) = filament_set(h, e, &mut rng);
-        if size < 5.0 {
-            continue;
-        }
-        let path = write_data(&dir, k, &rows);
-        let d = diagnose_file(&analysis, &path, 900 + k as u64, Discover::WhenUnexplained);
-        let right = |name: &str| ["fourth_power_T_on_power", "power_T_on_power"].contains(&name);
-        let covered = |d: &Diagnosis| {
-            let c = discovered(d).unwrap();
-            c.parameters["c"].covers(e) && c.parameters.get("p").is_none_or(|p| p.covers(4.0))
+        let (rows, size) = filament_set(h, e, rng);
+        let judge = move |d: &Diagnosis| {
+            let right = |name: &str| ["fourth_power_T_on_power", "power_T_on_power"].contains(&name);
+            let covered = |d: &Diagnosis| {
+                let c = discovered(d).unwrap();
+                c.parameters["c"].covers(e) && c.parameters.get("p").is_none_or(|p| p.covers(4.0))
+            };
+            outcome(d, right, covered)
         };
-        let o = outcome(&d, right, covered);
-        println!("  set {k}: h = {h:.2}, e = {e:.2e}, {size:.1}σ → {} {o:?}", d.verdict.best);
-        outcomes.push(o);
-    }
-    report("filament, radiation e (T^4 - Ta^4) ≥ 5σ", &outcomes);
+        Drawn { rows, size, label: format!("h = {h:.2}, e = {e:.2e}"), judge: Box::new(judge) }
+    });
 }
 
 /// Ohm's law declared for a resistor, V = R I and P = R I² over I = 0.2–3 A;
@@ -167,28 +195,15 @@ fn resistor_set(r0: f64, a: f64, rng: &mut Xoshiro256PlusPlus) -> (Vec<(&'static
 #[test]
 #[ignore = "second tier: 20 diagnoses with discovery; cargo test --release -- --ignored"]
 fn a_parameter_varying_with_the_input_is_discovered_in_both_observables() {
-    let dir = tmp("resistor");
-    let analysis = load(&dir, RESISTOR);
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(4141);
-    let mut outcomes = Vec::new();
-    for k in 1..200 {
-        if outcomes.len() == 20 {
-            break;
-        }
+    campaign("resistor", RESISTOR, 4141, 1100, "resistor, R(I) = R0 (1 + a I^2) ≥ 5σ", |rng| {
         let (r0, a) = (5.0 + 10.0 * rng.random::<f64>(), 0.002 + 0.028 * rng.random::<f64>());
-        let (rows, size) = resistor_set(r0, a, &mut rng);
-        if size < 5.0 {
-            continue;
-        }
-        let path = write_data(&dir, k, &rows);
-        let d = diagnose_file(&analysis, &path, 1100 + k as u64, Discover::WhenUnexplained);
-        let right = |name: &str| name == "quadratic_I_of_R";
-        let covered = |d: &Diagnosis| discovered(d).unwrap().parameters["c"].covers(a);
-        let o = outcome(&d, right, covered);
-        println!("  set {k}: R0 = {r0:.2}, a = {a:.4}, {size:.1}σ → {} {o:?}", d.verdict.best);
-        outcomes.push(o);
-    }
-    report("resistor, R(I) = R0 (1 + a I^2) ≥ 5σ", &outcomes);
+        let (rows, size) = resistor_set(r0, a, rng);
+        let judge = move |d: &Diagnosis| {
+            let covered = |d: &Diagnosis| discovered(d).unwrap().parameters["c"].covers(a);
+            outcome(d, |name| name == "quadratic_I_of_R", covered)
+        };
+        Drawn { rows, size, label: format!("R0 = {r0:.2}, a = {a:.4}"), judge: Box::new(judge) }
+    });
 }
 
 /// Hooke's law declared for a rubber band, extension x = F/k over F = 2–4 N;
@@ -219,28 +234,16 @@ fn band_set(kk: f64, b: f64, rng: &mut Xoshiro256PlusPlus) -> (Vec<(&'static str
 #[test]
 #[ignore = "second tier: 20 diagnoses with discovery; cargo test --release -- --ignored"]
 fn the_simpler_of_two_near_equivalent_forms_leads() {
-    let dir = tmp("band");
-    let analysis = load(&dir, BAND);
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(4242);
-    let mut outcomes = Vec::new();
-    for k in 1..200 {
-        if outcomes.len() == 20 {
-            break;
-        }
+    let what = "rubber band, a softening b F^2 ≥ 5σ with a cube nearly as good";
+    campaign("band", BAND, 4242, 1300, what, |rng| {
         let (kk, b) = (50.0 + 150.0 * rng.random::<f64>(), 5e-4 + 3.5e-3 * rng.random::<f64>());
-        let (rows, size) = band_set(kk, b, &mut rng);
-        if size < 5.0 {
-            continue;
-        }
-        let path = write_data(&dir, k, &rows);
-        let d = diagnose_file(&analysis, &path, 1300 + k as u64, Discover::WhenUnexplained);
-        let right = |name: &str| ["square_F_on_extension", "signed_square_F_on_extension"].contains(&name);
-        let covered = |d: &Diagnosis| discovered(d).unwrap().parameters["c"].covers(b);
-        let o = outcome(&d, right, covered);
-        println!("  set {k}: k = {kk:.1}, b = {b:.2e}, {size:.1}σ → {} {o:?}", d.verdict.best);
-        outcomes.push(o);
-    }
-    report("rubber band, a softening b F^2 ≥ 5σ with a cube nearly as good", &outcomes);
+        let (rows, size) = band_set(kk, b, rng);
+        let judge = move |d: &Diagnosis| {
+            let right = |name: &str| ["square_F_on_extension", "signed_square_F_on_extension"].contains(&name);
+            outcome(d, right, |d| discovered(d).unwrap().parameters["c"].covers(b))
+        };
+        Drawn { rows, size, label: format!("k = {kk:.1}, b = {b:.2e}"), judge: Box::new(judge) }
+    });
 }
 
 /// Second tier: nulls of the three systems above (no effect: h, R0 and k
