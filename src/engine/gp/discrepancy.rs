@@ -153,7 +153,7 @@ impl DiscrepancyGram {
     }
 
     /// Writes the lower triangle of `K(x,x)` (column-major `n*n`).
-    /// `xr` is scratch of length n for `x_i^r`; `corr` of length `n_unique()`.
+    /// `xr` is scratch of length n for `x_i^r`; `corr` of length at least `n_unique()`.
     #[inline]
     pub fn fill_lower(
         &self,
@@ -175,6 +175,9 @@ impl DiscrepancyGram {
             xr[i] = if self.x[i] == 0.0 { pow_r(0.0, r) } else { (r * self.ln_x[i]).exp() };
         }
         let neg_inv_two_ell2 = -0.5 / (ell * ell);
+        // Callers share one scratch across blocks, sized for the block with
+        // the most distinct lags; this block uses its own count of them.
+        let corr = &mut corr[..self.unique_sq_dist.len()];
         match self.equal_lag_sq {
             // q^(k²) = q^((k-1)²) · q^(2k-1): one exp instead of one per lag,
             // with a relative error of a few ulp over a grid of tens of points.
@@ -267,5 +270,27 @@ mod tests {
             }
         }
         assert!(DiscrepancyGram::new(&[0.1, 0.35, 0.8, 1.0]).equal_lag_sq.is_none());
+    }
+
+    /// The likelihood shares one `corr` scratch across blocks, sized for the
+    /// block with the most distinct lags. An equally spaced block with a
+    /// repeated point has fewer lags than points, and filling it with the
+    /// longer scratch indexed past its lags (a panic, found when repeated
+    /// measurements were added at one x of one of two observables).
+    #[test]
+    fn a_block_fills_from_scratch_longer_than_its_lags() {
+        let x = [0.0, 0.5, 1.0, 1.5, 1.5];
+        let g = DiscrepancyGram::new(&x);
+        assert!(g.equal_lag_sq.is_some() && g.n_unique() == 4);
+        let h = [1.3, 0.4, 1.7, 0.2];
+        let (mut lower, mut full) = (vec![0.0; 25], vec![0.0; 25]);
+        let (mut xr, mut corr) = (vec![0.0; 5], vec![0.0; 9]);
+        g.fill_lower(DiscrepancyKernel::KernelI, &h, &mut lower, &mut xr, &mut corr);
+        discrepancy_cross_cov(DiscrepancyKernel::KernelI, &h, &x, &x, &mut full);
+        for j in 0..5 {
+            for i in j..5 {
+                assert!((lower[i + 5 * j] - full[i + 5 * j]).abs() < 1e-14, "({i},{j})");
+            }
+        }
     }
 }
