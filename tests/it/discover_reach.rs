@@ -7,7 +7,7 @@
 use crate::diagnose::clopper_pearson;
 use crate::discover::{diagnose_file, discovered, tmp};
 use mdpipe::calibrate::Analysis;
-use mdpipe::diagnose::{Diagnosis, Discover};
+use mdpipe::diagnose::{Diagnosis, Discover, MAX_REPEATS};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::path::{Path, PathBuf};
@@ -54,34 +54,87 @@ fn outcome(d: &Diagnosis, right_name: impl Fn(&str) -> bool, covered: impl Fn(&D
     }
 }
 
-/// The campaign's rates with their 95% Clopper–Pearson intervals; asserts
-/// the right form in ≥ 80%.
-fn report(what: &str, outcomes: &[Outcome]) {
-    let n = outcomes.len();
-    let count = |o: Outcome| outcomes.iter().filter(|x| **x == o).count();
-    for (o, label) in [
-        (Outcome::Right, "right form leading, parameters covered"),
-        (Outcome::AmbiguousStanding, "ambiguous, the right form standing"),
-        (Outcome::Wrong, "wrong"),
-    ] {
-        let (lo, hi) = clopper_pearson(count(o), n);
-        println!(
-            "discovery reach: {what}: {label}: {} of {n}, 95% interval [{:.0}%, {:.0}%]",
-            count(o),
-            100.0 * lo,
-            100.0 * hi
-        );
+/// The campaign's rates with their 95% Clopper–Pearson intervals, for the
+/// first verdicts and for the verdicts after the proposed measurements were
+/// taken; asserts the right form in ≥ 80% of the latter.
+fn report(what: &str, first: &[Outcome], followed: &[Outcome]) {
+    let n = first.len();
+    let count = |all: &[Outcome], o: Outcome| all.iter().filter(|x| **x == o).count();
+    for (when, all) in [("first verdict", first), ("after the proposed measurements", followed)] {
+        for (o, label) in [
+            (Outcome::Right, "right form leading, parameters covered"),
+            (Outcome::AmbiguousStanding, "ambiguous, the right form standing"),
+            (Outcome::Wrong, "wrong"),
+        ] {
+            let (lo, hi) = clopper_pearson(count(all, o), n);
+            println!(
+                "discovery reach: {what}: {when}: {label}: {} of {n}, 95% interval [{:.0}%, {:.0}%]",
+                count(all, o),
+                100.0 * lo,
+                100.0 * hi
+            );
+        }
     }
-    assert!(count(Outcome::Right) * 5 >= n * 4, "{what}: right in {} of {n}", count(Outcome::Right));
+    let right = count(followed, Outcome::Right);
+    assert!(right * 5 >= n * 4, "{what}: right in {right} of {n} after the proposed measurements");
 }
 
 /// One drawn data set: its rows, the effect's noise-free size in σ, the
-/// truth in words, and how to judge a diagnosis of it.
+/// truth in words and as a function (observable, x) for new measurements,
+/// and how to judge a diagnosis of it.
 struct Drawn {
     rows: Vec<(&'static str, f64, f64, f64)>,
     size: f64,
     label: String,
+    truth: Box<dyn Fn(&str, f64) -> f64>,
     judge: Box<dyn Fn(&Diagnosis) -> Outcome>,
+}
+
+/// Rounds of proposed measurements a campaign takes after an `ambiguous`
+/// verdict, as a user would: each adds the proposed repeats (at most
+/// `MAX_REPEATS`) at the proposed x, drawn from the truth with the
+/// proposed error, and diagnoses again.
+const ROUNDS: usize = 2;
+
+/// The diagnosis after taking the proposed measurements, starting from `d`.
+fn follow(
+    analysis: &Analysis,
+    dir: &Path,
+    k: usize,
+    set: &Drawn,
+    d: Diagnosis,
+    seed: u64,
+    rng: &mut Xoshiro256PlusPlus,
+) -> Diagnosis {
+    let (mut d, mut rows) = (d, set.rows.clone());
+    for round in 1..=ROUNDS {
+        let Some(s) = d.verdict.suggestion.clone().filter(|_| d.verdict.best == "ambiguous") else {
+            break;
+        };
+        let name = rows.iter().map(|r| r.0).find(|o| *o == s.observable).expect("a proposed observable of the data");
+        let truth = (set.truth)(name, s.x);
+        for _ in 0..s.repeats.unwrap_or(MAX_REPEATS) {
+            rows.push((name, s.x, truth + s.error * rng.sample::<f64, _>(rand_distr::StandardNormal), s.error));
+        }
+        let path = write_data(dir, k, &rows);
+        d = diagnose_file(analysis, &path, seed + 1000 * round as u64, Discover::WhenUnexplained);
+        println!(
+            "    measured {} at x = {:.4} ×{} → {} {}",
+            name,
+            s.x,
+            s.repeats.unwrap_or(MAX_REPEATS),
+            d.verdict.best,
+            leaders(&d)
+        );
+    }
+    d
+}
+
+/// The leading candidates as `name (log Z, χ²/dof)`, what stood and why.
+fn leaders(d: &Diagnosis) -> String {
+    let top = d.candidates.iter().take(4);
+    let top: Vec<String> = top.map(|c| format!("{} ({:.1}, {:.2})", c.name, c.log_evidence, c.chi2_per_dof)).collect();
+    format!("[{}] standing {:?}", top.join("; "), d.verdict.standing)
 }
 
 /// A campaign: data sets drawn by `draw` (from `seed`) until 20 reach 5σ,
@@ -97,9 +150,12 @@ fn campaign(
     let dir = tmp(tag);
     let analysis = load(&dir, config);
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let mut outcomes = Vec::new();
+    // The new measurements' noise has its own stream, so the data sets
+    // drawn are the same whatever is measured after them.
+    let mut measure = Xoshiro256PlusPlus::seed_from_u64(seed + 1);
+    let (mut first, mut followed) = (Vec::new(), Vec::new());
     for k in 1..200 {
-        if outcomes.len() == 20 {
+        if first.len() == 20 {
             break;
         }
         let set = draw(&mut rng);
@@ -109,10 +165,12 @@ fn campaign(
         let path = write_data(&dir, k, &set.rows);
         let d = diagnose_file(&analysis, &path, diagnose_seed + k as u64, Discover::WhenUnexplained);
         let o = (set.judge)(&d);
-        println!("  set {k}: {}, {:.1}σ → {} {o:?}", set.label, set.size, d.verdict.best);
-        outcomes.push(o);
+        println!("  set {k}: {}, {:.1}σ → {} {o:?} {}", set.label, set.size, d.verdict.best, leaders(&d));
+        first.push(o);
+        let d = follow(&analysis, &dir, k, &set, d, diagnose_seed + k as u64, &mut measure);
+        followed.push((set.judge)(&d));
     }
-    report(what, &outcomes);
+    report(what, &first, &followed);
 }
 
 /// A filament's power balance declared as conduction alone, P = h (T − Ta)
@@ -159,7 +217,8 @@ fn a_fourth_power_is_discovered_in_a_power_balance() {
             };
             outcome(d, right, covered)
         };
-        Drawn { rows, size, label: format!("h = {h:.2}, e = {e:.2e}"), judge: Box::new(judge) }
+        let truth = Box::new(move |_: &str, t: f64| h * (t - 3.0) + e * (t.powi(4) - 3f64.powi(4)));
+        Drawn { rows, size, label: format!("h = {h:.2}, e = {e:.2e}"), truth, judge: Box::new(judge) }
     });
 }
 
@@ -202,7 +261,8 @@ fn a_parameter_varying_with_the_input_is_discovered_in_both_observables() {
             let covered = |d: &Diagnosis| discovered(d).unwrap().parameters["c"].covers(a);
             outcome(d, |name| name == "quadratic_I_of_R", covered)
         };
-        Drawn { rows, size, label: format!("R0 = {r0:.2}, a = {a:.4}"), judge: Box::new(judge) }
+        let truth = Box::new(move |o: &str, i: f64| r0 * (1.0 + a * i * i) * if o == "voltage" { i } else { i * i });
+        Drawn { rows, size, label: format!("R0 = {r0:.2}, a = {a:.4}"), truth, judge: Box::new(judge) }
     });
 }
 
@@ -242,7 +302,8 @@ fn the_simpler_of_two_near_equivalent_forms_leads() {
             let right = |name: &str| ["square_F_on_extension", "signed_square_F_on_extension"].contains(&name);
             outcome(d, right, |d| discovered(d).unwrap().parameters["c"].covers(b))
         };
-        Drawn { rows, size, label: format!("k = {kk:.1}, b = {b:.2e}"), judge: Box::new(judge) }
+        let truth = Box::new(move |_: &str, f: f64| f / kk + b * f * f);
+        Drawn { rows, size, label: format!("k = {kk:.1}, b = {b:.2e}"), truth, judge: Box::new(judge) }
     });
 }
 

@@ -63,7 +63,7 @@ pub use reuse::Reuse;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::BTreeMap;
 use std::path::Path;
-pub use suggest::Suggestion;
+pub use suggest::{Suggestion, MAX_REPEATS};
 pub use types::*;
 pub use wording::print;
 use wording::*;
