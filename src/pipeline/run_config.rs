@@ -39,6 +39,11 @@ pub struct RunConfig {
     /// Adaptive design after the emulator stage (`[run.refine]`).
     #[serde(default)]
     pub refine: Option<RefineConfig>,
+    /// The diagnose stage's search for physics nobody declared: true
+    /// searches always (as `diagnose --discover`, and the stage runs even
+    /// with no candidates), false never; unset, `diagnose`'s default.
+    #[serde(default)]
+    pub discover: Option<bool>,
     /// The systems' own tables (`[run.stand_in]`), by name: each is decoded
     /// and checked by its system, never here.
     #[serde(skip)]

@@ -67,9 +67,10 @@ pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::
 
 /// Whether the study declares candidates (`[[candidates]]` or a system's library).
 pub(super) fn with_candidates(study: &Study<'_>) -> Result<Presence> {
-    Ok(if study.variants()?.is_empty() {
+    let corrections = study.config.candidates.iter().any(|t| t.contains_key("correction"));
+    Ok(if study.variants()?.is_empty() && !corrections && study.run.discover != Some(true) {
         Presence::Absent(format!(
-            "{} declares no candidates ([[candidates]], or a system's library: {})",
+            "{} declares no candidates ([[candidates]], or a system's library: {}) and no search ([run] discover = true)",
             study.config.path.display(),
             tables(&study.systems.iter().filter_map(|s| s.run_table()).collect::<Vec<_>>())
         ))

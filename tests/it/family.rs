@@ -53,6 +53,7 @@ impl ModelFamily for LineFamily {
                 ParamSpec { min: -2.0, max: 2.0, truth: Some(CURVATURE), units: "V/m²".into() },
             )],
             simulator: Arc::new(Line { curvature: None }),
+            special_case_of: Vec::new(),
         };
         Ok(Arc::new(PlainSetup {
             simulator: Arc::new(Line { curvature: Some(0.0) }),

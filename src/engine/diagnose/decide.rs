@@ -8,20 +8,28 @@ pub(super) fn members(name: &str) -> std::collections::BTreeSet<&str> {
     name.split('+').collect()
 }
 
+/// Whether `inner` is `outer` made simpler: fewer of its members (a of
+/// a+b), or one of its parameters fixed at a value the data leave inside
+/// that parameter's 95% interval (`c*v*abs(v)` of `c*abs(v)^p` with p
+/// covering 2). Either way the two are one explanation, not rivals.
+pub(super) fn within(inner: &CandidateResult, outer: &CandidateResult) -> bool {
+    let (i, o) = (members(&inner.name), members(&outer.name));
+    (i.len() < o.len() && i.is_subset(&o))
+        || inner
+            .special_case_of
+            .iter()
+            .any(|s| s.of == outer.name && outer.parameters.get(&s.parameter).is_some_and(|p| p.covers(s.value)))
+}
+
 /// Index of the candidate to name among `ranked` (best evidence first): the
-/// best, unless a candidate it contains comes within `strong` of it; then
+/// best, unless a candidate within it comes within `strong` of it; then
 /// that one (the best such), and so on down.
 pub(super) fn occam(ranked: &[&CandidateResult], strong: f64) -> usize {
     let mut chosen = 0;
     while let Some((i, _)) = ranked
         .iter()
         .enumerate()
-        .filter(|(_, r)| {
-            let (inner, outer) = (members(&r.name), members(&ranked[chosen].name));
-            inner.len() < outer.len()
-                && inner.is_subset(&outer)
-                && ranked[chosen].log_evidence - r.log_evidence <= strong
-        })
+        .filter(|(_, r)| within(r, ranked[chosen]) && ranked[chosen].log_evidence - r.log_evidence <= strong)
         .max_by(|a, b| a.1.log_evidence.total_cmp(&b.1.log_evidence))
     {
         chosen = i;
@@ -59,7 +67,7 @@ pub(super) fn named_candidate<'c>(
 }
 
 /// The other explanations `best` does not beat decisively: candidates that
-/// neither contain it nor are contained in it (Occam's rule settled those),
+/// neither contain it nor are within it (Occam's rule settled those),
 /// fit adequately, and trail it by no more than `strong_log_bf` plus twice
 /// the Monte Carlo error of the difference.
 pub(super) fn rivals<'c>(
@@ -73,7 +81,7 @@ pub(super) fn rivals<'c>(
         .filter(|c| c.name != best.name && c.p_value >= settings.min_p_value)
         .filter(|c| {
             let theirs = members(&c.name);
-            !mine.is_subset(&theirs) && !theirs.is_subset(&mine)
+            !mine.is_subset(&theirs) && !theirs.is_subset(&mine) && !within(c, best) && !within(best, c)
         })
         .filter(|c| best.log_evidence - c.log_evidence <= decisive_lead(best, c, settings))
         .collect()

@@ -55,7 +55,7 @@ use crate::base::progress::Observer;
 use crate::engine::calibrate::summary::{ParamSummary, PredictionRow, Summary, EMULATOR_DOMINATES};
 use crate::engine::calibrate::{self, Analysis, Calibration, Overrides, Problem};
 use crate::engine::gp::DiscrepancyKernel;
-use crate::engine::model::CandidateModel;
+use crate::engine::model::{CandidateModel, SpecialCase};
 use anyhow::Result;
 use decide::*;
 use locate::{locate, mismatch_phrase};
@@ -192,6 +192,7 @@ impl Diagnoser<'_> {
                 emulator_share: calibration.summary.fit.model_variance_share,
                 emulator_share_observable: worst_share_observable(&calibration.summary.fit),
                 prior_log_odds,
+                special_case_of: candidate.special_case_of.clone(),
             };
             runs.push(CandidateRun { result, candidate, problem, calibration });
         }
@@ -370,6 +371,7 @@ mod tests {
                 emulator_share: 0.0,
                 emulator_share_observable: String::new(),
                 prior_log_odds: 0.0,
+                special_case_of: Vec::new(),
             })
             .collect()
     }
@@ -443,6 +445,22 @@ mod tests {
         let mut weak = ranked(&[("a", 2.5)]);
         weak[0].emulator_share = 0.9;
         assert!(unnamed_on_emulator(&weak, &settings).is_none());
+    }
+
+    #[test]
+    fn a_special_case_the_data_allow_is_named_for_the_form_it_is_within() {
+        // The ball drop's case: c*abs(v)^p leads c*v*abs(v) by 0.2 with p = 1.76 [1.53, 2.06].
+        let p = |lo: f64, hi: f64| ParamSummary::from_draws(&[lo, 0.5 * (lo + hi), hi]);
+        let mut r = ranked(&[("power_v_on_v", 0.0), ("signed_square_v_on_v", -0.2), ("periodic_on_v", -22.0)]);
+        r[0].parameters.insert("p".into(), p(1.53, 2.06));
+        r[1].special_case_of = vec![SpecialCase { of: "power_v_on_v".into(), parameter: "p".into(), value: 2.0 }];
+        let order = |r: &[CandidateResult]| occam(&r.iter().collect::<Vec<_>>(), 3.0);
+        assert_eq!(order(&r), 1, "the square is named");
+        assert!(rivals(&r[1], &r, &DiagnoseSettings::default()).is_empty(), "the free power is no rival of it");
+        // Where the data put p away from 2, the two are rivals and the better leads.
+        r[0].parameters.insert("p".into(), p(2.2, 2.9));
+        assert_eq!(order(&r), 0);
+        assert_eq!(rival_names(&r), ["signed_square_v_on_v"]);
     }
 
     fn rival_names(r: &[CandidateResult]) -> Vec<&str> {

@@ -99,6 +99,9 @@ pub struct CandidateResult {
     /// `log_evidence` and `log_bayes_factor`: the search pays for its size.
     #[serde(default)]
     pub prior_log_odds: f64,
+    /// Candidates this one is a special case of (`SpecialCase`).
+    #[serde(default)]
+    pub special_case_of: Vec<SpecialCase>,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

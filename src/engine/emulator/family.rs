@@ -202,6 +202,7 @@ fn corrected_candidate(config: &Config, model: Arc<EmulatedModel>, c: &Candidate
         description: c.description.clone(),
         extra_parameters: extra,
         simulator: Arc::new(simulator),
+        special_case_of: Vec::new(),
     })
 }
 
@@ -255,6 +256,7 @@ fn declared_candidate(config: &Config, c: &CandidateDeclaration) -> Result<Candi
         description: c.description.clone(),
         extra_parameters: extra,
         simulator: Arc::new(model),
+        special_case_of: Vec::new(),
     })
 }
 

@@ -162,6 +162,19 @@ pub struct CandidateModel {
     /// Parameters the candidate adds to θ, with their uniform priors.
     pub extra_parameters: Vec<(String, ParamSpec)>,
     pub simulator: Arc<dyn Simulator>,
+    /// Other candidates this one is a special case of, on the data's domain.
+    pub special_case_of: Vec<SpecialCase>,
+}
+
+/// This candidate is candidate `of` with its parameter `parameter` fixed
+/// at `value`: `c*v*abs(v)` is `c*abs(v)^p` at p = 2 where v keeps one
+/// sign. Where the data leave `value` inside that parameter's interval,
+/// the two are one explanation and the simpler is named (Occam).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SpecialCase {
+    pub of: String,
+    pub parameter: String,
+    pub value: f64,
 }
 
 /// What a family read from a config's `[model]` (or `[truth]`) table, once:

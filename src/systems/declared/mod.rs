@@ -90,6 +90,7 @@ impl DeclaredSetup {
             description: chosen.iter().map(|c| c.description.as_str()).collect::<Vec<_>>().join("; and "),
             extra_parameters,
             simulator: self.family.compile(&self.file, &declared)?,
+            special_case_of: Vec::new(),
         })
     }
 }

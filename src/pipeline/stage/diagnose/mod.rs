@@ -1,5 +1,6 @@
-//! The diagnose stage (when the study declares candidates): `diagnose` on
-//! the study's data with every candidate's variant emulator declared.
+//! The diagnose stage (when the study declares candidates, or asks for the
+//! search with `[run] discover = true`): `diagnose` on the study's data with
+//! every candidate's variant emulator and correction declared.
 
 mod variant_refine;
 
@@ -21,6 +22,7 @@ pub(in crate::pipeline) struct Settings {
     data: String,
     observables: Vec<String>,
     seed: u64,
+    discover: Option<bool>,
 }
 
 impl Stage for Diagnose {
@@ -40,6 +42,7 @@ impl Stage for Diagnose {
             data: study.data_hash()?,
             observables: study.diagnose_observables(),
             seed: study.opts.seed,
+            discover: study.run.discover,
         })
     }
     fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
@@ -61,7 +64,12 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
     crate::engine::execute::attempt::remove_after_attempts(&out.join("refine"))
         .with_context(|| format!("removing the previous variant refinement {}", out.join("refine").display()))?;
     let overrides = Overrides { observables: Some(study.diagnose_observables()), ..Default::default() };
-    let settings = crate::engine::diagnose::DiagnoseSettings::default();
+    let mut settings = crate::engine::diagnose::DiagnoseSettings::default();
+    settings.discover = match study.run.discover {
+        Some(true) => crate::engine::diagnose::Discover::Always,
+        Some(false) => crate::engine::diagnose::Discover::Never,
+        None => settings.discover,
+    };
     let seed = study.opts.seed.wrapping_add(77);
     // The base fits are two of the calibrate stage's cases; the diagnosis
     // after refinement takes the fits whose problems did not change.

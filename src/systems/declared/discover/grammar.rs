@@ -47,9 +47,22 @@ pub struct TermForm {
     #[serde(default)]
     pub meaning: String,
     pub parameters: BTreeMap<String, ParameterForm>,
+    /// The power of its symbol the form is, when all its symbols are one:
+    /// a number (`c*v*abs(v)`: 2) or the parameter that is the exponent
+    /// (`c*abs(v)^p`: "p"). A fixed power is then the free one at that
+    /// exponent where the symbol keeps one sign over the data.
+    #[serde(default)]
+    pub power: Option<Power>,
     /// The form's size, for the prior over forms (set when read).
     #[serde(skip)]
     pub operations: usize,
+}
+
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(untagged)]
+pub enum Power {
+    Fixed(f64),
+    Free(String),
 }
 
 #[derive(Clone, Debug, serde::Deserialize)]
@@ -99,6 +112,11 @@ fn parse(text: &str, what: &str) -> Result<Vec<TermForm>> {
         }
         for (p, spec) in &f.parameters {
             check_parameter(what, f, p, spec)?;
+        }
+        if let Some(Power::Free(p)) = &f.power {
+            if !f.parameters.contains_key(p) {
+                bail!("{what}: [[terms]] {}: power = {p:?} is not one of the form's parameters", f.name);
+            }
         }
     }
     Ok(file.terms)
@@ -150,6 +168,9 @@ pub struct Instance {
     pub meaning: String,
     /// The form's size (operations), for the prior over forms.
     pub operations: usize,
+    /// The form's power of its one symbol (`TermForm::power`); None when
+    /// it takes several symbols.
+    pub power: Option<Power>,
 }
 
 impl Instance {
@@ -212,6 +233,7 @@ pub fn instances(forms: &[TermForm], d: &Declared) -> Vec<Instance> {
                         parameters: f.parameters.iter().map(|(k, v)| (k.clone(), v.clone())).collect(),
                         meaning: f.meaning.clone(),
                         operations: f.operations,
+                        power: f.power.clone().filter(|_| combo.iter().all(|s| Some(s) == combo.first())),
                     });
                 }
             }

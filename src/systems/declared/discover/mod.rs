@@ -20,12 +20,12 @@ use crate::engine::formula;
 use crate::engine::model::fit::{Fitted, LeastSquares};
 use crate::engine::model::prior::FormPrior;
 use crate::engine::model::{
-    standardize_blocks, CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator,
+    standardize_blocks, CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator, SpecialCase,
 };
 use anyhow::Result;
-use grammar::{Instance, ParameterForm, TermForm, To};
+use grammar::{Instance, ParameterForm, Power, TermForm, To};
 use rayon::prelude::*;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 /// How many screened terms (or pairs) go on to full calibration.
@@ -109,7 +109,12 @@ impl Discoverer for DeclaredDiscoverer {
             .into_iter()
             .filter(|s| bic(s) > 0.0)
             .take(PROPOSALS)
-            .map(|s| proposal(s, base_fit.chi2, &bic, &prior))
+            .map(|s| {
+                let special = special_cases(&s.instances, &instances, &scales);
+                let mut p = proposal(s, base_fit.chi2, &bic, &prior);
+                p.candidate.special_case_of = special;
+                p
+            })
             .collect();
         let mut forms: Vec<String> = Vec::new();
         for i in &instances {
@@ -120,6 +125,25 @@ impl Discoverer for DeclaredDiscoverer {
         }
         Ok(Screening { searched, forms, proposals })
     }
+}
+
+/// The free powers a single fixed-power term is a special case of: the same
+/// symbol joining the same place (`c*v*abs(v)` in dv/dt is `c*abs(v)^p` in
+/// dv/dt at p = 2), where the symbol keeps one sign over the data.
+fn special_cases(terms: &[Instance], all: &[Instance], scales: &Scales) -> Vec<SpecialCase> {
+    let [term] = terms else { return Vec::new() };
+    let (Some(Power::Fixed(k)), Some(symbol)) = (&term.power, term.symbols.first()) else {
+        return Vec::new();
+    };
+    if !scales.one_signed.contains(symbol) {
+        return Vec::new();
+    }
+    let free = all.iter().filter(|f| f.to == term.to && f.target == term.target && f.symbols.first() == Some(symbol));
+    free.filter_map(|f| match &f.power {
+        Some(Power::Free(p)) => Some(SpecialCase { of: f.name.clone(), parameter: p.clone(), value: *k }),
+        _ => None,
+    })
+    .collect()
 }
 
 fn bic_of(base_chi2: f64, points: f64) -> impl Fn(&Screened) -> f64 {
@@ -144,6 +168,7 @@ fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, prior: 
             description: format!("discovered: {formula}"),
             extra_parameters: s.table.parameters.iter().map(|(n, p)| (n.clone(), p.clone())).collect(),
             simulator: s.simulator,
+            special_case_of: Vec::new(),
         },
     }
 }
@@ -193,6 +218,9 @@ struct Scales {
     smax: BTreeMap<String, f64>,
     /// Each observable's largest |y| over the data.
     ymax: BTreeMap<String, f64>,
+    /// The symbols that keep one sign over the data (values of the other
+    /// sign within 1% of their largest size count as zero).
+    one_signed: BTreeSet<String>,
 }
 
 impl DeclaredDiscoverer {
@@ -201,7 +229,16 @@ impl DeclaredDiscoverer {
         let (lo, hi) = xs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| (l.min(*x), h.max(*x)));
         let n = data.blocks.iter().map(|b| b.x.len()).max().unwrap_or(1) as f64;
         let mut smax = BTreeMap::new();
-        smax.insert(self.base.input.clone(), xs.iter().fold(0.0f64, |m, x| m.max(x.abs())));
+        let mut one_signed = BTreeSet::new();
+        let mut record = |name: &str, values: &[f64]| {
+            let (lo, hi) = values.iter().fold((0.0f64, 0.0f64), |(l, h), v| (l.min(*v), h.max(*v)));
+            let size = hi.max(-lo);
+            if lo >= -0.01 * size || hi <= 0.01 * size {
+                one_signed.insert(name.to_string());
+            }
+            smax.insert(name.to_string(), size);
+        };
+        record(&self.base.input, &xs);
         if !self.base.states.is_empty() {
             // The states as observables of the same model, read off along the data's times.
             let mut d = self.base.clone();
@@ -214,7 +251,7 @@ impl DeclaredDiscoverer {
             for (k, s) in self.base.states.iter().enumerate() {
                 let mut out = vec![0.0; xs.len()];
                 model.predict(first + k, &xs, theta, &mut out);
-                smax.insert(s.name.clone(), out.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+                record(&s.name, &out);
             }
         }
         let mut ymax: BTreeMap<String, f64> = BTreeMap::new();
@@ -223,7 +260,7 @@ impl DeclaredDiscoverer {
             let size = b.y.iter().fold(0.0f64, |m, y| m.max(y.abs()));
             ymax.entry(name).and_modify(|m| *m = m.max(size)).or_insert(size);
         }
-        Ok(Scales { span: (hi - lo).max(f64::MIN_POSITIVE), n, smax, ymax })
+        Ok(Scales { span: (hi - lo).max(f64::MIN_POSITIVE), n, smax, ymax, one_signed })
     }
 
     /// Fits the model with `terms` added; None when the term cannot be
