@@ -65,17 +65,32 @@ pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::
     settings
 }
 
-/// Whether the study declares candidates (`[[candidates]]` or a system's library).
-pub(super) fn with_candidates(study: &Study<'_>) -> Result<Presence> {
-    let corrections = study.config.candidates.iter().any(|t| t.contains_key("correction"));
-    Ok(if study.variants()?.is_empty() && !corrections && study.run.discover != Some(true) {
+/// The candidates stage's presence: a variant to build for some candidate.
+pub(super) fn with_variants(study: &Study<'_>) -> Result<Presence> {
+    Ok(if study.variants()?.is_empty() {
         Presence::Absent(format!(
-            "{} declares no candidates ([[candidates]], or a system's library: {}) and no search ([run] discover = true)",
+            "{} declares no candidates that run the simulator ([[candidates]], or a system's library: {})",
             study.config.path.display(),
             tables(&study.systems.iter().filter_map(|s| s.run_table()).collect::<Vec<_>>())
         ))
     } else {
         Presence::Runs
+    })
+}
+
+/// The diagnose stage's presence: candidates to weigh (variants or
+/// corrections of the emulator's output), or the search asked for with
+/// `[run] discover = true`.
+pub(super) fn with_diagnosis(study: &Study<'_>) -> Result<Presence> {
+    let corrections = study.config.candidates.iter().any(|t| t.contains_key("correction"));
+    if corrections || study.run.discover == Some(true) {
+        return Ok(Presence::Runs);
+    }
+    Ok(match with_variants(study)? {
+        Presence::Absent(why) => {
+            Presence::Absent(format!("{why}, no corrections and no search ([run] discover = true)"))
+        }
+        runs => runs,
     })
 }
 

@@ -34,7 +34,7 @@ impl Stage for Candidates {
     const ID: StageId = StageId::Candidates;
     const UPSTREAM: &'static [StageId] = &[StageId::Design];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
-        setup::with_candidates(study)
+        setup::with_variants(study)
     }
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         let variants = study.variants()?;

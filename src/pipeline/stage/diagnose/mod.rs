@@ -30,7 +30,7 @@ impl Stage for Diagnose {
     const ID: StageId = StageId::Diagnose;
     const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock, StageId::Refine, StageId::Candidates];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
-        setup::with_candidates(study)
+        setup::with_diagnosis(study)
     }
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.diagnose().join("diagnosis.json"), study.paths.diagnose().join("report.html")])
