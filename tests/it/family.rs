@@ -54,6 +54,7 @@ impl ModelFamily for LineFamily {
             )],
             simulator: Arc::new(Line { curvature: None }),
             special_case_of: Vec::new(),
+            own_emulator: false,
         };
         Ok(Arc::new(PlainSetup {
             simulator: Arc::new(Line { curvature: Some(0.0) }),

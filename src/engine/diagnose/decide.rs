@@ -204,5 +204,5 @@ pub(super) fn unnamed_on_emulator<'c>(
 
 /// The standing candidates whose variant emulators must be refined.
 pub(super) fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
-    standing.iter().filter(|s| rests_on_emulator(s)).map(|s| s.name.clone()).collect()
+    standing.iter().filter(|s| s.own_emulator && rests_on_emulator(s)).map(|s| s.name.clone()).collect()
 }

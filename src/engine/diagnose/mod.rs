@@ -193,6 +193,7 @@ impl Diagnoser<'_> {
                 emulator_share_observable: worst_share_observable(&calibration.summary.fit),
                 prior_log_odds,
                 special_case_of: candidate.special_case_of.clone(),
+                own_emulator: candidate.own_emulator,
             };
             runs.push(CandidateRun { result, candidate, problem, calibration });
         }
@@ -372,6 +373,7 @@ mod tests {
                 emulator_share_observable: String::new(),
                 prior_log_odds: 0.0,
                 special_case_of: Vec::new(),
+                own_emulator: true,
             })
             .collect()
     }
@@ -420,6 +422,13 @@ mod tests {
                 && text.contains("emulator of a with runs where its posterior lies"),
             "{text}"
         );
+        // A correction of the output has no emulator of its own: the model's is the one to refine.
+        r[0].own_emulator = false;
+        let standing: Vec<&CandidateResult> =
+            std::iter::once(&r[0]).chain(rivals(&r[0], &r, &DiagnoseSettings::default())).collect();
+        assert!(to_refine(&standing).is_empty());
+        let text = emulator_limited_statement(&r[0], &[], &[], 1e-3);
+        assert!(text.contains("Refine the model's emulator") && !text.contains("variant"), "{text}");
     }
 
     #[test]

@@ -102,6 +102,9 @@ pub struct CandidateResult {
     /// Candidates this one is a special case of (`SpecialCase`).
     #[serde(default)]
     pub special_case_of: Vec<SpecialCase>,
+    /// A variant emulator of its own (`CandidateModel::own_emulator`).
+    #[serde(default)]
+    pub own_emulator: bool,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

@@ -58,19 +58,27 @@ pub(super) fn emulator_limited_statement(
     } else {
         String::new()
     };
+    // Corrections of the output share the model's emulator: that is the one to refine.
+    let advice = if refine.is_empty() {
+        "Refine the model's emulator with runs where the posterior lies (`mdpipe run` with `[run.refine]`, or `mdpipe refine`), then diagnose again.".to_string()
+    } else {
+        format!(
+            "Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
+            if refine.len() > 1 { "s" } else { "" },
+            refine.join(" and "),
+            if refine.len() > 1 { "their" } else { "its" },
+            if refine.len() > 1 { "s" } else { "" },
+            if refine.len() > 1 { "" } else { "s" },
+        )
+    };
     format!(
-        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data{}, so the emulator, not the data, decides how well it fits{poor}: no candidate is named. Refine the variant emulator{} of {} with runs where {} posterior{} lie{} (`mdpipe run` with `[run.refine] variant_budget`, or `refine::variant`), then diagnose again.",
+        "{}the data lead to {} (log BF {:.1} ± {:.1} against the model as it is), but the emulator's uncertainty is {:.0}% of that fit's predictive variance at the data{}, so the emulator, not the data, decides how well it fits{poor}: no candidate is named. {advice}",
         mismatch_phrase(mismatch),
         c.name,
         c.log_bayes_factor,
         c.log_bayes_factor_err,
         100.0 * c.emulator_share,
         if c.emulator_share_observable.is_empty() { String::new() } else { format!(" in {}", c.emulator_share_observable) },
-        if refine.len() > 1 { "s" } else { "" },
-        refine.join(" and "),
-        if refine.len() > 1 { "their" } else { "its" },
-        if refine.len() > 1 { "s" } else { "" },
-        if refine.len() > 1 { "" } else { "s" },
     )
 }
 

@@ -169,6 +169,7 @@ fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior) -> P
             extra_parameters: vec![(s.parameter.clone(), s.spec)],
             simulator: s.simulator,
             special_case_of: Vec::new(),
+            own_emulator: false,
         },
     }
 }

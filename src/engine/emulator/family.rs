@@ -203,6 +203,7 @@ fn corrected_candidate(config: &Config, model: Arc<EmulatedModel>, c: &Candidate
         extra_parameters: extra,
         simulator: Arc::new(simulator),
         special_case_of: Vec::new(),
+        own_emulator: false,
     })
 }
 
@@ -257,6 +258,7 @@ fn declared_candidate(config: &Config, c: &CandidateDeclaration) -> Result<Candi
         extra_parameters: extra,
         simulator: Arc::new(model),
         special_case_of: Vec::new(),
+        own_emulator: true,
     })
 }
 

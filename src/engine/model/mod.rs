@@ -164,6 +164,10 @@ pub struct CandidateModel {
     pub simulator: Arc<dyn Simulator>,
     /// Other candidates this one is a special case of, on the data's domain.
     pub special_case_of: Vec<SpecialCase>,
+    /// Whether the candidate is a variant emulator of its own, trained on
+    /// runs with its physics on (to refine when a verdict rests on it); a
+    /// correction of the output shares the model's emulator.
+    pub own_emulator: bool,
 }
 
 /// This candidate is candidate `of` with its parameter `parameter` fixed

@@ -91,6 +91,7 @@ impl DeclaredSetup {
             extra_parameters,
             simulator: self.family.compile(&self.file, &declared)?,
             special_case_of: Vec::new(),
+            own_emulator: false,
         })
     }
 }

@@ -169,6 +169,7 @@ fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, prior: 
             extra_parameters: s.table.parameters.iter().map(|(n, p)| (n.clone(), p.clone())).collect(),
             simulator: s.simulator,
             special_case_of: Vec::new(),
+            own_emulator: false,
         },
     }
 }
