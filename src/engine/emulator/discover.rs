@@ -2,15 +2,18 @@
 //! so the search is over corrections of its output, the physics of the
 //! measurement (`corrections.toml`, data: an offset, a gain, a loss growing
 //! as the square of the signal, a saturating counting loss). Each is fitted
-//! with θ by least squares through the emulator's mean (`model::fit`) and
-//! ranked by ΔBIC; the best are proposed as `correction` candidates and
-//! judged, with the emulator's predictive covariance, by full calibration.
+//! with θ by least squares through the emulator's mean, its residuals
+//! weighed by the data's covariance plus the emulator's predictive
+//! covariance at the model's best fit (`model::fit`), and ranked by ΔBIC;
+//! the best are proposed as `correction` candidates and judged, with the
+//! emulator's covariance at every θ, by full calibration.
 
 use super::correction::CorrectedModel;
 use crate::base::config::ParamSpec;
+use crate::engine::gp::CholeskyWorkspace;
 use crate::engine::model::fit::{Fitted, LeastSquares};
 use crate::engine::model::prior::FormPrior;
-use crate::engine::model::{CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator};
+use crate::engine::model::{CandidateModel, Discoverer, Proposal, Screening, ScreeningBlock, ScreeningData, Simulator};
 use anyhow::{anyhow, Result};
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -60,6 +63,19 @@ struct Screened {
 impl Discoverer for EmulatedDiscoverer {
     fn screen(&self, data: &ScreeningData) -> Result<Screening> {
         let forms: Forms = toml::from_str(FORMS).map_err(|e| anyhow!("the bundled corrections: {e}"))?;
+        let mean_only = LeastSquares { blocks: &data.blocks, model: self.model.as_ref(), bounds: data.bounds.clone() };
+        let first = mean_only
+            .fit(&data.theta)
+            .ok_or_else(|| anyhow!("discover: the emulated model cannot be fitted at its median"))?;
+        // Residuals are weighed by the data's covariance plus the emulator's
+        // at that fit's θ: where the emulator is unsure, a correction's
+        // gain counts for less (held fixed over the screening's fits).
+        let theta = &first.phi[..data.theta.len()];
+        let data = &ScreeningData {
+            blocks: self.with_emulator_covariance(data, theta)?,
+            theta: theta.to_vec(),
+            bounds: data.bounds.clone(),
+        };
         let base = LeastSquares { blocks: &data.blocks, model: self.model.as_ref(), bounds: data.bounds.clone() };
         let base_fit = base
             .fit(&data.theta)
@@ -102,6 +118,38 @@ impl Discoverer for EmulatedDiscoverer {
 }
 
 impl EmulatedDiscoverer {
+    /// The screening blocks with the emulator's predictive covariance at
+    /// `theta` added to the data's, each as its lower Cholesky factor.
+    fn with_emulator_covariance<'a>(&self, data: &ScreeningData<'a>, theta: &[f64]) -> Result<Vec<ScreeningBlock<'a>>> {
+        let blocks = data.blocks.iter().map(|b| {
+            let n = b.x.len();
+            let mut chol = CholeskyWorkspace::new(n);
+            match &b.covariance_factor {
+                // L Lᵀ, lower triangle.
+                Some(l) => {
+                    for j in 0..n {
+                        for i in j..n {
+                            chol.factor[i + j * n] = (0..=j).map(|k| l[i + k * n] * l[j + k * n]).sum();
+                        }
+                    }
+                }
+                None => (0..n).for_each(|i| chol.factor[i + i * n] = b.error[i] * b.error[i]),
+            }
+            self.model.add_model_covariance(b.model_index, b.x, theta, 1.0, &mut chol.factor);
+            chol.factorize().map_err(|e| {
+                anyhow!("discover: the data and emulator covariance of observable {}: {e}", b.model_index)
+            })?;
+            Ok(ScreeningBlock {
+                model_index: b.model_index,
+                x: b.x,
+                y: b.y,
+                error: b.error,
+                covariance_factor: Some(chol.factor),
+            })
+        });
+        blocks.collect()
+    }
+
     /// The correction's parameter: `c`, unless θ has a `c` already.
     fn parameter(&self) -> String {
         if self.model.parameter_names().iter().any(|p| p == "c") {
