@@ -41,13 +41,14 @@ const PROPOSALS: usize = 3;
 const BIC_REACH: f64 = 20.0;
 /// Singles whose pairs are screened.
 const PAIRED: usize = 5;
-/// Two fits whose predictions differ by less than this χ² are one
-/// explanation (`distinct`): the data cannot tell them apart by even one
-/// standard deviation. A wider merge (it was ln N, BIC's price of one
-/// parameter) let a simpler near-equivalent stand in for a better fit it
-/// was not: `c*T*abs(T)` replaced `c*T^4` in screening at 5.5–8.6σ, was
-/// calibrated alone and named, where both confirmed make the verdict
-/// `ambiguous` with the measurement that separates them.
+/// Two fits with as many parameters whose predictions differ by less than
+/// this χ² are one explanation (`distinct`): the data cannot tell them
+/// apart by even one standard deviation. The merge of fits with more
+/// parameters (ln N) let a simpler near-equivalent of as many parameters
+/// stand in for a better fit it was not: `c*T*abs(T)` replaced `c*T^4` in
+/// screening at 5.5–8.6σ, was calibrated alone and named, where both
+/// confirmed make the verdict `ambiguous` with the measurement that
+/// separates them.
 const SAME_FIT: f64 = 1.0;
 /// A coefficient's prior lets its term change an observable by this many
 /// times the observable's own largest size.
@@ -85,7 +86,7 @@ impl Discoverer for DeclaredDiscoverer {
         let points = base.points() as f64;
         let bic = bic_of(base_fit.chi2, points);
         singles.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
-        let singles = distinct(singles, data, &scales);
+        let singles = distinct(singles, data);
         let searched = instances.len();
         let top: Vec<&Screened> = singles.iter().take(PAIRED).collect();
         let pairs: Vec<(&Screened, &Screened)> =
@@ -112,7 +113,7 @@ impl Discoverer for DeclaredDiscoverer {
             .collect();
         all.extend(singles);
         all.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
-        let all = distinct(all, data, &scales);
+        let all = distinct(all, data);
         let prior = FormPrior::over(&instances.iter().map(|i| i.operations).collect::<Vec<_>>());
         let best = all.first().map_or(f64::NEG_INFINITY, &bic);
         let proposals = all
@@ -185,27 +186,21 @@ fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, prior: 
 }
 
 /// One explanation per way of fitting the data: of two fits whose
-/// predictions differ by a χ² below `SAME_FIT` (their difference
+/// predictions differ by less than the data can pay for (their difference
 /// standardized by the data's errors or covariance), the simpler stands for
 /// both (fewer parameters, then fewer terms, then fewer operations, then
-/// earlier in the grammar: `v*abs(v)` before `h*v*v` when h barely
-/// changes). A fixed power and the free power it is a special case of
-/// are one explanation up to a χ² of ln N instead, BIC's price of the
-/// exponent: where the data cannot pay for p, `c*T^4` stands for
-/// `c*abs(T)^p`, as the decision rule names it where p's interval covers
-/// 4. A free power left in beside its special case costs a calibration
-/// over p (21 s of the kinetics example's 23 s search: `c*abs(y)^p` with
-/// p up to 5 makes the ODE stiff) to end at best `ambiguous`.
-fn distinct(ranked: Vec<Screened>, data: &ScreeningData, scales: &Scales) -> Vec<Screened> {
+/// earlier in the grammar). Between fits of different numbers of
+/// parameters that is a χ² of ln N, BIC's price of one parameter: where
+/// the data cannot pay for the exponent, `c*v*abs(v)` stands for
+/// `c*abs(v)^p` and for `c*(abs(v)^p - abs(v0)^p)` with v0 near 0. Between
+/// fits with as many parameters there is no parameter to pay for: they
+/// are one only below `SAME_FIT`, and otherwise rival explanations the
+/// calibrations weigh (`c*T^4` and `c*T*abs(T)`).
+fn distinct(ranked: Vec<Screened>, data: &ScreeningData) -> Vec<Screened> {
     let points: usize = data.blocks.iter().map(|b| b.x.len()).sum();
-    let nested = |a: &Screened, b: &Screened| {
-        let special = |x: &Screened, y: &Screened| {
-            special_cases(&x.instances, &y.instances, scales).iter().any(|s| s.of == y.table.name)
-        };
-        special(a, b) || special(b, a)
-    };
     let apart = |a: &Screened, b: &Screened| {
-        let threshold = if nested(a, b) { (points as f64).ln() } else { SAME_FIT };
+        let more_parameters = a.table.parameters.len() != b.table.parameters.len();
+        let threshold = if more_parameters { (points as f64).ln() } else { SAME_FIT };
         let mut d: Vec<f64> = a.fitted.prediction.iter().zip(&b.fitted.prediction).map(|(a, b)| a - b).collect();
         standardize_blocks(&data.blocks, &mut d, 1.0);
         d.iter().map(|v| v.powi(2)).sum::<f64>() >= threshold
@@ -326,6 +321,12 @@ impl DeclaredDiscoverer {
         let reach = self.coefficient_reach(model.as_ref(), data, &mid)?;
         let table = self.table(terms, &suffixes, &ranges, |_| (-reach, reach));
         let simulator = self.compile(&table)?;
+        // The calibration refuses a model that cannot be computed at its
+        // prior box's corners or centre (`check_inputs`): such a term is no
+        // candidate on these data (`F/(k*(1 + c*F))` at c = -1/smax).
+        if data.blocks.iter().any(|b| simulator.check_inputs(b.model_index, b.x).is_err()) {
+            return None;
+        }
         let mut bounds = data.bounds.clone();
         bounds.extend(table.parameters.values().map(|p| (p.min, p.max)));
         let ls = LeastSquares { blocks: &data.blocks, model: simulator.as_ref(), bounds };
