@@ -22,6 +22,8 @@ pub(in crate::pipeline) struct Settings {
     data: String,
     observables: Vec<String>,
     seed: u64,
+    /// Left out when unset, so a study's key is what it was before the field.
+    #[serde(skip_serializing_if = "Option::is_none")]
     discover: Option<bool>,
 }
 

@@ -43,12 +43,11 @@ const BIC_REACH: f64 = 20.0;
 const PAIRED: usize = 5;
 /// Two fits with as many parameters whose predictions differ by less than
 /// this χ² are one explanation (`distinct`): the data cannot tell them
-/// apart by even one standard deviation. The merge of fits with more
-/// parameters (ln N) let a simpler near-equivalent of as many parameters
-/// stand in for a better fit it was not: `c*T*abs(T)` replaced `c*T^4` in
-/// screening at 5.5–8.6σ, was calibrated alone and named, where both
-/// confirmed make the verdict `ambiguous` with the measurement that
-/// separates them.
+/// apart by even one standard deviation. When every merge reached ln N, a
+/// simpler near-equivalent with as many parameters stood in for a better
+/// fit it was not: `c*T*abs(T)` replaced `c*T^4` in screening at
+/// 5.5–8.6σ, was calibrated alone and named, where both confirmed make the
+/// verdict `ambiguous` with the measurement that separates them.
 const SAME_FIT: f64 = 1.0;
 /// A coefficient's prior lets its term change an observable by this many
 /// times the observable's own largest size.
