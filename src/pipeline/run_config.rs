@@ -40,8 +40,9 @@ pub struct RunConfig {
     #[serde(default)]
     pub refine: Option<RefineConfig>,
     /// The diagnose stage's search for physics nobody declared: true
-    /// searches always (as `diagnose --discover`, and the stage runs even
-    /// with no candidates), false never; unset, `diagnose`'s default.
+    /// searches always (as `diagnose --discover`), false never (and a study
+    /// with no candidates then has no diagnose stage); unset, `diagnose`'s
+    /// default, which searches when no candidate explains a mismatch.
     #[serde(default)]
     pub discover: Option<bool>,
     /// The systems' own tables (`[run.stand_in]`), by name: each is decoded

@@ -78,17 +78,18 @@ pub(super) fn with_variants(study: &Study<'_>) -> Result<Presence> {
     })
 }
 
-/// The diagnose stage's presence: candidates to weigh (variants or
-/// corrections of the emulator's output), or the search asked for with
-/// `[run] discover = true`.
+/// The diagnose stage's presence: it ends every run, weighing the
+/// candidates (variants or corrections of the emulator's output) and
+/// searching when none explains a mismatch, unless the study declares none
+/// and turns the search off (`[run] discover = false`).
 pub(super) fn with_diagnosis(study: &Study<'_>) -> Result<Presence> {
     let corrections = study.config.candidates.iter().any(|t| t.contains_key("correction"));
-    if corrections || study.run.discover == Some(true) {
+    if corrections || study.run.discover != Some(false) {
         return Ok(Presence::Runs);
     }
     Ok(match with_variants(study)? {
         Presence::Absent(why) => {
-            Presence::Absent(format!("{why}, no corrections and no search ([run] discover = true)"))
+            Presence::Absent(format!("{why}, no corrections, and the search is off ([run] discover = false)"))
         }
         runs => runs,
     })

@@ -77,11 +77,11 @@ fn a_dead_time_correction_of_an_emulated_model_is_named() {
     assert!(e.contains("both.toml") && e.contains("background") && e.contains("needs no variant"), "{e}");
 }
 
-/// First tier: the same counter with no candidate declared; `diagnose
-/// --discover` searches corrections of the emulated output and the
-/// counting loss rate/(1 + c*rate) leads, c covering the dead time, with the
-/// `[[candidates]]` block that declares it. Unasked, an
-/// emulated model is not searched (its rates are not yet measured).
+/// First tier: the same counter with no candidate declared; `diagnose`,
+/// unasked, searches corrections of the emulated output and the counting
+/// loss rate/(1 + c*rate) leads, c covering the dead time, with the
+/// `[[candidates]]` block that declares it. With `--no-discover` the
+/// verdict is `unexplained`.
 #[test]
 fn a_counting_loss_is_discovered_for_an_emulated_model() {
     let dir = tmpdir("discover");
@@ -94,7 +94,7 @@ fn a_counting_loss_is_discovered_for_an_emulated_model() {
     let mut analysis = mdpipe::systems::load(&dir.join("counter.toml")).unwrap();
     analysis.sampler.smc.particles = 600;
     analysis.sampler.smc.replicates = 2;
-    let settings = DiagnoseSettings { repair: false, discover: diagnose::Discover::Always, ..Default::default() };
+    let settings = DiagnoseSettings { repair: false, ..Default::default() };
     let d = diagnose::run(&analysis, &Default::default(), 5, &settings, None, &Silent).unwrap().diagnosis;
     // A counting loss leads: y/(1 + c y), named alone or standing first
     // beside y + c y², the same dead time to second order (log BF 1.1 apart
@@ -112,7 +112,7 @@ fn a_counting_loss_is_discovered_for_an_emulated_model() {
     let report = d.discovery.as_ref().expect("the search ran");
     let found = report.screened.iter().find(|t| t.name == "saturation_of_rate").unwrap();
     assert!(found.toml.contains("correction = { rate = \"rate/(1 + c*rate)\" }"), "{}", found.toml);
-    let settings = DiagnoseSettings { repair: false, ..Default::default() };
+    let settings = DiagnoseSettings { repair: false, discover: diagnose::Discover::Never, ..Default::default() };
     let d = diagnose::run(&analysis, &Default::default(), 5, &settings, None, &Silent).unwrap().diagnosis;
     assert!(d.discovery.is_none() && d.verdict.best == "unexplained", "{}", d.verdict.statement);
 }

@@ -11,12 +11,12 @@ use crate::engine::model::{Discoverer, ScreeningBlock, ScreeningData};
 use anyhow::anyhow;
 
 /// Whether to search: always, never, or when no candidate explains a
-/// mismatch (and the model's discoverer searches unasked).
-pub(super) fn wanted(discover: Discover, verdict: &Verdict, discoverer: &dyn Discoverer) -> bool {
+/// mismatch.
+pub(super) fn wanted(discover: Discover, verdict: &Verdict) -> bool {
     match discover {
         Discover::Always => true,
         Discover::Never => false,
-        Discover::WhenUnexplained => verdict.best == "unexplained" && discoverer.searches_unasked(),
+        Discover::WhenUnexplained => verdict.best == "unexplained",
     }
 }
 

@@ -273,8 +273,7 @@ pub fn run_reusing(
     let (mut candidates, mut verdict, mut named_alone) =
         judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
     let mut discovery = None;
-    if let Some(discoverer) = analysis.setup.discoverer().filter(|d| discover::wanted(settings.discover, &verdict, *d))
-    {
+    if let Some(discoverer) = analysis.setup.discoverer().filter(|_| discover::wanted(settings.discover, &verdict)) {
         {
             let (report, proposals) = discover::screen(discoverer, &base_problem, &base)?;
             let found = d.explain(analysis, proposals, seed.wrapping_add(500), (z_base, e_base))?;

@@ -14,7 +14,7 @@ pub struct DiagnoseSettings {
     pub discover: Discover,
 }
 
-/// When `diagnose` searches for a term nobody declared (declared models only).
+/// When `diagnose` searches for a term nobody declared.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Discover {
     /// When the verdict would be "unexplained".

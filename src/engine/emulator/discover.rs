@@ -109,12 +109,6 @@ impl Discoverer for EmulatedDiscoverer {
         let forms_tried = forms.corrections.iter().map(|f| f.form.clone()).collect();
         Ok(Screening { searched: operations.len(), forms: forms_tried, proposals })
     }
-
-    /// Not until its campaigns have measured its rates on emulated models:
-    /// `--discover` asks for it.
-    fn searches_unasked(&self) -> bool {
-        false
-    }
 }
 
 impl EmulatedDiscoverer {

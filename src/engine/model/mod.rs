@@ -295,14 +295,6 @@ pub struct Screening {
 /// A grammar of terms and a cheap screening of them against the data.
 pub trait Discoverer: Send + Sync {
     fn screen(&self, data: &ScreeningData) -> Result<Screening>;
-
-    /// Whether the search runs when a verdict would be `unexplained`
-    /// without being asked (`--discover` always asks). False for a search
-    /// whose rates are not yet measured, so that it changes no verdict
-    /// unasked.
-    fn searches_unasked(&self) -> bool {
-        true
-    }
 }
 
 /// A setup with nothing left to read: a simulator, its units and candidates.

@@ -1,6 +1,7 @@
-//! The diagnose stage (when the study declares candidates, or asks for the
-//! search with `[run] discover = true`): `diagnose` on the study's data with
-//! every candidate's variant emulator and correction declared.
+//! The diagnose stage, the end of every run (unless the study declares no
+//! candidates and `[run] discover = false`): `diagnose` on the study's data
+//! with every candidate's variant emulator and correction declared, and the
+//! search for a correction when none explains a mismatch.
 
 mod variant_refine;
 
@@ -22,9 +23,8 @@ pub(in crate::pipeline) struct Settings {
     data: String,
     observables: Vec<String>,
     seed: u64,
-    /// Left out when unset, so a study's key is what it was before the field.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    discover: Option<bool>,
+    /// When the search runs ("always", "never", "when unexplained").
+    discover: &'static str,
 }
 
 impl Stage for Diagnose {
@@ -44,7 +44,11 @@ impl Stage for Diagnose {
             data: study.data_hash()?,
             observables: study.diagnose_observables(),
             seed: study.opts.seed,
-            discover: study.run.discover,
+            discover: match study.run.discover {
+                Some(true) => "always",
+                Some(false) => "never",
+                None => "when unexplained",
+            },
         })
     }
     fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
