@@ -274,6 +274,8 @@ fn screening_proposes_a_pair_only_when_both_terms_are_there() {
     let mut first: Vec<&str> = names[0].split('+').collect();
     first.sort();
     assert_eq!(first, ["constant_on_y", "periodic_on_y"], "proposals: {names:?}");
+    // The other slots go to singles: one pair at most is calibrated.
+    assert_eq!(names.iter().filter(|n| n.contains('+')).count(), 1, "proposals: {names:?}");
     // A pair pays for every pair: less prior odds than either of its terms alone.
     let single = |name: &str| two.proposals.iter().find(|p| p.candidate.name == name).map(|p| p.prior_log_odds);
     for name in ["constant_on_y", "periodic_on_y"] {

@@ -41,6 +41,13 @@ const PROPOSALS: usize = 3;
 const BIC_REACH: f64 = 20.0;
 /// Singles whose pairs are screened.
 const PAIRED: usize = 5;
+/// Pairs among the proposals: the best pair, the other slots to singles. A
+/// second pair mostly shares a term with the first and pays the same
+/// look-elsewhere odds over every pair, and it took the slot of a single
+/// the data favoured: in a rubber band softening as F², two pairs ranked
+/// above the square and `k*exp(c*F)` was named with the square never
+/// calibrated.
+const PAIRS_PROPOSED: usize = 1;
 /// Two fits with as many parameters whose predictions differ by less than
 /// this χ² are one explanation (`distinct`): the data cannot tell them
 /// apart by even one standard deviation. When every merge reached ln N, a
@@ -115,9 +122,14 @@ impl Discoverer for DeclaredDiscoverer {
         let all = distinct(all, data);
         let prior = FormPrior::over(&instances.iter().map(|i| i.operations).collect::<Vec<_>>());
         let best = all.first().map_or(f64::NEG_INFINITY, &bic);
+        let mut pairs = 0;
         let proposals = all
             .into_iter()
             .filter(|s| bic(s) > 0.0 && bic(s) >= best - BIC_REACH)
+            .filter(|s| {
+                pairs += usize::from(s.instances.len() > 1);
+                s.instances.len() == 1 || pairs <= PAIRS_PROPOSED
+            })
             .take(PROPOSALS)
             .map(|s| {
                 let special = special_cases(&s.instances, &instances, &scales);
