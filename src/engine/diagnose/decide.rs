@@ -155,24 +155,29 @@ pub(super) fn decide(
             // What a reader means by confidence in "the data need c": the
             // probability of every model that contains c, pairs included.
             let mine = members(&c.name);
-            let needed = candidates.iter().filter(|k| mine.is_subset(&members(&k.name))).map(|k| prob(k.log_evidence)).sum();
+            let needed =
+                candidates.iter().filter(|k| mine.is_subset(&members(&k.name))).map(|k| prob(k.log_evidence)).sum();
             verdict(&c.name, named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), needed)
         }
         None if significant => {
-            let w = worst.map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max)).unwrap_or_default();
+            let w = worst
+                .map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max))
+                .unwrap_or_default();
             let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
             verdict("unexplained", format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.", z_md - z_base), prob(z_md))
         }
-        None => verdict(
-            "none",
-            format!(
-                "no significant mismatch: δ is consistent with zero (largest posterior-mean |δ| = {:.1}σ), the model alone fits with χ²/dof = {:.2}, and no candidate is favoured (best log BF = {:.1}).",
+        None => {
+            let candidates = match best {
+                Some(c) => format!("no candidate is favoured (best log BF = {:.1})", c.log_bayes_factor),
+                None => "no candidate was weighed".to_string(),
+            };
+            let statement = format!(
+                "no significant mismatch: δ is consistent with zero (largest posterior-mean |δ| = {:.1}σ), the model alone fits with χ²/dof = {:.2}, and {candidates}.",
                 worst.map(|w| w.max_sigma).unwrap_or(0.0),
                 base.fit.chi2_per_dof,
-                best.map(|c| c.log_bayes_factor).unwrap_or(f64::NAN)
-            ),
-            prob(z_base),
-        ),
+            );
+            verdict("none", statement, prob(z_base))
+        }
     }
 }
 

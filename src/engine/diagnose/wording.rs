@@ -142,6 +142,11 @@ pub fn print(d: &Diagnosis) {
         "Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):",
         d.md_log_evidence - d.base_log_evidence
     );
+    if d.candidates.is_empty() && d.discovery.is_none() {
+        crate::base::messages::say!(
+            "  no candidates declared; the search for undeclared physics runs when a mismatch is unexplained (--discover, or [run] discover = true, asks for it always)"
+        );
+    }
     let width = d.candidates.iter().map(|c| c.name.chars().count()).max().unwrap_or(0).max(16);
     for c in &d.candidates {
         let share = if c.emulator_share > 0.0 {

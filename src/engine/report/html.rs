@@ -86,26 +86,7 @@ pub(super) fn diagnosis_section(html: &mut String, diag: &Diagnosis, runs: &[Run
         "Every model's SMC evidence against the leader's: candidates (the verdict's in orange), the MD fit (green) and the model without MD (red). Bars beyond the axis are cut and carry their value.",
         &bayes_factor_chart(diag)?,
     );
-    // For emulated models, how much of each fit's predictive variance is the emulator's own.
-    let emulated = diag.candidates.iter().any(|c| c.emulator_share > 0.0);
-    let share_head = if emulated { "<th>emulator share of variance (worst observable)</th>" } else { "" };
-    html.push_str(&format!("<table><tr><th>candidate</th><th>log BF</th><th>χ²/dof</th>{share_head}<th>parameters (median [95%])</th></tr>\n"));
-    for c in &diag.candidates {
-        let share = if emulated {
-            format!("<td>{:.0}% {}</td>", 100.0 * c.emulator_share, c.emulator_share_observable)
-        } else {
-            String::new()
-        };
-        html.push_str(&format!(
-            "<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td>{share}<td>{}</td></tr>\n",
-            c.name,
-            c.log_bayes_factor,
-            c.log_bayes_factor_err,
-            c.chi2_per_dof,
-            intervals(&c.parameters)
-        ));
-    }
-    html.push_str("</table>\n");
+    candidate_table(html, diag);
     discovery_section(html, diag);
     if let Some(imp) = &diag.improvement {
         html.push_str("<h3>Before and after the repair</h3><p>χ²/dof is of the model part η alone: for a fit with δ it is what δ had to absorb, not that fit's misfit.</p><table><tr><th>fit</th><th>χ²/dof of η</th><th>log Z</th><th>max |δ|/σ</th><th>parameters</th></tr>\n");
@@ -317,6 +298,38 @@ pub(super) fn emulator_section(html: &mut String, dirs: &[PathBuf]) -> Result<()
 pub fn write(dirs: &[PathBuf], out: &Path, title: &str, systems: &[&dyn SystemFigures]) -> Result<()> {
     let html = build(dirs, title, systems)?;
     artifacts::write_text_atomic(out, &html)
+}
+
+/// Each candidate's evidence, fit and parameters; or why there are none.
+fn candidate_table(html: &mut String, diag: &Diagnosis) {
+    if diag.candidates.is_empty() {
+        // After a search the Discovery section says what it tried.
+        if diag.discovery.is_some() {
+            return;
+        }
+        html.push_str("<p>No candidate was weighed: none was declared, and the search for physics nobody declared runs only when a mismatch is unexplained (<code>--discover</code>, or <code>[run] discover = true</code>, asks for it always).</p>\n");
+        return;
+    }
+    // For emulated models, how much of each fit's predictive variance is the emulator's own.
+    let emulated = diag.candidates.iter().any(|c| c.emulator_share > 0.0);
+    let share_head = if emulated { "<th>emulator share of variance (worst observable)</th>" } else { "" };
+    html.push_str(&format!("<table><tr><th>candidate</th><th>log BF</th><th>χ²/dof</th>{share_head}<th>parameters (median [95%])</th></tr>\n"));
+    for c in &diag.candidates {
+        let share = if emulated {
+            format!("<td>{:.0}% {}</td>", 100.0 * c.emulator_share, c.emulator_share_observable)
+        } else {
+            String::new()
+        };
+        html.push_str(&format!(
+            "<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td>{share}<td>{}</td></tr>\n",
+            c.name,
+            c.log_bayes_factor,
+            c.log_bayes_factor_err,
+            c.chi2_per_dof,
+            intervals(&c.parameters)
+        ));
+    }
+    html.push_str("</table>\n");
 }
 
 /// What the search for undeclared terms tried, and the discovered term's
