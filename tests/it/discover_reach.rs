@@ -35,20 +35,26 @@ fn write_data(dir: &Path, k: usize, rows: &[(&str, f64, f64, f64)]) -> PathBuf {
     path
 }
 
-/// How a campaign's data set ended: the right form leading (with its
-/// parameters covered), `ambiguous` with the right form standing, or wrong.
+/// How a campaign's data set ended: the right form named (with its
+/// parameters covered); `ambiguous` with the right form leading; `ambiguous`
+/// with it standing behind a wrong form (wrong by the rule that the wrong
+/// form leading is wrong, printed apart); or wrong.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Outcome {
     Right,
-    AmbiguousStanding,
+    AmbiguousLeading,
+    AmbiguousBehind,
     Wrong,
 }
 
 fn outcome(d: &Diagnosis, right_name: impl Fn(&str) -> bool, covered: impl Fn(&Diagnosis) -> bool) -> Outcome {
     if discovered(d).is_some_and(|c| right_name(&c.name)) && covered(d) {
         Outcome::Right
+    } else if d.verdict.best == "ambiguous" && d.verdict.standing.first().is_some_and(|s| right_name(s)) {
+        // The leader stands first in `standing`.
+        Outcome::AmbiguousLeading
     } else if d.verdict.best == "ambiguous" && d.verdict.standing.iter().any(|s| right_name(s)) {
-        Outcome::AmbiguousStanding
+        Outcome::AmbiguousBehind
     } else {
         Outcome::Wrong
     }
@@ -62,8 +68,9 @@ fn report(what: &str, first: &[Outcome], followed: &[Outcome]) {
     let count = |all: &[Outcome], o: Outcome| all.iter().filter(|x| **x == o).count();
     for (when, all) in [("first verdict", first), ("after the proposed measurements", followed)] {
         for (o, label) in [
-            (Outcome::Right, "right form leading, parameters covered"),
-            (Outcome::AmbiguousStanding, "ambiguous, the right form standing"),
+            (Outcome::Right, "right form named, parameters covered"),
+            (Outcome::AmbiguousLeading, "ambiguous, the right form leading"),
+            (Outcome::AmbiguousBehind, "ambiguous, the right form behind a wrong one (wrong)"),
             (Outcome::Wrong, "wrong"),
         ] {
             let (lo, hi) = clopper_pearson(count(all, o), n);
