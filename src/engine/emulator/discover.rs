@@ -85,6 +85,15 @@ impl Discoverer for EmulatedDiscoverer {
         let mut operations = Vec::new();
         for b in &data.blocks {
             let observable = &names[b.model_index];
+            // A correction names its observable in a formula; a name that
+            // cannot stand in one (`ch-spectrum`) cannot be corrected.
+            let identity = BTreeMap::from([(observable.clone(), observable.clone())]);
+            if CorrectedModel::new(self.model.clone(), &identity, &[], "discover").is_err() {
+                crate::base::messages::note!(
+                    "discover: observable '{observable}' is not a name a formula can use (letters, digits and '_', not starting with a digit): its corrections are not searched"
+                );
+                continue;
+            }
             let ymax = b.y.iter().fold(0.0f64, |m, y| m.max(y.abs())).max(f64::MIN_POSITIVE);
             for f in &forms.corrections {
                 operations.push(f.operations);
