@@ -11,6 +11,7 @@
 use super::correction::CorrectedModel;
 use crate::base::config::ParamSpec;
 use crate::engine::gp::CholeskyWorkspace;
+use crate::engine::model::distinct::{distinct, Explanation};
 use crate::engine::model::fit::{Fitted, LeastSquares};
 use crate::engine::model::prior::FormPrior;
 use crate::engine::model::{CandidateModel, Discoverer, Proposal, Screening, ScreeningBlock, ScreeningData, Simulator};
@@ -28,9 +29,10 @@ struct Forms {
     corrections: Vec<Form>,
 }
 
-/// A correction as written: `{y}` stands for the observable, `{c}` for its
-/// one parameter, whose range is `min`..`max` times `ymax^power` (the
-/// observable's largest |y| over the data).
+/// A correction as written: `{y}` stands for the observable, `{x}` for the
+/// input, `{c}` for its one parameter, whose range is `min`..`max` times
+/// `ymax^power · xmax^x_power` (the observable's largest |y| and the
+/// input's largest |x| over the data).
 #[derive(Clone, Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Form {
@@ -41,6 +43,8 @@ struct Form {
     max: f64,
     #[serde(default)]
     power: i32,
+    #[serde(default)]
+    x_power: i32,
     /// The form's size for the prior over forms.
     operations: usize,
 }
@@ -49,15 +53,51 @@ pub struct EmulatedDiscoverer {
     pub model: Arc<dyn Simulator>,
 }
 
-struct Screened {
+/// One observable's correction: its form, and the form written out with
+/// the observable's and the parameter's names.
+#[derive(Clone)]
+struct Part {
     form: Form,
+    /// The form's place in the grammar.
+    rank: usize,
     observable: String,
-    /// The correction's parameter name, and the correction with it put in.
     parameter: String,
     correction: String,
     spec: ParamSpec,
+}
+
+impl Part {
+    fn new(form: &Form, rank: usize, observable: &str, parameter: &str, spec: ParamSpec) -> Part {
+        let correction = form.form.replace("{y}", observable).replace("{x}", "x").replace("{c}", parameter);
+        Part { form: form.clone(), rank, observable: observable.into(), parameter: parameter.into(), correction, spec }
+    }
+
+    fn name(&self) -> String {
+        format!("{}_of_{}", self.form.name, self.observable)
+    }
+}
+
+/// A screened correction (of one observable, or of several at once) and
+/// its least-squares fit with θ.
+struct Screened {
+    parts: Vec<Part>,
     simulator: Arc<dyn Simulator>,
     fitted: Fitted,
+}
+
+impl Explanation for Screened {
+    fn fitted(&self) -> &Fitted {
+        &self.fitted
+    }
+
+    fn added_parameters(&self) -> usize {
+        self.parts.len()
+    }
+
+    fn complexity(&self) -> (usize, usize, usize, usize) {
+        let operations = self.parts.iter().map(|p| p.form.operations).sum();
+        (self.parts.len(), self.parts.len(), operations, self.parts.iter().map(|p| p.rank).sum())
+    }
 }
 
 impl Discoverer for EmulatedDiscoverer {
@@ -80,31 +120,19 @@ impl Discoverer for EmulatedDiscoverer {
         let base_fit = base
             .fit(&data.theta)
             .ok_or_else(|| anyhow!("discover: the emulated model cannot be fitted at its median"))?;
-        let names = self.model.observable_names();
-        let mut screened = Vec::new();
-        let mut operations = Vec::new();
-        for b in &data.blocks {
-            let observable = &names[b.model_index];
-            // A correction names its observable in a formula; a name that
-            // cannot stand in one (`ch-spectrum`) cannot be corrected.
-            let identity = BTreeMap::from([(observable.clone(), observable.clone())]);
-            if CorrectedModel::new(self.model.clone(), &identity, &[], "discover").is_err() {
-                crate::base::messages::note!(
-                    "discover: observable '{observable}' is not a name a formula can use (letters, digits and '_', not starting with a digit): its corrections are not searched"
-                );
-                continue;
-            }
-            let ymax = b.y.iter().fold(0.0f64, |m, y| m.max(y.abs())).max(f64::MIN_POSITIVE);
-            for f in &forms.corrections {
-                operations.push(f.operations);
-                if let Some(s) = self.screen_one(f, observable, ymax, data, &base_fit) {
-                    screened.push(s);
-                }
+        let (mut screened, operations, observables) = self.screen_singles(&forms, data, &base_fit);
+        let points = base.points() as f64;
+        let bic = |s: &Screened| base_fit.chi2 - s.fitted.chi2 - s.parts.len() as f64 * points.ln();
+        screened.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
+        let mut screened = distinct(screened, data);
+        // Forward selection, as for declared models: each observable's best
+        // correction together is kept only when it beats every single one.
+        let best_single = screened.first().map_or(f64::NEG_INFINITY, &bic);
+        if let Some(all) = self.each_observables_best(&screened, &bic, data, &base_fit) {
+            if bic(&all) > best_single {
+                screened.insert(0, all);
             }
         }
-        let points = base.points() as f64;
-        let bic = |s: &Screened| base_fit.chi2 - s.fitted.chi2 - points.ln();
-        screened.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let prior = FormPrior::over(&operations);
         let proposals = screened
             .into_iter()
@@ -112,7 +140,7 @@ impl Discoverer for EmulatedDiscoverer {
             .take(PROPOSALS)
             .map(|s| {
                 let delta_bic = bic(&s);
-                proposal(s, base_fit.chi2, delta_bic, &prior)
+                proposal(s, base_fit.chi2, delta_bic, &prior, observables)
             })
             .collect();
         let forms_tried = forms.corrections.iter().map(|f| f.form.clone()).collect();
@@ -153,71 +181,138 @@ impl EmulatedDiscoverer {
         blocks.collect()
     }
 
-    /// The correction's parameter: `c`, unless θ has a `c` already.
-    fn parameter(&self) -> String {
-        if self.model.parameter_names().iter().any(|p| p == "c") {
-            "c_new".into()
+    /// The correction's parameter: `c` (or `c_<observable>` when several
+    /// observables are corrected at once), unless θ has that name already.
+    fn parameter(&self, observable: Option<&str>) -> String {
+        let name = observable.map_or("c".to_string(), |o| format!("c_{o}"));
+        if self.model.parameter_names().contains(&name) {
+            format!("{name}_new")
         } else {
-            "c".into()
+            name
         }
     }
 
-    /// The correction `f` of `observable` fitted with θ; None where it
-    /// cannot be computed on these data.
-    fn screen_one(
+    /// Every form of the grammar on every observable a formula can name,
+    /// each fitted with θ; with each term's size, and how many observables
+    /// were searched.
+    fn screen_singles(&self, forms: &Forms, data: &ScreeningData, base: &Fitted) -> (Vec<Screened>, Vec<usize>, usize) {
+        let names = self.model.observable_names();
+        let (mut screened, mut operations, mut observables) = (Vec::new(), Vec::new(), 0);
+        for b in &data.blocks {
+            let observable = &names[b.model_index];
+            // A correction names its observable in a formula; a name that
+            // cannot stand in one (`ch-spectrum`) cannot be corrected.
+            let identity = BTreeMap::from([(observable.clone(), observable.clone())]);
+            if CorrectedModel::new(self.model.clone(), &identity, &[], "discover").is_err() {
+                crate::base::messages::note!(
+                    "discover: observable '{observable}' is not a name a formula can use (letters, digits and '_', not starting with a digit): its corrections are not searched"
+                );
+                continue;
+            }
+            observables += 1;
+            let largest = |v: &[f64]| v.iter().fold(0.0f64, |m, z| m.max(z.abs())).max(f64::MIN_POSITIVE);
+            let (ymax, xmax) = (largest(b.y), largest(b.x));
+            for (rank, f) in forms.corrections.iter().enumerate() {
+                operations.push(f.operations);
+                let scale = ymax.powi(f.power) * xmax.powi(f.x_power);
+                let spec = ParamSpec { min: f.min * scale, max: f.max * scale, truth: None, units: String::new() };
+                let part = Part::new(f, rank, observable, &self.parameter(None), spec);
+                let start = |u: f64| {
+                    base.phi.iter().copied().chain([part.spec.min + u * (part.spec.max - part.spec.min)]).collect()
+                };
+                let starts: Vec<Vec<f64>> = [0.1, 0.5, 0.9].into_iter().map(start).collect();
+                if let Some(s) = self.fit_parts(vec![part], data, &starts) {
+                    screened.push(s);
+                }
+            }
+        }
+        (screened, operations, observables)
+    }
+
+    /// The corrections `parts` fitted with θ from the best of `starts`;
+    /// None where they cannot be computed on these data.
+    fn fit_parts(&self, parts: Vec<Part>, data: &ScreeningData, starts: &[Vec<f64>]) -> Option<Screened> {
+        let corrections: BTreeMap<String, String> =
+            parts.iter().map(|p| (p.observable.clone(), p.correction.clone())).collect();
+        let parameters: Vec<String> = parts.iter().map(|p| p.parameter.clone()).collect();
+        let model = CorrectedModel::new(self.model.clone(), &corrections, &parameters, "discover").ok()?;
+        let mut bounds = data.bounds.clone();
+        bounds.extend(parts.iter().map(|p| (p.spec.min, p.spec.max)));
+        let ls = LeastSquares { blocks: &data.blocks, model: &model, bounds };
+        let fitted = ls.best_of(starts)?;
+        Some(Screened { parts, simulator: Arc::new(model), fitted })
+    }
+
+    /// Each observable's best correction (`screened` best first), fitted
+    /// together with θ, when two or more observables have one that pays
+    /// its parameter: a change that reaches every observable (a shear δf in
+    /// each spectrum of a heavy-ion model) is no one observable's.
+    fn each_observables_best(
         &self,
-        f: &Form,
-        observable: &str,
-        ymax: f64,
+        screened: &[Screened],
+        bic: &dyn Fn(&Screened) -> f64,
         data: &ScreeningData,
         base: &Fitted,
     ) -> Option<Screened> {
-        let scale = ymax.powi(f.power);
-        let spec = ParamSpec { min: f.min * scale, max: f.max * scale, truth: None, units: String::new() };
-        let c = self.parameter();
-        let text = f.form.replace("{y}", observable).replace("{c}", &c);
-        let corrections = BTreeMap::from([(observable.to_string(), text)]);
-        let model = CorrectedModel::new(self.model.clone(), &corrections, std::slice::from_ref(&c), "discover").ok()?;
-        let mut bounds = data.bounds.clone();
-        bounds.push((spec.min, spec.max));
-        let ls = LeastSquares { blocks: &data.blocks, model: &model, bounds };
-        let starts: Vec<Vec<f64>> = [0.1, 0.5, 0.9]
+        let mut best: Vec<&Screened> = Vec::new();
+        for s in screened.iter().filter(|s| bic(s) > 0.0) {
+            if !best.iter().any(|b| b.parts[0].observable == s.parts[0].observable) {
+                best.push(s);
+            }
+        }
+        if best.len() < 2 {
+            return None;
+        }
+        let theta = data.theta.len();
+        let mut start = base.phi[..theta].to_vec();
+        let parts = best
             .iter()
-            .map(|u| base.phi.iter().copied().chain([spec.min + u * (spec.max - spec.min)]).collect())
+            .map(|s| {
+                let p = &s.parts[0];
+                start.push(s.fitted.phi[theta]);
+                Part::new(&p.form, p.rank, &p.observable, &self.parameter(Some(&p.observable)), p.spec.clone())
+            })
             .collect();
-        let fitted = ls.best_of(&starts)?;
-        let correction = f.form.replace("{y}", observable).replace("{c}", &c);
-        Some(Screened {
-            form: f.clone(),
-            observable: observable.to_string(),
-            parameter: c,
-            correction,
-            spec,
-            simulator: Arc::new(model),
-            fitted,
-        })
+        self.fit_parts(parts, data, &[start])
     }
 }
 
-fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior) -> Proposal {
-    let name = format!("{}_of_{}", s.form.name, s.observable);
-    let correction = &s.correction;
-    let formula = format!("{} → {correction}", s.observable);
-    let toml = format!(
-        "[[candidates]]\nname = {name:?}\ndescription = {:?}\ncorrection = {{ {} = {correction:?} }}\nparameters.{} = {{ min = {}, max = {} }}\n",
-        s.form.meaning, s.observable, s.parameter, s.spec.min, s.spec.max
+/// A screened correction as a `correction` candidate, with its prior odds
+/// against the model as it is (`observables`: how many were searched).
+fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior, observables: usize) -> Proposal {
+    let name = s.parts.iter().map(Part::name).collect::<Vec<_>>().join("+");
+    let formula = s.parts.iter().map(|p| format!("{} → {}", p.observable, p.correction)).collect::<Vec<_>>().join("; ");
+    let mut meanings: Vec<&str> = Vec::new();
+    for p in &s.parts {
+        if !meanings.contains(&p.form.meaning.as_str()) {
+            meanings.push(&p.form.meaning);
+        }
+    }
+    let meaning = meanings.join("; ");
+    let corrections = s.parts.iter().map(|p| format!("{} = {:?}", p.observable, p.correction)).collect::<Vec<_>>();
+    let mut toml = format!(
+        "[[candidates]]\nname = {name:?}\ndescription = {meaning:?}\ncorrection = {{ {} }}\n",
+        corrections.join(", ")
     );
+    for p in &s.parts {
+        toml.push_str(&format!("parameters.{} = {{ min = {}, max = {} }}\n", p.parameter, p.spec.min, p.spec.max));
+    }
+    let sizes: Vec<usize> = s.parts.iter().map(|p| p.form.operations).collect();
+    let prior_log_odds = match sizes.as_slice() {
+        [one] => prior.log_odds(&[*one]),
+        many => prior.log_odds_one_per_observable(many, observables),
+    };
     Proposal {
-        meaning: s.form.meaning.clone(),
+        meaning,
         toml,
         formula: formula.clone(),
         delta_chi2: base_chi2 - s.fitted.chi2,
         delta_bic,
-        prior_log_odds: prior.log_odds(&[s.form.operations]),
+        prior_log_odds,
         candidate: CandidateModel {
             name,
             description: format!("discovered: {formula}"),
-            extra_parameters: vec![(s.parameter.clone(), s.spec)],
+            extra_parameters: s.parts.iter().map(|p| (p.parameter.clone(), p.spec.clone())).collect(),
             simulator: s.simulator,
             special_case_of: Vec::new(),
             own_emulator: false,

@@ -6,6 +6,7 @@
 //!
 //! The engine calls only these traits; the families live in `crate::systems`.
 
+pub mod distinct;
 pub mod fit;
 pub mod prior;
 

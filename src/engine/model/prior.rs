@@ -40,6 +40,18 @@ impl FormPrior {
             _ => own - (0.5 * (self.total * self.total - self.squares)).max(f64::MIN_POSITIVE).ln(),
         }
     }
+
+    /// Prior log odds of corrections of several observables at once (of
+    /// each of `observables`, all offered the same forms, none or one):
+    /// normalized over every such choice of two or more, so that these too
+    /// pay for every combination the grammar could make, as pairs do.
+    pub fn log_odds_one_per_observable(&self, terms: &[usize], observables: usize) -> f64 {
+        let own: f64 = terms.iter().map(|k| FormPrior::weight(*k).ln()).sum();
+        let m = observables.max(2) as f64;
+        let w = self.total / m;
+        let choices = (m * w.ln_1p()).exp_m1() - m * w;
+        own - choices.max(f64::MIN_POSITIVE).ln()
+    }
 }
 
 #[cfg(test)]
@@ -64,5 +76,28 @@ mod tests {
         assert!((prior.log_odds(&[1]) - prior.log_odds(&[3]) - 2.0 * NATS_PER_OPERATION).abs() < 1e-12);
         // With every form the same size it is the uniform 1 : N.
         assert!((FormPrior::over(&[2; 38]).log_odds(&[2]) + 38f64.ln()).abs() < 1e-12);
+    }
+
+    /// Corrections of two or more observables at once: their odds sum to one.
+    #[test]
+    fn corrections_of_several_observables_pay_for_every_combination() {
+        let forms = [1, 2, 3, 3];
+        let observables = 3;
+        let all: Vec<usize> = (0..observables).flat_map(|_| forms).collect();
+        let prior = FormPrior::over(&all);
+        // Each observable: no correction (None) or one of the forms.
+        let choices: Vec<Option<usize>> = std::iter::once(None).chain(forms.iter().copied().map(Some)).collect();
+        let mut sum = 0.0;
+        for a in &choices {
+            for b in &choices {
+                for c in &choices {
+                    let terms: Vec<usize> = [a, b, c].iter().filter_map(|t| **t).collect();
+                    if terms.len() >= 2 {
+                        sum += prior.log_odds_one_per_observable(&terms, observables).exp();
+                    }
+                }
+            }
+        }
+        assert!((sum - 1.0).abs() < 1e-12, "{sum}");
     }
 }

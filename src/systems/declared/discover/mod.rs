@@ -7,7 +7,7 @@
 //! every term alone (forward selection). Terms that fit the data the
 //! same way (`v*abs(v)` and `v^2` for a ball that only falls, or `h*v*v`
 //! while h barely changes) are one explanation, and the simpler stands for
-//! both (`distinct`). The best few are handed back as
+//! both (`model::distinct`). The best few are handed back as
 //! candidates; `diagnose` then judges them by full calibration and evidence,
 //! with prior odds that pay for the number searched (`proposal`).
 
@@ -17,11 +17,10 @@ use super::declaration::{CandidateTable, Declared, Written};
 use super::DeclaredFamily;
 use crate::base::config::ParamSpec;
 use crate::engine::formula;
+use crate::engine::model::distinct::{distinct, Explanation};
 use crate::engine::model::fit::{Fitted, LeastSquares};
 use crate::engine::model::prior::FormPrior;
-use crate::engine::model::{
-    standardize_blocks, CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator, SpecialCase,
-};
+use crate::engine::model::{CandidateModel, Discoverer, Proposal, Screening, ScreeningData, Simulator, SpecialCase};
 use anyhow::Result;
 use grammar::{Instance, ParameterForm, Power, TermForm, To};
 use rayon::prelude::*;
@@ -48,14 +47,6 @@ const PAIRED: usize = 5;
 /// above the square and `k*exp(c*F)` was named with the square never
 /// calibrated.
 const PAIRS_PROPOSED: usize = 1;
-/// Two fits with as many parameters whose predictions differ by less than
-/// this χ² are one explanation (`distinct`): the data cannot tell them
-/// apart by even one standard deviation. When every merge reached ln N, a
-/// simpler near-equivalent with as many parameters stood in for a better
-/// fit it was not: `c*T*abs(T)` replaced `c*T^4` in screening at
-/// 5.5–8.6σ, was calibrated alone and named, where both confirmed make the
-/// verdict `ambiguous` with the measurement that separates them.
-const SAME_FIT: f64 = 1.0;
 /// A coefficient's prior lets its term change an observable by this many
 /// times the observable's own largest size.
 const COEFFICIENT_REACH: f64 = 10.0;
@@ -196,35 +187,19 @@ fn proposal(s: Screened, base_chi2: f64, bic: impl Fn(&Screened) -> f64, prior: 
     }
 }
 
-/// One explanation per way of fitting the data: of two fits whose
-/// predictions differ by less than the data can pay for (their difference
-/// standardized by the data's errors or covariance), the simpler stands for
-/// both (fewer parameters, then fewer terms, then fewer operations, then
-/// earlier in the grammar). Between fits of different numbers of
-/// parameters that is a χ² of ln N, BIC's price of one parameter: where
-/// the data cannot pay for the exponent, `c*v*abs(v)` stands for
-/// `c*abs(v)^p` and for `c*(abs(v)^p - abs(v0)^p)` with v0 near 0. Between
-/// fits with as many parameters there is no parameter to pay for: they
-/// are one only below `SAME_FIT`, and otherwise rival explanations the
-/// calibrations weigh (`c*T^4` and `c*T*abs(T)`).
-fn distinct(ranked: Vec<Screened>, data: &ScreeningData) -> Vec<Screened> {
-    let points: usize = data.blocks.iter().map(|b| b.x.len()).sum();
-    let apart = |a: &Screened, b: &Screened| {
-        let more_parameters = a.table.parameters.len() != b.table.parameters.len();
-        let threshold = if more_parameters { (points as f64).ln() } else { SAME_FIT };
-        let mut d: Vec<f64> = a.fitted.prediction.iter().zip(&b.fitted.prediction).map(|(a, b)| a - b).collect();
-        standardize_blocks(&data.blocks, &mut d, 1.0);
-        d.iter().map(|v| v.powi(2)).sum::<f64>() >= threshold
-    };
-    let mut kept: Vec<Screened> = Vec::new();
-    for s in ranked {
-        match kept.iter().position(|k| !apart(k, &s)) {
-            None => kept.push(s),
-            Some(i) if s.complexity() < kept[i].complexity() => kept[i] = s,
-            Some(_) => {}
-        }
+impl Explanation for Screened {
+    fn fitted(&self) -> &Fitted {
+        &self.fitted
     }
-    kept
+
+    fn added_parameters(&self) -> usize {
+        self.table.parameters.len()
+    }
+
+    fn complexity(&self) -> (usize, usize, usize, usize) {
+        let operations = self.instances.iter().map(|i| i.operations).sum();
+        (self.table.parameters.len(), self.instances.len(), operations, self.instances.iter().map(|i| i.rank).sum())
+    }
 }
 
 impl Screened {
@@ -232,11 +207,6 @@ impl Screened {
     fn fitted_terms(&self, suffix: &str) -> BTreeMap<String, f64> {
         let theta = self.fitted.phi.len() - self.table.parameters.len();
         self.table.parameters.keys().zip(&self.fitted.phi[theta..]).map(|(n, v)| (format!("{n}{suffix}"), *v)).collect()
-    }
-
-    fn complexity(&self) -> (usize, usize, usize, usize) {
-        let operations = self.instances.iter().map(|i| i.operations).sum();
-        (self.table.parameters.len(), self.instances.len(), operations, self.instances.iter().map(|i| i.rank).sum())
     }
 }
 
