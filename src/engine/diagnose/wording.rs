@@ -147,7 +147,7 @@ pub fn print(d: &Diagnosis) {
             "  no candidates declared; the search for undeclared physics runs when a mismatch is unexplained (--discover, or [run] discover = true, asks for it always)"
         );
     }
-    let width = d.candidates.iter().map(|c| c.name.chars().count()).max().unwrap_or(0).max(16);
+    let width = d.candidates.iter().map(|c| c.name.chars().count()).max().unwrap_or(0).clamp(16, NAME_COLUMN);
     for c in &d.candidates {
         let share = if c.emulator_share > 0.0 {
             format!("   emulator share {:.0}% ({})", 100.0 * c.emulator_share, c.emulator_share_observable)
@@ -156,8 +156,8 @@ pub fn print(d: &Diagnosis) {
         };
         let flag = if c.converged { "" } else { "   not converged" };
         crate::base::messages::say!(
-            "  {:<width$} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}{flag}",
-            c.name,
+            "  {} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}{flag}",
+            name_column(&c.name, width),
             c.log_bayes_factor,
             c.log_bayes_factor_err,
             c.chi2_per_dof
@@ -174,8 +174,8 @@ pub fn print(d: &Diagnosis) {
         crate::base::messages::say!("Discover ({} terms from the model's own symbols screened in {:.1} s; the best calibrated, log BF above includes their prior odds):", r.searched, r.screening_seconds);
         for t in &r.screened {
             crate::base::messages::say!(
-                "  {:<width$} {}   screening Δχ² = {:.1}, ΔBIC = {:.1}, prior odds 1:{:.0}",
-                t.name,
+                "  {} {}   screening Δχ² = {:.1}, ΔBIC = {:.1}, prior odds 1:{:.0}",
+                name_column(&t.name, width),
                 t.formula,
                 t.delta_chi2,
                 t.delta_bic,
@@ -212,5 +212,18 @@ pub fn print(d: &Diagnosis) {
                 imp.truth_coverage(n)
             );
         }
+    }
+}
+
+/// The widest the name column of the candidate tables grows.
+const NAME_COLUMN: usize = 40;
+
+/// `name` padded to `width`; a longer one (each observable's correction
+/// together) on a line of its own, the row going on beneath it.
+fn name_column(name: &str, width: usize) -> String {
+    if name.chars().count() <= width {
+        format!("{name:<width$}")
+    } else {
+        format!("{name}\n  {:<width$}", "")
     }
 }
