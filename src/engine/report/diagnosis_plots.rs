@@ -100,7 +100,7 @@ pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
         .map(|c| {
             let chosen = c.name == d.verdict.best || d.verdict.standing.contains(&c.name);
             let colour = if chosen { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
-            (c.name.clone(), c.log_bayes_factor, colour)
+            (short_name(&c.name), c.log_bayes_factor, colour)
         })
         .collect();
     rows.push(("model + MD".into(), d.md_log_evidence - d.base_log_evidence, RGBColor(30, 150, 60)));
@@ -179,3 +179,13 @@ pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
 
 /// How far below the leader the Bayes-factor chart's axis reaches.
 pub(super) const BF_AXIS_FLOOR: f64 = -40.0;
+
+/// A candidate's name as an axis label: a combination of many (each
+/// observable's correction together) as its first and how many more.
+fn short_name(name: &str) -> String {
+    let members: Vec<&str> = name.split('+').collect();
+    if name.chars().count() <= 40 || members.len() < 2 {
+        return name.to_string();
+    }
+    format!("{} + {} more", members[0], members.len() - 1)
+}

@@ -322,7 +322,7 @@ fn candidate_table(html: &mut String, diag: &Diagnosis) {
         };
         html.push_str(&format!(
             "<tr><td>{}</td><td>{:.1} ± {:.1}</td><td>{:.2}</td>{share}<td>{}</td></tr>\n",
-            c.name,
+            breakable(&c.name),
             c.log_bayes_factor,
             c.log_bayes_factor_err,
             c.chi2_per_dof,
@@ -330,6 +330,21 @@ fn candidate_table(html: &mut String, diag: &Diagnosis) {
         ));
     }
     html.push_str("</table>\n");
+}
+
+/// A candidate's name, escaped, free to wrap after each `+` (each
+/// observable's correction together is one long name).
+fn breakable(name: &str) -> String {
+    html_escape(name).replace('+', "+<wbr>")
+}
+
+/// Odds as a reader takes them in: 1:92, 1:4.6e7.
+fn odds(against: f64) -> String {
+    if against < 1e5 {
+        format!("{against:.0}")
+    } else {
+        format!("{against:.1e}")
+    }
 }
 
 /// What the search for undeclared terms tried, and the discovered term's
@@ -346,12 +361,12 @@ fn discovery_section(html: &mut String, diag: &Diagnosis) {
     );
     for t in &d.screened {
         html.push_str(&format!(
-            "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>1:{:.0}</td></tr>\n",
-            html_escape(&t.name),
-            html_escape(&t.formula),
+            "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>1:{}</td></tr>\n",
+            breakable(&t.name),
+            html_escape(&t.formula).replace("; ", ";<br>"),
             t.delta_chi2,
             t.delta_bic,
-            (-t.prior_log_odds).exp()
+            odds((-t.prior_log_odds).exp())
         ));
     }
     html.push_str("</table>\n");
