@@ -1,12 +1,14 @@
 //! Discovery for an emulated model: the simulator cannot be changed here,
 //! so the search is over corrections of its output, the physics of the
 //! measurement (`corrections.toml`, data: an offset, a gain, a loss growing
-//! as the square of the signal, a saturating counting loss). Each is fitted
-//! with θ by least squares through the emulator's mean, its residuals
-//! weighed by the data's covariance plus the emulator's predictive
-//! covariance at the model's best fit (`model::fit`), and ranked by ΔBIC;
-//! the best are proposed as `correction` candidates and judged, with the
-//! emulator's covariance at every θ, by full calibration.
+//! as the square of the signal, a saturating counting loss, a gain growing
+//! as x²). Each is fitted with θ by least squares through the emulator's
+//! mean, its residuals weighed by the data's covariance plus the emulator's
+//! predictive covariance at the model's best fit (`model::fit`), and ranked
+//! by ΔBIC; fits the data cannot tell apart are one (`model::distinct`),
+//! and each observable's best correction is also fitted together. The best
+//! are proposed as `correction` candidates and judged, with the emulator's
+//! covariance at every θ, by full calibration.
 
 use super::correction::CorrectedModel;
 use crate::base::config::ParamSpec;

@@ -30,8 +30,8 @@ pub trait Explanation {
 /// data cannot pay for the exponent, `c*v*abs(v)` stands for `c*abs(v)^p`
 /// and for `c*(abs(v)^p - abs(v0)^p)` with v0 near 0. Between fits with as
 /// many parameters there is no parameter to pay for: they are one only
-/// below `SAME_FIT` (on a rate proportional to x, `rate + c*rate^2` and
-/// `rate*(1 + c*x)` are one), and otherwise rival explanations the
+/// below `SAME_FIT` (a weak dead time's `rate/(1 + c*rate)` and
+/// `rate + c*rate^2` are one), and otherwise rival explanations the
 /// calibrations weigh (`c*T^4` and `c*T*abs(T)`).
 pub fn distinct<E: Explanation>(ranked: Vec<E>, data: &ScreeningData) -> Vec<E> {
     let points: usize = data.blocks.iter().map(|b| b.x.len()).sum();
