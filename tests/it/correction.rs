@@ -116,3 +116,58 @@ fn a_counting_loss_is_discovered_for_an_emulated_model() {
     let d = diagnose::run(&analysis, &Default::default(), 5, &settings, None, &Silent).unwrap().diagnosis;
     assert!(d.discovery.is_none() && d.verdict.best == "unexplained", "{}", d.verdict.statement);
 }
+
+/// Two spectra of one emulated model, each raised as 1 + c x² (a shear δf
+/// in each pT spectrum, concealed): no one observable's correction explains
+/// both, so each one's best is fitted together and named, its c's covering
+/// the truths. The data come from the closed form above, not from the
+/// emulator being judged.
+#[test]
+fn a_change_in_every_observable_is_found_as_their_corrections_together() {
+    let dir = tmpdir("together");
+    let xs: Vec<f64> = (1..=12).map(|k| 0.25 * f64::from(k)).collect();
+    let shapes = [("a", 10.0, 1.0), ("b", 5.0, 2.0)];
+    let mut runs = String::from("design_id,observable,x,value,A\n");
+    for i in 0..12 {
+        let amp = 0.45 + 1.6 * i as f64 / 11.0;
+        for (name, scale, offset) in shapes {
+            for x in &xs {
+                runs.push_str(&format!("{i},{name},{x},{},{amp}\n", scale * amp * (offset + x)));
+            }
+        }
+    }
+    std::fs::write(dir.join("runs.csv"), runs).unwrap();
+    let (amp, c) = (1.2, [0.05, 0.08]);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(31);
+    let mut data = String::from("observable,x,value,error\n");
+    for ((name, scale, offset), c) in shapes.iter().zip(c) {
+        for x in &xs {
+            let y = scale * amp * (offset + x) * (1.0 + c * x * x);
+            let sigma = 0.01 * y;
+            let z: f64 = rng.sample(rand_distr::StandardNormal);
+            data.push_str(&format!("{name},{x},{},{sigma}\n", y + sigma * z));
+        }
+    }
+    std::fs::write(dir.join("data.csv"), data).unwrap();
+    let config = "name = \"spectra\"\n[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\
+        [data]\nmeasurements = \"data.csv\"\n[parameters.A]\nmin = 0.5\nmax = 2.0\n\
+        [emulator]\nparameters = [\"A\"]\n";
+    std::fs::write(dir.join("spectra.toml"), config).unwrap();
+    mdpipe::emulator::train_and_save(&dir.join("spectra.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1)
+        .unwrap();
+    let mut analysis = mdpipe::systems::load(&dir.join("spectra.toml")).unwrap();
+    analysis.sampler.smc.particles = 600;
+    analysis.sampler.smc.replicates = 2;
+    let settings = DiagnoseSettings { repair: false, ..Default::default() };
+    let d = diagnose::run(&analysis, &Default::default(), 7, &settings, None, &Silent).unwrap().diagnosis;
+    assert_eq!(d.verdict.best, "x2_gain_of_b+x2_gain_of_a", "{}", d.verdict.statement);
+    let named = &d.candidates[0];
+    let covers = |p: &str, v: f64| named.parameters[p].covers(v);
+    // The corrections' c cover their truths; A, held by 24 points at 1% to
+    // ±0.35%, also carries the emulator's interpolation between 12 runs, so
+    // it is asked to within 1% (this seed: 1.2087 [1.2006, 1.2168]).
+    assert!(covers("c_a", c[0]) && covers("c_b", c[1]), "{:?}", named.parameters);
+    assert!((named.parameters["A"].median / amp - 1.0).abs() < 0.01, "{:?}", named.parameters);
+    let text = &d.discovery.as_ref().unwrap().screened[0].toml;
+    assert!(text.contains("b = \"b*(1 + c_b*x^2)\"") && text.contains("parameters.c_a"), "{text}");
+}

@@ -130,7 +130,7 @@ impl Discoverer for EmulatedDiscoverer {
         // Forward selection, as for declared models: each observable's best
         // correction together is kept only when it beats every single one.
         let best_single = screened.first().map_or(f64::NEG_INFINITY, &bic);
-        if let Some(all) = self.each_observables_best(&screened, &bic, data, &base_fit) {
+        if let Some(all) = self.each_observables_best(&screened, &bic, data) {
             if bic(&all) > best_single {
                 screened.insert(0, all);
             }
@@ -245,37 +245,51 @@ impl EmulatedDiscoverer {
         Some(Screened { parts, simulator: Arc::new(model), fitted })
     }
 
-    /// Each observable's best correction (`screened` best first), fitted
-    /// together with θ, when two or more observables have one that pays
-    /// its parameter: a change that reaches every observable (a shear δf in
-    /// each spectrum of a heavy-ion model) is no one observable's.
+    /// Corrections of several observables fitted together, chosen by
+    /// forward selection: from the best single (`screened` best first), each
+    /// other observable in turn gets the correction, of those that paid
+    /// their parameter alone, that most lowers the joint χ², if it lowers
+    /// it by more than its price ln N. Chosen alone, one observable's best
+    /// was fitted with θ bent toward another's mismatch. A change that
+    /// reaches every observable (a shear δf in each spectrum of a heavy-ion
+    /// model) is no one observable's. None unless two or more are chosen.
     fn each_observables_best(
         &self,
         screened: &[Screened],
         bic: &dyn Fn(&Screened) -> f64,
         data: &ScreeningData,
-        base: &Fitted,
     ) -> Option<Screened> {
-        let mut best: Vec<&Screened> = Vec::new();
-        for s in screened.iter().filter(|s| bic(s) > 0.0) {
-            if !best.iter().any(|b| b.parts[0].observable == s.parts[0].observable) {
-                best.push(s);
+        let paying: Vec<&Screened> = screened.iter().filter(|s| bic(s) > 0.0).collect();
+        let leader = paying.first()?;
+        let renamed =
+            |p: &Part| Part::new(&p.form, p.rank, &p.observable, &self.parameter(Some(&p.observable)), p.spec.clone());
+        let mut current =
+            self.fit_parts(vec![renamed(&leader.parts[0])], data, std::slice::from_ref(&leader.fitted.phi))?;
+        let price = (data.blocks.iter().map(|b| b.x.len()).sum::<usize>() as f64).ln();
+        let mut observables: Vec<&str> = Vec::new();
+        for s in &paying {
+            let o = s.parts[0].observable.as_str();
+            if o != leader.parts[0].observable && !observables.contains(&o) {
+                observables.push(o);
             }
         }
-        if best.len() < 2 {
-            return None;
+        for o in observables {
+            let start = |s: &Screened| {
+                current.fitted.phi.iter().copied().chain([s.fitted.phi[s.fitted.phi.len() - 1]]).collect::<Vec<_>>()
+            };
+            let best = paying
+                .iter()
+                .filter(|s| s.parts[0].observable == o)
+                .filter_map(|s| {
+                    let parts = current.parts.iter().cloned().chain([renamed(&s.parts[0])]).collect();
+                    self.fit_parts(parts, data, &[start(s)])
+                })
+                .min_by(|a, b| a.fitted.chi2.total_cmp(&b.fitted.chi2));
+            if let Some(b) = best.filter(|b| current.fitted.chi2 - b.fitted.chi2 > price) {
+                current = b;
+            }
         }
-        let theta = data.theta.len();
-        let mut start = base.phi[..theta].to_vec();
-        let parts = best
-            .iter()
-            .map(|s| {
-                let p = &s.parts[0];
-                start.push(s.fitted.phi[theta]);
-                Part::new(&p.form, p.rank, &p.observable, &self.parameter(Some(&p.observable)), p.spec.clone())
-            })
-            .collect();
-        self.fit_parts(parts, data, &[start])
+        (current.parts.len() >= 2).then_some(current)
     }
 }
 
