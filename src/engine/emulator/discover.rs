@@ -6,7 +6,7 @@
 //! mean, its residuals weighed by the data's covariance plus the emulator's
 //! predictive covariance at the model's best fit (`model::fit`), and ranked
 //! by ΔBIC; fits the data cannot tell apart are one (`model::distinct`),
-//! and each observable's best correction is also fitted together. The best
+//! and corrections of several observables are chosen by forward selection. The best
 //! are proposed as `correction` candidates and judged, with the emulator's
 //! covariance at every θ, by full calibration.
 
@@ -127,10 +127,10 @@ impl Discoverer for EmulatedDiscoverer {
         let bic = |s: &Screened| base_fit.chi2 - s.fitted.chi2 - s.parts.len() as f64 * points.ln();
         screened.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let mut screened = distinct(screened, data);
-        // Forward selection, as for declared models: each observable's best
-        // correction together is kept only when it beats every single one.
+        // As pairs on declared models: corrections of several observables
+        // are kept only when they beat every single one.
         let best_single = screened.first().map_or(f64::NEG_INFINITY, &bic);
-        if let Some(all) = self.each_observables_best(&screened, &bic, data) {
+        if let Some(all) = self.several_observables(&screened, &bic, data) {
             if bic(&all) > best_single {
                 screened.insert(0, all);
             }
@@ -253,7 +253,7 @@ impl EmulatedDiscoverer {
     /// was fitted with θ bent toward another's mismatch. A change that
     /// reaches every observable (a shear δf in each spectrum of a heavy-ion
     /// model) is no one observable's. None unless two or more are chosen.
-    fn each_observables_best(
+    fn several_observables(
         &self,
         screened: &[Screened],
         bic: &dyn Fn(&Screened) -> f64,
