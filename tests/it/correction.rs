@@ -52,17 +52,23 @@ fn write_counter(dir: &std::path::Path, a: f64, tau: f64) {
 /// closed form here) carry a dead time of 2 ms at A = 1.2. `diagnose` names
 /// the dead-time correction, its tau covering 0.002 and A covering 1.2,
 /// over a background offset; and a correction with an emulator is refused.
+/// `config` written as `name` in `dir`, its emulator trained on `runs.csv`,
+/// loaded with a small sampler for speed.
+fn trained(dir: &std::path::Path, name: &str, config: &str) -> mdpipe::calibrate::Analysis {
+    std::fs::write(dir.join(name), config).unwrap();
+    mdpipe::emulator::train_and_save(&dir.join(name), &dir.join("runs.csv"), None, &dir.join("emu"), 1).unwrap();
+    let mut analysis = mdpipe::systems::load(&dir.join(name)).unwrap();
+    analysis.sampler.smc.particles = 600;
+    analysis.sampler.smc.replicates = 2;
+    analysis
+}
+
 #[test]
 fn a_dead_time_correction_of_an_emulated_model_is_named() {
     let dir = tmpdir("counter");
     let (a, tau) = (1.2, 0.002);
     write_counter(&dir, a, tau);
-    std::fs::write(dir.join("counter.toml"), COUNTER).unwrap();
-    mdpipe::emulator::train_and_save(&dir.join("counter.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1)
-        .unwrap();
-    let mut analysis = mdpipe::systems::load(&dir.join("counter.toml")).unwrap();
-    analysis.sampler.smc.particles = 600;
-    analysis.sampler.smc.replicates = 2;
+    let analysis = trained(&dir, "counter.toml", COUNTER);
     let settings = DiagnoseSettings { repair: false, ..Default::default() };
     let d = diagnose::run(&analysis, &Default::default(), 5, &settings, None, &Silent).unwrap().diagnosis;
     assert_eq!(d.verdict.best, "dead_time", "{}", d.verdict.statement);
@@ -88,12 +94,7 @@ fn a_counting_loss_is_discovered_for_an_emulated_model() {
     let (a, tau) = (1.2, 0.002);
     write_counter(&dir, a, tau);
     let bare = COUNTER.split("[[candidates]]").next().unwrap();
-    std::fs::write(dir.join("counter.toml"), bare).unwrap();
-    mdpipe::emulator::train_and_save(&dir.join("counter.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1)
-        .unwrap();
-    let mut analysis = mdpipe::systems::load(&dir.join("counter.toml")).unwrap();
-    analysis.sampler.smc.particles = 600;
-    analysis.sampler.smc.replicates = 2;
+    let analysis = trained(&dir, "counter.toml", bare);
     let settings = DiagnoseSettings { repair: false, ..Default::default() };
     let d = diagnose::run(&analysis, &Default::default(), 5, &settings, None, &Silent).unwrap().diagnosis;
     // A counting loss leads: y/(1 + c y), named alone or standing first
@@ -152,12 +153,7 @@ fn a_change_in_every_observable_is_found_as_their_corrections_together() {
     let config = "name = \"spectra\"\n[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\
         [data]\nmeasurements = \"data.csv\"\n[parameters.A]\nmin = 0.5\nmax = 2.0\n\
         [emulator]\nparameters = [\"A\"]\n";
-    std::fs::write(dir.join("spectra.toml"), config).unwrap();
-    mdpipe::emulator::train_and_save(&dir.join("spectra.toml"), &dir.join("runs.csv"), None, &dir.join("emu"), 1)
-        .unwrap();
-    let mut analysis = mdpipe::systems::load(&dir.join("spectra.toml")).unwrap();
-    analysis.sampler.smc.particles = 600;
-    analysis.sampler.smc.replicates = 2;
+    let analysis = trained(&dir, "spectra.toml", config);
     let settings = DiagnoseSettings { repair: false, ..Default::default() };
     let d = diagnose::run(&analysis, &Default::default(), 7, &settings, None, &Silent).unwrap().diagnosis;
     assert_eq!(d.verdict.best, "x2_gain_of_b+x2_gain_of_a", "{}", d.verdict.statement);

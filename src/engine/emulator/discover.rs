@@ -218,6 +218,10 @@ impl EmulatedDiscoverer {
                 operations.push(f.operations);
                 let scale = ymax.powi(f.power) * xmax.powi(f.x_power);
                 let spec = ParamSpec { min: f.min * scale, max: f.max * scale, truth: None, units: String::new() };
+                // x all 0 (one point at the origin) leaves an x-form no finite prior: not searched.
+                if !(spec.min.is_finite() && spec.max.is_finite()) {
+                    continue;
+                }
                 let part = Part::new(f, rank, observable, &self.parameter(None), spec);
                 let start = |u: f64| {
                     base.phi.iter().copied().chain([part.spec.min + u * (part.spec.max - part.spec.min)]).collect()
