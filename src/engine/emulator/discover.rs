@@ -11,7 +11,7 @@
 //! covariance at every θ, by full calibration.
 
 use super::correction::CorrectedModel;
-use crate::base::config::ParamSpec;
+use super::forms::{self, start_grid, Form, Range, Scales};
 use crate::engine::gp::CholeskyWorkspace;
 use crate::engine::model::distinct::{distinct, Explanation};
 use crate::engine::model::fit::{Fitted, LeastSquares};
@@ -21,57 +21,33 @@ use anyhow::{anyhow, Result};
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-const FORMS: &str = include_str!("corrections.toml");
 /// How many screened corrections go on to full calibration.
 const PROPOSALS: usize = 3;
-
-#[derive(Clone, Debug, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Forms {
-    corrections: Vec<Form>,
-}
-
-/// A correction as written: `{y}` stands for the observable, `{x}` for the
-/// input, `{c}` for its one parameter, whose range is `min`..`max` times
-/// `ymax^power · xmax^x_power` (the observable's largest |y| and the
-/// input's largest |x| over the data).
-#[derive(Clone, Debug, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Form {
-    name: String,
-    form: String,
-    meaning: String,
-    min: f64,
-    max: f64,
-    #[serde(default)]
-    power: i32,
-    #[serde(default)]
-    x_power: i32,
-    /// The form's size for the prior over forms.
-    operations: usize,
-}
 
 pub struct EmulatedDiscoverer {
     pub model: Arc<dyn Simulator>,
 }
 
-/// One observable's correction: its form, and the form written out with
-/// the observable's and the parameter's names.
+/// One observable's correction: its form, its parameters' ranges on that
+/// observable's data, and the form written out with the observable's and
+/// the parameters' names.
 #[derive(Clone)]
 struct Part {
     form: Form,
     /// The form's place in the grammar.
     rank: usize,
     observable: String,
-    parameter: String,
+    ranges: Vec<Range>,
+    /// The parameters' names, in the form's order.
+    parameters: Vec<String>,
     correction: String,
-    spec: ParamSpec,
 }
 
 impl Part {
-    fn new(form: &Form, rank: usize, observable: &str, parameter: &str, spec: ParamSpec) -> Part {
-        let correction = form.form.replace("{y}", observable).replace("{x}", "x").replace("{c}", parameter);
-        Part { form: form.clone(), rank, observable: observable.into(), parameter: parameter.into(), correction, spec }
+    fn new(form: &Form, rank: usize, observable: &str, ranges: Vec<Range>, name: &dyn Fn(&str) -> String) -> Part {
+        let parameters = form.parameters.keys().map(|p| name(p)).collect();
+        let correction = form.render(observable, name);
+        Part { form: form.clone(), rank, observable: observable.into(), ranges, parameters, correction }
     }
 
     fn name(&self) -> String {
@@ -93,18 +69,18 @@ impl Explanation for Screened {
     }
 
     fn added_parameters(&self) -> usize {
-        self.parts.len()
+        self.parts.iter().map(|p| p.parameters.len()).sum()
     }
 
     fn complexity(&self) -> (usize, usize, usize, usize) {
         let operations = self.parts.iter().map(|p| p.form.operations).sum();
-        (self.parts.len(), self.parts.len(), operations, self.parts.iter().map(|p| p.rank).sum())
+        (self.added_parameters(), self.parts.len(), operations, self.parts.iter().map(|p| p.rank).sum())
     }
 }
 
 impl Discoverer for EmulatedDiscoverer {
     fn screen(&self, data: &ScreeningData) -> Result<Screening> {
-        let forms: Forms = toml::from_str(FORMS).map_err(|e| anyhow!("the bundled corrections: {e}"))?;
+        let forms = forms::bundled()?;
         let mean_only = LeastSquares { blocks: &data.blocks, model: self.model.as_ref(), bounds: data.bounds.clone() };
         let first = mean_only
             .fit(&data.theta)
@@ -124,7 +100,7 @@ impl Discoverer for EmulatedDiscoverer {
             .ok_or_else(|| anyhow!("discover: the emulated model cannot be fitted at its median"))?;
         let (mut screened, operations, observables) = self.screen_singles(&forms, data, &base_fit);
         let points = base.points() as f64;
-        let bic = |s: &Screened| base_fit.chi2 - s.fitted.chi2 - s.parts.len() as f64 * points.ln();
+        let bic = |s: &Screened| base_fit.chi2 - s.fitted.chi2 - s.added_parameters() as f64 * points.ln();
         screened.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
         let mut screened = distinct(screened, data);
         // As pairs on declared models: corrections of several observables
@@ -145,7 +121,7 @@ impl Discoverer for EmulatedDiscoverer {
                 proposal(s, base_fit.chi2, delta_bic, &prior, observables)
             })
             .collect();
-        let forms_tried = forms.corrections.iter().map(|f| f.form.clone()).collect();
+        let forms_tried = forms.iter().map(|f| f.form.clone()).collect();
         Ok(Screening { searched: operations.len(), forms: forms_tried, proposals })
     }
 }
@@ -183,10 +159,11 @@ impl EmulatedDiscoverer {
         blocks.collect()
     }
 
-    /// The correction's parameter: `c` (or `c_<observable>` when several
-    /// observables are corrected at once), unless θ has that name already.
-    fn parameter(&self, observable: Option<&str>) -> String {
-        let name = observable.map_or("c".to_string(), |o| format!("c_{o}"));
+    /// A correction's parameter `p` as named in the candidate: `p` (or
+    /// `p_<observable>` when several observables are corrected at once),
+    /// unless θ has that name already.
+    fn parameter(&self, p: &str, observable: Option<&str>) -> String {
+        let name = observable.map_or(p.to_string(), |o| format!("{p}_{o}"));
         if self.model.parameter_names().contains(&name) {
             format!("{name}_new")
         } else {
@@ -197,7 +174,12 @@ impl EmulatedDiscoverer {
     /// Every form of the grammar on every observable a formula can name,
     /// each fitted with θ; with each term's size, and how many observables
     /// were searched.
-    fn screen_singles(&self, forms: &Forms, data: &ScreeningData, base: &Fitted) -> (Vec<Screened>, Vec<usize>, usize) {
+    fn screen_singles(
+        &self,
+        forms: &[Form],
+        data: &ScreeningData,
+        base: &Fitted,
+    ) -> (Vec<Screened>, Vec<usize>, usize) {
         let names = self.model.observable_names();
         let (mut screened, mut operations, mut observables) = (Vec::new(), Vec::new(), 0);
         for b in &data.blocks {
@@ -212,21 +194,14 @@ impl EmulatedDiscoverer {
                 continue;
             }
             observables += 1;
-            let largest = |v: &[f64]| v.iter().fold(0.0f64, |m, z| m.max(z.abs())).max(f64::MIN_POSITIVE);
-            let (ymax, xmax) = (largest(b.y), largest(b.x));
-            for (rank, f) in forms.corrections.iter().enumerate() {
+            let scales = Scales::of(b.x, b.y);
+            for (rank, f) in forms.iter().enumerate() {
                 operations.push(f.operations);
-                let scale = ymax.powi(f.power) * xmax.powi(f.x_power);
-                let spec = ParamSpec { min: f.min * scale, max: f.max * scale, truth: None, units: String::new() };
                 // x all 0 (one point at the origin) leaves an x-form no finite prior: not searched.
-                if !(spec.min.is_finite() && spec.max.is_finite()) {
-                    continue;
-                }
-                let part = Part::new(f, rank, observable, &self.parameter(None), spec);
-                let start = |u: f64| {
-                    base.phi.iter().copied().chain([part.spec.min + u * (part.spec.max - part.spec.min)]).collect()
-                };
-                let starts: Vec<Vec<f64>> = [0.1, 0.5, 0.9].into_iter().map(start).collect();
+                let Some(ranges) = f.ranges(&scales) else { continue };
+                let starts: Vec<Vec<f64>> =
+                    start_grid(&ranges).into_iter().map(|u| base.phi.iter().copied().chain(u).collect()).collect();
+                let part = Part::new(f, rank, observable, ranges, &|p| self.parameter(p, None));
                 if let Some(s) = self.fit_parts(vec![part], data, &starts) {
                     screened.push(s);
                 }
@@ -240,10 +215,10 @@ impl EmulatedDiscoverer {
     fn fit_parts(&self, parts: Vec<Part>, data: &ScreeningData, starts: &[Vec<f64>]) -> Option<Screened> {
         let corrections: BTreeMap<String, String> =
             parts.iter().map(|p| (p.observable.clone(), p.correction.clone())).collect();
-        let parameters: Vec<String> = parts.iter().map(|p| p.parameter.clone()).collect();
+        let parameters: Vec<String> = parts.iter().flat_map(|p| p.parameters.iter().cloned()).collect();
         let model = CorrectedModel::new(self.model.clone(), &corrections, &parameters, "discover").ok()?;
         let mut bounds = data.bounds.clone();
-        bounds.extend(parts.iter().map(|p| (p.spec.min, p.spec.max)));
+        bounds.extend(parts.iter().flat_map(|p| p.ranges.iter().map(|r| (r.spec.min, r.spec.max))));
         let ls = LeastSquares { blocks: &data.blocks, model: &model, bounds };
         let fitted = ls.best_of(starts)?;
         Some(Screened { parts, simulator: Arc::new(model), fitted })
@@ -265,8 +240,9 @@ impl EmulatedDiscoverer {
     ) -> Option<Screened> {
         let paying: Vec<&Screened> = screened.iter().filter(|s| bic(s) > 0.0).collect();
         let leader = paying.first()?;
-        let renamed =
-            |p: &Part| Part::new(&p.form, p.rank, &p.observable, &self.parameter(Some(&p.observable)), p.spec.clone());
+        let renamed = |p: &Part| {
+            Part::new(&p.form, p.rank, &p.observable, p.ranges.clone(), &|q| self.parameter(q, Some(&p.observable)))
+        };
         let mut current =
             self.fit_parts(vec![renamed(&leader.parts[0])], data, std::slice::from_ref(&leader.fitted.phi))?;
         let price = (data.blocks.iter().map(|b| b.x.len()).sum::<usize>() as f64).ln();
@@ -278,8 +254,10 @@ impl EmulatedDiscoverer {
             }
         }
         for o in observables {
+            // θ and the corrections so far where they are, the new one where it fitted alone.
             let start = |s: &Screened| {
-                current.fitted.phi.iter().copied().chain([s.fitted.phi[s.fitted.phi.len() - 1]]).collect::<Vec<_>>()
+                let own = &s.fitted.phi[s.fitted.phi.len() - s.added_parameters()..];
+                current.fitted.phi.iter().chain(own).copied().collect::<Vec<_>>()
             };
             let best = paying
                 .iter()
@@ -314,8 +292,8 @@ fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior, obse
         "[[candidates]]\nname = {name:?}\ndescription = {meaning:?}\ncorrection = {{ {} }}\n",
         corrections.join(", ")
     );
-    for p in &s.parts {
-        toml.push_str(&format!("parameters.{} = {{ min = {}, max = {} }}\n", p.parameter, p.spec.min, p.spec.max));
+    for (name, r) in s.parts.iter().flat_map(|p| p.parameters.iter().zip(&p.ranges)) {
+        toml.push_str(&format!("parameters.{name} = {{ min = {}, max = {} }}\n", r.spec.min, r.spec.max));
     }
     let sizes: Vec<usize> = s.parts.iter().map(|p| p.form.operations).collect();
     let prior_log_odds = match sizes.as_slice() {
@@ -332,7 +310,11 @@ fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior, obse
         candidate: CandidateModel {
             name,
             description: format!("discovered: {formula}"),
-            extra_parameters: s.parts.iter().map(|p| (p.parameter.clone(), p.spec.clone())).collect(),
+            extra_parameters: s
+                .parts
+                .iter()
+                .flat_map(|p| p.parameters.iter().cloned().zip(p.ranges.iter().map(|r| r.spec.clone())))
+                .collect(),
             simulator: s.simulator,
             special_case_of: Vec::new(),
             own_emulator: false,

@@ -27,6 +27,7 @@ pub mod budget;
 pub mod correction;
 pub mod discover;
 pub mod family;
+pub mod forms;
 pub mod latent;
 pub mod low_rank;
 pub mod model;
