@@ -63,6 +63,44 @@ fn trained(dir: &std::path::Path, name: &str, config: &str) -> mdpipe::calibrate
     analysis
 }
 
+/// A simulator A·shape(observable, x) and data at A = `amp` carrying a
+/// relative `effect`, written in closed form: 12 runs over A in 0.45–2.05
+/// (runs.csv) and the data with a relative error (data.csv), seeded.
+struct Truth<'a> {
+    observables: &'a [&'a str],
+    xs: &'a [f64],
+    shape: &'a dyn Fn(&str, f64) -> f64,
+    effect: &'a dyn Fn(&str, f64) -> f64,
+    amp: f64,
+    relative: f64,
+}
+
+impl Truth<'_> {
+    fn write(&self, dir: &std::path::Path, seed: u64) {
+        let mut runs = String::from("design_id,observable,x,value,A\n");
+        for i in 0..12 {
+            let amp = 0.45 + 1.6 * i as f64 / 11.0;
+            for o in self.observables {
+                for x in self.xs {
+                    runs.push_str(&format!("{i},{o},{x},{},{amp}\n", amp * (self.shape)(o, *x)));
+                }
+            }
+        }
+        std::fs::write(dir.join("runs.csv"), runs).unwrap();
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut data = String::from("observable,x,value,error\n");
+        for o in self.observables {
+            for x in self.xs {
+                let y = self.amp * (self.shape)(o, *x) * (self.effect)(o, *x);
+                let sigma = self.relative * y;
+                let z: f64 = rng.sample(rand_distr::StandardNormal);
+                data.push_str(&format!("{o},{x},{},{sigma}\n", y + sigma * z));
+            }
+        }
+        std::fs::write(dir.join("data.csv"), data).unwrap();
+    }
+}
+
 #[test]
 fn a_dead_time_correction_of_an_emulated_model_is_named() {
     let dir = tmpdir("counter");
@@ -128,28 +166,15 @@ fn a_change_in_every_observable_is_found_as_their_corrections_together() {
     let dir = tmpdir("together");
     let xs: Vec<f64> = (1..=12).map(|k| 0.25 * f64::from(k)).collect();
     let shapes = [("a", 10.0, 1.0), ("b", 5.0, 2.0)];
-    let mut runs = String::from("design_id,observable,x,value,A\n");
-    for i in 0..12 {
-        let amp = 0.45 + 1.6 * i as f64 / 11.0;
-        for (name, scale, offset) in shapes {
-            for x in &xs {
-                runs.push_str(&format!("{i},{name},{x},{},{amp}\n", scale * amp * (offset + x)));
-            }
-        }
-    }
-    std::fs::write(dir.join("runs.csv"), runs).unwrap();
+    let shape =
+        |o: &str, x: f64| shapes.iter().find(|s| s.0 == o).map_or(0.0, |(_, scale, offset)| scale * (offset + x));
     let (amp, c) = (1.2, [0.05, 0.08]);
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(31);
-    let mut data = String::from("observable,x,value,error\n");
-    for ((name, scale, offset), c) in shapes.iter().zip(c) {
-        for x in &xs {
-            let y = scale * amp * (offset + x) * (1.0 + c * x * x);
-            let sigma = 0.01 * y;
-            let z: f64 = rng.sample(rand_distr::StandardNormal);
-            data.push_str(&format!("{name},{x},{},{sigma}\n", y + sigma * z));
-        }
-    }
-    std::fs::write(dir.join("data.csv"), data).unwrap();
+    let effect = |o: &str, x: f64| {
+        let c = if o == "a" { c[0] } else { c[1] };
+        1.0 + c * x * x
+    };
+    let truth = Truth { observables: &["a", "b"], xs: &xs, shape: &shape, effect: &effect, amp, relative: 0.01 };
+    truth.write(&dir, 31);
     let config = "name = \"spectra\"\n[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\
         [data]\nmeasurements = \"data.csv\"\n[parameters.A]\nmin = 0.5\nmax = 2.0\n\
         [emulator]\nparameters = [\"A\"]\n";
@@ -176,24 +201,11 @@ fn a_change_in_every_observable_is_found_as_their_corrections_together() {
 fn a_periodic_gain_is_discovered_with_its_frequency() {
     let dir = tmpdir("periodic");
     let xs: Vec<f64> = (0..24).map(|k| 0.25 + 0.5 * f64::from(k)).collect();
-    let mut runs = String::from("design_id,observable,x,value,A\n");
-    for i in 0..12 {
-        let amp = 0.45 + 1.6 * i as f64 / 11.0;
-        for x in &xs {
-            runs.push_str(&format!("{i},rate,{x},{},{amp}\n", 100.0 * amp * (-x / 4.0).exp()));
-        }
-    }
-    std::fs::write(dir.join("runs.csv"), runs).unwrap();
     let (amp, swing, omega) = (1.2, 0.05, std::f64::consts::FRAC_PI_2);
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(41);
-    let mut data = String::from("observable,x,value,error\n");
-    for x in &xs {
-        let y = 100.0 * amp * (-x / 4.0).exp() * (1.0 + swing * (omega * x).sin());
-        let sigma = 0.005 * y;
-        let z: f64 = rng.sample(rand_distr::StandardNormal);
-        data.push_str(&format!("rate,{x},{},{sigma}\n", y + sigma * z));
-    }
-    std::fs::write(dir.join("data.csv"), data).unwrap();
+    let shape = |_: &str, x: f64| 100.0 * (-x / 4.0).exp();
+    let effect = |_: &str, x: f64| 1.0 + swing * (omega * x).sin();
+    let truth = Truth { observables: &["rate"], xs: &xs, shape: &shape, effect: &effect, amp, relative: 0.005 };
+    truth.write(&dir, 41);
     let config = "name = \"cycling\"\n[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\
         [data]\nmeasurements = \"data.csv\"\n[parameters.A]\nmin = 0.5\nmax = 2.0\n\
         [emulator]\nparameters = [\"A\"]\nlog_observables = [\"rate\"]\n";
