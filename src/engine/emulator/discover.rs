@@ -227,8 +227,8 @@ impl EmulatedDiscoverer {
     /// Corrections of several observables fitted together, chosen by
     /// forward selection: from the best single (`screened` best first), each
     /// other observable in turn gets the correction, of those that paid
-    /// their parameter alone, that most lowers the joint χ², if it lowers
-    /// it by more than its price ln N. Chosen alone, one observable's best
+    /// their parameters alone, that most lowers the joint χ² net of its
+    /// price, ln N per parameter, if that is more than nothing. Chosen alone, one observable's best
     /// was fitted with θ bent toward another's mismatch. A change that
     /// reaches every observable (a shear δf in each spectrum of a heavy-ion
     /// model) is no one observable's. None unless two or more are chosen.
@@ -259,6 +259,10 @@ impl EmulatedDiscoverer {
                 let own = &s.fitted.phi[s.fitted.phi.len() - s.added_parameters()..];
                 current.fitted.phi.iter().chain(own).copied().collect::<Vec<_>>()
             };
+            // What a correction gains: the χ² it takes off, less ln N for each of its parameters.
+            let gain = |b: &Screened| {
+                current.fitted.chi2 - b.fitted.chi2 - (b.added_parameters() - current.added_parameters()) as f64 * price
+            };
             let best = paying
                 .iter()
                 .filter(|s| s.parts[0].observable == o)
@@ -266,8 +270,8 @@ impl EmulatedDiscoverer {
                     let parts = current.parts.iter().cloned().chain([renamed(&s.parts[0])]).collect();
                     self.fit_parts(parts, data, &[start(s)])
                 })
-                .min_by(|a, b| a.fitted.chi2.total_cmp(&b.fitted.chi2));
-            if let Some(b) = best.filter(|b| current.fitted.chi2 - b.fitted.chi2 > price) {
+                .max_by(|a, b| gain(a).total_cmp(&gain(b)));
+            if let Some(b) = best.filter(|b| gain(b) > 0.0) {
                 current = b;
             }
         }
