@@ -151,7 +151,9 @@ mod tests {
         assert_eq!(size("gain"), 2);
         assert_eq!(size("saturation"), 3);
         assert_eq!(size("x2_gain"), 4);
-        let scales = Scales::of(&[0.0, 3.0, 6.0], &[2.0, -4.0, 1.0]);
+        // Twelve points: enough for two periods of a swing below their Nyquist rate.
+        let x: Vec<f64> = (0..12).map(f64::from).collect();
+        let scales = Scales::of(&x, &x.iter().map(|v| 2.0 - v).collect::<Vec<_>>());
         for f in &forms {
             let ranges = f.ranges(&scales).unwrap_or_else(|| panic!("{}: no finite range", f.name));
             assert!(!start_grid(&ranges).is_empty() && start_grid(&ranges).len() <= 64, "{}", f.name);
@@ -165,6 +167,9 @@ mod tests {
         let r = x2.ranges(&Scales::of(&[1.0, 2.0], &[5.0, 5.0])).unwrap();
         assert!((r[0].spec.max - 9.0 / 4.0).abs() < 1e-12 && (r[0].spec.min + 0.9 / 4.0).abs() < 1e-12);
         assert!(x2.ranges(&Scales::of(&[0.0], &[5.0])).is_none());
+        // Three points cannot hold two periods below their Nyquist rate: no periodic gain.
+        let periodic = forms.iter().find(|f| f.name == "periodic_gain").unwrap();
+        assert!(periodic.ranges(&Scales::of(&[0.0, 3.0, 6.0], &[1.0, 2.0, 3.0])).is_none());
         let offset = forms.iter().find(|f| f.name == "offset").unwrap();
         assert_eq!(offset.ranges(&Scales::of(&[1.0, 2.0], &[-5.0, 3.0])).unwrap()[0].spec.max, 50.0);
     }
