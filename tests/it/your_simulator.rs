@@ -83,12 +83,13 @@ fn bundled_example_names_the_dead_time() {
     let dir = example_copy("decay-local", "");
     mdpipe_run(&dir, &[]);
     check_bundled_verdict(&dir.join("out"));
-    // Blind data on this route with the study's emulators: a null, an
-    // in-library effect other than the example's, and one out of the library
-    // (every class, and the full campaign, in the second tier).
+    // Blind data on this route with the study's emulators: a null, a
+    // declared effect other than the example's, and a periodic efficiency
+    // no candidate declares, which the search names (every class, and the
+    // full campaign, in the second tier).
     let mut pick = first_of_each_class(3.0);
     let rows = decay_blind(&dir, &mut |label, size| {
-        matches!(label, "none" | "background" | "unexplained") && pick(label, size)
+        matches!(label, "none" | "background" | "periodic_gain_of_rate") && pick(label, size)
     });
     assert_eq!(rows.len(), 3, "{rows:?}");
     each_verdict_is_right("decay counter", &rows);
