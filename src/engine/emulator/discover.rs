@@ -161,10 +161,11 @@ impl EmulatedDiscoverer {
 
     /// A correction's parameter `p` as named in the candidate: `p` (or
     /// `p_<observable>` when several observables are corrected at once),
-    /// unless θ has that name already.
+    /// unless θ or an observable has that name already (a periodic gain's
+    /// `b` on an observable named `b` would be the observable itself).
     fn parameter(&self, p: &str, observable: Option<&str>) -> String {
         let name = observable.map_or(p.to_string(), |o| format!("{p}_{o}"));
-        if self.model.parameter_names().contains(&name) {
+        if self.model.parameter_names().contains(&name) || self.model.observable_names().contains(&name) {
             format!("{name}_new")
         } else {
             name
