@@ -1,13 +1,15 @@
 //! The calibration engine. It knows no particular system: a model reaches it
 //! through [`model::ModelFamily`] and [`model::Simulator`].
 //!
-//! Inside the engine, from the bottom up: `gp`, `formula`, `model` → `emulator`,
-//! `design`, `ingest` → `calibrate` → `compare`, `diagnose` → `report`.
+//! Inside the engine, from the bottom up: `gp`, `formula`, `model`, `execute`
+//! → `design`, `ingest`, `discover` → `emulator` → `calibrate` → `compare`,
+//! `diagnose`, `refine` → `report`.
 
 pub mod calibrate;
 pub mod compare;
 pub mod design;
 pub mod diagnose;
+pub mod discover;
 pub mod emulator;
 pub mod execute;
 pub mod formula;

@@ -369,8 +369,8 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
     let first = run(&cfg);
     let again = run(&cfg);
     // A reused fit is the first fit itself, down to the wall time it took.
-    assert_eq!(wall(&again.base), wall(&first.base));
-    assert_eq!(wall(&again.md), wall(&first.md));
+    assert_eq!(wall(again.base.as_ref().unwrap()), wall(first.base.as_ref().unwrap()));
+    assert_eq!(wall(again.md.as_ref().unwrap()), wall(first.md.as_ref().unwrap()));
     assert_eq!(again.candidates.len(), first.candidates.len());
     for ((name, a), (_, b)) in again.candidates.iter().zip(&first.candidates) {
         assert_eq!(wall(a), wall(b), "{name}");
@@ -385,6 +385,7 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
         std::sync::Arc::new(crate::common::Perturbed { inner: other.simulator.clone(), change: |v| v * (1.0 + 1e-3) });
     let third = run(&other);
     for (new, old) in [(&third.base, &first.base), (&third.md, &first.md)] {
+        let (new, old) = (new.as_ref().unwrap(), old.as_ref().unwrap());
         assert_ne!(wall(new), wall(old));
         assert!(new.chains.chains != old.chains.chains, "the same draws from another model");
     }

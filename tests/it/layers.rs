@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 /// Units from the bottom up, with their rank.
-const UNITS: [(&str, u32); 19] = [
+const UNITS: [(&str, u32); 20] = [
     ("base", 0),
     ("engine::gp", 1),
     ("engine::formula", 1),
@@ -15,18 +15,19 @@ const UNITS: [(&str, u32); 19] = [
     ("engine::execute", 2),
     ("engine::design", 3),
     ("engine::ingest", 3),
-    ("engine::emulator", 3),
-    ("engine::calibrate", 4),
-    ("engine::compare", 5),
-    ("engine::diagnose", 5),
-    ("engine::refine", 5),
-    ("engine::report", 6),
-    ("systems::ball_drop", 7),
-    ("systems::heavy_ion", 7),
-    ("systems", 8),
-    ("pipeline", 9),
-    ("app", 10),
-    ("engine", 11),
+    ("engine::discover", 3),
+    ("engine::emulator", 4),
+    ("engine::calibrate", 5),
+    ("engine::compare", 6),
+    ("engine::diagnose", 6),
+    ("engine::refine", 6),
+    ("engine::report", 7),
+    ("systems::ball_drop", 8),
+    ("systems::heavy_ion", 8),
+    ("systems", 9),
+    ("pipeline", 10),
+    ("app", 11),
+    ("engine", 12),
 ];
 
 /// The unit of a module path such as `engine::calibrate::smc` (longest match).

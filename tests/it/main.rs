@@ -25,6 +25,7 @@ mod ingest;
 mod large_analysis;
 mod layers;
 mod ode_campaign;
+mod odebench;
 mod pipeline;
 mod readers;
 mod readme;

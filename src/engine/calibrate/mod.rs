@@ -303,6 +303,18 @@ pub fn run(problem: &Problem, seed: u64, observer: &dyn Observer) -> Result<Cali
     run_checkpointed(problem, seed, observer, None)
 }
 
+/// Whether a calibration's answer can still matter to whoever asked for it,
+/// given its log evidence and that estimate's error: a candidate so far
+/// behind the leader that no convergence could bring it within reach is
+/// not sampled again to chase R̂ and ESS (`run_smc_until_converged`).
+pub type Matters<'a> = &'a (dyn Fn(f64, f64) -> bool + Sync);
+
+/// As `run`, sampling again for convergence only while `matters` says the
+/// answer can still change a decision.
+pub fn run_judged(problem: &Problem, seed: u64, observer: &dyn Observer, matters: Matters) -> Result<Calibration> {
+    sample(problem, seed, observer, None, matters)
+}
+
 /// Identifies a calibration for its checkpoints: config, data, kernel,
 /// observables, prior, sampler settings and seed.
 pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
@@ -377,6 +389,16 @@ pub fn run_checkpointed(
     observer: &dyn Observer,
     checkpoint: Option<&checkpoint::Checkpointing>,
 ) -> Result<Calibration> {
+    sample(problem, seed, observer, checkpoint, &|_, _| true)
+}
+
+fn sample(
+    problem: &Problem,
+    seed: u64,
+    observer: &dyn Observer,
+    checkpoint: Option<&checkpoint::Checkpointing>,
+    matters: Matters,
+) -> Result<Calibration> {
     let start = std::time::Instant::now();
     let jitter_before = problem.likelihood.jitter_events();
     let failures_before = problem.simulator.failures();
@@ -388,7 +410,7 @@ pub fn run_checkpointed(
         problem.observables().join("+")
     );
     let sampled = match problem.sampler {
-        SamplerKind::Smc => run_smc_until_converged(problem, seed, observer, checkpoint, &label)?,
+        SamplerKind::Smc => run_smc_until_converged(problem, seed, observer, checkpoint, &label, matters)?,
         SamplerKind::Ensemble => run_ensemble(problem, seed, observer, checkpoint, &label)?,
     };
     let wall = start.elapsed().as_secs_f64();
@@ -417,6 +439,7 @@ fn run_smc_until_converged(
     observer: &dyn Observer,
     checkpoint: Option<&checkpoint::Checkpointing>,
     label: &str,
+    matters: Matters,
 ) -> Result<Sampled> {
     let mut settings = problem.analysis.sampler.smc.clone();
     let mut sampled = run_smc(problem, &settings, seed, observer, checkpoint, label)?;
@@ -430,6 +453,12 @@ fn run_smc_until_converged(
         }
         let (next, growth) = adapt::escalate(&settings, &c);
         let said = format!("{label}: not converged (largest R̂ {:.3}, smallest ESS {:.0})", c.max_rhat, c.min_ess);
+        if let Some((z, e)) = sampled.evidence.filter(|(z, e)| !matters(*z, *e)) {
+            crate::base::messages::note!(
+                "  {said}; not sampled again: its log evidence {z:.1} ± {e:.1} cannot change the decision"
+            );
+            break;
+        }
         if !adapt::affordable(first, spent, sampled.evaluations, growth) {
             crate::base::messages::note!("  {said}; another run would exceed {} times the first's cost", adapt::BUDGET);
             break;

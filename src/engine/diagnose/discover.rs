@@ -20,12 +20,13 @@ pub(super) fn wanted(discover: Discover, verdict: &Verdict) -> bool {
     }
 }
 
-/// Screens the grammar at the base fit's posterior median; the report and
-/// the proposed terms as candidates.
+/// Screens the grammar from `theta` (the base fit's posterior median, or
+/// the prior's centre where the model cannot be fitted); the report and the
+/// proposed terms as candidates.
 pub(super) fn screen(
     discoverer: &dyn Discoverer,
     problem: &Problem,
-    base: &Calibration,
+    theta: Vec<f64>,
 ) -> Result<(DiscoveryReport, Vec<(CandidateModel, f64)>)> {
     let names = problem.simulator.parameter_names();
     let blocks = problem.likelihood.blocks.iter().map(|b| {
@@ -39,7 +40,7 @@ pub(super) fn screen(
     });
     let data = ScreeningData {
         blocks: blocks.collect::<Result<_>>()?,
-        theta: names.iter().map(|n| base.summary.parameters[n].median).collect(),
+        theta,
         bounds: (0..names.len()).map(|k| (problem.prior.lower[k], problem.prior.upper[k])).collect(),
     };
     let start = std::time::Instant::now();

@@ -48,6 +48,7 @@ mod locate;
 mod reuse;
 mod suggest;
 mod types;
+mod uncomputable;
 mod wording;
 
 use crate::base::artifacts::{self, Provenance};
@@ -133,6 +134,18 @@ impl Diagnoser<'_> {
         seed: u64,
         name: &str,
     ) -> Result<(Problem, Calibration)> {
+        self.calibrate_judged(analysis, kernel, seed, name, &|_, _| true)
+    }
+
+    /// As `calibrate`, sampling again for convergence only while `matters`.
+    fn calibrate_judged(
+        &self,
+        analysis: &Analysis,
+        kernel: Option<DiscrepancyKernel>,
+        seed: u64,
+        name: &str,
+        matters: calibrate::Matters,
+    ) -> Result<(Problem, Calibration)> {
         let problem = Problem::new(
             analysis,
             &Overrides { kernel: Some(DiscrepancyKernel::choice(kernel)), ..self.overrides.clone() },
@@ -143,7 +156,7 @@ impl Diagnoser<'_> {
                 cal
             }
             None => {
-                let cal = calibrate::run(&problem, seed, self.observer)?;
+                let cal = calibrate::run_judged(&problem, seed, self.observer, matters)?;
                 self.reuse.keep(name, &problem, seed, &cal);
                 cal
             }
@@ -155,22 +168,39 @@ impl Diagnoser<'_> {
     }
 
     /// Explain: each candidate fitted without MD. A discovered term's prior
-    /// log odds (paying for the search) join its log evidence.
+    /// log odds (paying for the search) join its log evidence. A candidate
+    /// that trails the best so far (`leader`, and each run here) by more
+    /// than any verdict could turn on is not sampled again for convergence
+    /// (`hopeless`).
     fn explain(
         &self,
         analysis: &Analysis,
         candidates: Vec<(CandidateModel, f64)>,
         seed: u64,
         (z_base, e_base): (f64, f64),
+        (leader, strong_log_bf): (f64, f64),
     ) -> Result<Vec<CandidateRun>> {
-        let mut runs = Vec::new();
+        let mut runs: Vec<CandidateRun> = Vec::new();
         for (k, (candidate, prior_log_odds)) in candidates.into_iter().enumerate() {
-            let (problem, calibration) = self.calibrate(
+            let best = runs.iter().map(|r| r.result.log_evidence).fold(leader, f64::max);
+            let matters = |z: f64, e: f64| !hopeless(z + prior_log_odds, e, best, strong_log_bf);
+            let fitted = self.calibrate_judged(
                 &analysis.with_candidate(&candidate),
                 None,
                 seed.wrapping_add(10 + k as u64),
                 &format!("candidate_{}", candidate.name),
-            )?;
+                &matters,
+            );
+            let (problem, calibration) = match fitted {
+                Err(e) if e.downcast_ref::<calibrate::guard::NotComputable>().is_some() => {
+                    crate::base::messages::note!(
+                        "  candidate {} cannot be computed over the data: {e}",
+                        candidate.name
+                    );
+                    continue;
+                }
+                other => other?,
+            };
             let (z, e) = evidence(&calibration.summary);
             let z = z + prior_log_odds;
             let result = CandidateResult {
@@ -199,6 +229,15 @@ impl Diagnoser<'_> {
         }
         Ok(runs)
     }
+}
+
+/// Whether a candidate of log evidence `z` (± `e`) trails `leader` by more
+/// than a verdict could turn on: the decisive margin, plus room for its
+/// estimate to move by ten of its errors (and at least 5 nats) as more
+/// sampling converges it.
+fn hopeless(z: f64, e: f64, leader: f64, strong_log_bf: f64) -> bool {
+    let room = 5.0f64.max(10.0 * if e.is_finite() { e } else { f64::INFINITY });
+    z < leader - strong_log_bf - room
 }
 
 /// Best evidence first, then Occam's choice moved to the front.
@@ -263,20 +302,29 @@ pub fn run_reusing(
     reuse: &Reuse,
 ) -> Result<DiagnoseRun> {
     let d = Diagnoser { overrides, out, observer, reuse };
-    let (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
+    let (base_problem, base) = match d.calibrate(analysis, None, seed, "base_no_md") {
+        Err(e) if e.downcast_ref::<calibrate::guard::NotComputable>().is_some() => {
+            return uncomputable::run(&d, analysis, seed, settings, &e);
+        }
+        other => other?,
+    };
     let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
     let (z_base, e_base) = evidence(&base.summary);
     let (z_md, _) = evidence(&md.summary);
     let mismatch = locate(&md_problem, &md, &base_problem, &base);
     let declared = analysis.candidates()?.into_iter().map(|c| (c, 0.0)).collect();
-    let mut runs = rank(d.explain(analysis, declared, seed, (z_base, e_base))?, settings.strong_log_bf);
+    let strong = settings.strong_log_bf;
+    let mut runs = rank(d.explain(analysis, declared, seed, (z_base, e_base), (f64::NEG_INFINITY, strong))?, strong);
     let (mut candidates, mut verdict, mut named_alone) =
         judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
     let mut discovery = None;
     if let Some(discoverer) = analysis.setup.discoverer().filter(|_| discover::wanted(settings.discover, &verdict)) {
         {
-            let (report, proposals) = discover::screen(discoverer, &base_problem, &base)?;
-            let found = d.explain(analysis, proposals, seed.wrapping_add(500), (z_base, e_base))?;
+            let names = base_problem.simulator.parameter_names();
+            let theta = names.iter().map(|n| base.summary.parameters[n].median).collect();
+            let (report, proposals) = discover::screen(discoverer, &base_problem, theta)?;
+            let leader = runs.iter().map(|r| r.result.log_evidence).fold(f64::NEG_INFINITY, f64::max);
+            let found = d.explain(analysis, proposals, seed.wrapping_add(500), (z_base, e_base), (leader, strong))?;
             runs.extend(found);
             runs = rank(runs, settings.strong_log_bf);
             (candidates, verdict, named_alone) = judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
@@ -328,7 +376,7 @@ pub fn run_reusing(
         artifacts::write_json_atomic(&dir.join("diagnosis.json"), &diagnosis)?;
     }
     let candidates = runs.into_iter().map(|r| (r.candidate.name, r.calibration)).collect();
-    Ok(DiagnoseRun { diagnosis, base, md, candidates, repaired_md })
+    Ok(DiagnoseRun { diagnosis, base: Some(base), md: Some(md), candidates, repaired_md })
 }
 
 /// MD 95% width over the repaired model's Cramér–Rao 95% width, per

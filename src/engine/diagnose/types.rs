@@ -79,8 +79,11 @@ pub struct CandidateResult {
     pub description: String,
     pub log_evidence: f64,
     pub log_evidence_err: f64,
-    /// Against the base model without MD.
+    /// Against the base model without MD (+∞, null in JSON, when that
+    /// model cannot be computed over the data).
+    #[serde(deserialize_with = "infinity_if_null")]
     pub log_bayes_factor: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub log_bayes_factor_err: f64,
     pub parameters: BTreeMap<String, ParamSummary>,
     pub chi2_per_dof: f64,
@@ -191,13 +194,33 @@ impl Improvement {
     }
 }
 
+/// JSON has no infinity: serde_json writes a non-finite number as null.
+fn minus_infinity_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    use serde::Deserialize;
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NEG_INFINITY))
+}
+
+fn infinity_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    use serde::Deserialize;
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
+}
+
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    use serde::Deserialize;
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Diagnosis {
     pub mismatch: Vec<ObservableMismatch>,
     pub candidates: Vec<CandidateResult>,
     pub verdict: Verdict,
     pub improvement: Option<Improvement>,
+    /// −∞ (null in JSON) when the model as declared cannot be computed
+    /// over the data, and so neither it nor its MD fit can be made.
+    #[serde(deserialize_with = "minus_infinity_if_null")]
     pub base_log_evidence: f64,
+    #[serde(deserialize_with = "minus_infinity_if_null")]
     pub md_log_evidence: f64,
     /// What the search for undeclared terms tried, when it ran.
     #[serde(default)]
@@ -238,8 +261,10 @@ pub struct ScreenedTerm {
 /// Everything `diagnose` computed, for the report.
 pub struct DiagnoseRun {
     pub diagnosis: Diagnosis,
-    pub base: Calibration,
-    pub md: Calibration,
+    /// The fits of the model as declared, without and with MD; None when it
+    /// cannot be computed over the data.
+    pub base: Option<Calibration>,
+    pub md: Option<Calibration>,
     pub candidates: Vec<(String, Calibration)>,
     pub repaired_md: Option<Calibration>,
 }

@@ -138,10 +138,16 @@ pub fn print(d: &Diagnosis) {
             show(&m.residual_regions)
         );
     }
-    crate::base::messages::say!(
-        "Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):",
-        d.md_log_evidence - d.base_log_evidence
-    );
+    if d.base_log_evidence.is_finite() {
+        crate::base::messages::say!(
+            "Explain (log Bayes factor against the model without MD; log BF of the MD fit: {:.1}):",
+            d.md_log_evidence - d.base_log_evidence
+        );
+    } else {
+        crate::base::messages::say!(
+            "Explain (the model as declared cannot be computed over the data: no fit of it, with or without MD; each candidate's log evidence):"
+        );
+    }
     if d.candidates.is_empty() && d.discovery.is_none() {
         crate::base::messages::say!(
             "  no candidates declared; the search for undeclared physics runs when a mismatch is unexplained (--discover, or [run] discover = true, asks for it always)"
@@ -155,11 +161,14 @@ pub fn print(d: &Diagnosis) {
             String::new()
         };
         let flag = if c.converged { "" } else { "   not converged" };
+        let (what, z, e) = if d.base_log_evidence.is_finite() {
+            ("log BF", c.log_bayes_factor, c.log_bayes_factor_err)
+        } else {
+            ("log Z ", c.log_evidence, c.log_evidence_err)
+        };
         crate::base::messages::say!(
-            "  {} log BF = {:>8.1} ± {:.1}   χ²/dof = {:>6.2}{share}{flag}",
+            "  {} {what} = {z:>8.1} ± {e:.1}   χ²/dof = {:>6.2}{share}{flag}",
             name_column(&c.name, width),
-            c.log_bayes_factor,
-            c.log_bayes_factor_err,
             c.chi2_per_dof
         );
     }

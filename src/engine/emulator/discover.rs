@@ -12,10 +12,10 @@
 
 use super::correction::CorrectedModel;
 use super::forms::{self, start_grid, Form, Range, Scales};
+use crate::engine::discover::distinct::{distinct, Explanation};
+use crate::engine::discover::prior::FormPrior;
 use crate::engine::gp::CholeskyWorkspace;
-use crate::engine::model::distinct::{distinct, Explanation};
 use crate::engine::model::fit::{Fitted, LeastSquares};
-use crate::engine::model::prior::FormPrior;
 use crate::engine::model::{CandidateModel, Discoverer, Proposal, Screening, ScreeningBlock, ScreeningData, Simulator};
 use anyhow::{anyhow, Result};
 use std::collections::BTreeMap;
@@ -175,12 +175,7 @@ impl EmulatedDiscoverer {
     /// Every form of the grammar on every observable a formula can name,
     /// each fitted with θ; with each term's size, and how many observables
     /// were searched.
-    fn screen_singles(
-        &self,
-        forms: &[Form],
-        data: &ScreeningData,
-        base: &Fitted,
-    ) -> (Vec<Screened>, Vec<usize>, usize) {
+    fn screen_singles(&self, forms: &[Form], data: &ScreeningData, base: &Fitted) -> (Vec<Screened>, Vec<f64>, usize) {
         let names = self.model.observable_names();
         let (mut screened, mut operations, mut observables) = (Vec::new(), Vec::new(), 0);
         for b in &data.blocks {
@@ -197,7 +192,7 @@ impl EmulatedDiscoverer {
             observables += 1;
             let scales = Scales::of(b.x, b.y);
             for (rank, f) in forms.iter().enumerate() {
-                operations.push(f.operations);
+                operations.push(f.nats);
                 // x all 0 (one point at the origin) leaves an x-form no finite prior: not searched.
                 let Some(ranges) = f.ranges(&scales) else { continue };
                 let starts: Vec<Vec<f64>> =
@@ -300,14 +295,17 @@ fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior, obse
     for (name, r) in s.parts.iter().flat_map(|p| p.parameters.iter().zip(&p.ranges)) {
         toml.push_str(&format!("parameters.{name} = {{ min = {}, max = {} }}\n", r.spec.min, r.spec.max));
     }
-    let sizes: Vec<usize> = s.parts.iter().map(|p| p.form.operations).collect();
+    let sizes: Vec<f64> = s.parts.iter().map(|p| p.form.nats).collect();
     let prior_log_odds = match sizes.as_slice() {
         [one] => prior.log_odds(&[*one]),
         many => prior.log_odds_one_per_observable(many, observables),
     };
+    // The corrected model names θ and then the corrections' parameters.
+    let best_fit = s.simulator.parameter_names().into_iter().zip(s.fitted.phi.iter().copied()).collect();
     Proposal {
         meaning,
         toml,
+        best_fit,
         formula: formula.clone(),
         delta_chi2: base_chi2 - s.fitted.chi2,
         delta_bic,

@@ -27,9 +27,12 @@ pub struct Form {
     pub form: String,
     pub meaning: String,
     pub parameters: BTreeMap<String, Bound>,
-    /// The form's size for the prior over forms (counted when read).
+    /// The form's size (operations), which orders forms of as many parameters.
     #[serde(skip)]
     pub operations: usize,
+    /// The form's prior cost in nats (`discover::prior`, set when read).
+    #[serde(skip)]
+    pub nats: f64,
 }
 
 /// A parameter's range, formulas of `ymax`, `xmax`, `span` and `n`
@@ -96,6 +99,7 @@ fn checked(mut f: Form) -> Result<Form> {
     }
     let text = f.render("y", &|p| p.to_string());
     f.operations = notation::parse(&text).map_err(|e| anyhow!("{place}: {e}"))?.operations();
+    f.nats = crate::engine::discover::prior::nats(&text);
     Ok(f)
 }
 
@@ -182,6 +186,7 @@ mod tests {
             meaning: String::new(),
             parameters: BTreeMap::from([("d".into(), Bound { min: "0".into(), max: "1".into(), starts: None })]),
             operations: 0,
+            nats: 0.0,
         };
         let e = checked(bad).unwrap_err().to_string();
         assert!(e.contains("parameter 'd' is not in the form"), "{e}");

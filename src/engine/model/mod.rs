@@ -6,9 +6,7 @@
 //!
 //! The engine calls only these traits; the families live in `crate::systems`.
 
-pub mod distinct;
 pub mod fit;
-pub mod prior;
 
 use crate::base::config::{Config, ParamSpec};
 use anyhow::{anyhow, bail, Result};
@@ -282,6 +280,8 @@ pub struct Proposal {
     /// Prior log odds against the base model, paying for the search: the
     /// term's share of a prior over every term searched (or pair of them).
     pub prior_log_odds: f64,
+    /// The screening's least-squares fit: θ and the term's parameters, by name.
+    pub best_fit: Vec<(String, f64)>,
 }
 
 /// What a screening tried and what it proposes, best first.

@@ -94,17 +94,22 @@ pub(super) fn diverging(t: f64) -> RGBColor {
 /// longer bar is cut there with its value written on it. The dashed line is
 /// the decisive margin: a model to its right is not excluded by the leader.
 pub fn bayes_factor_chart(d: &Diagnosis) -> Result<String> {
+    let best = d.candidates.iter().map(|c| c.log_evidence).fold(f64::NEG_INFINITY, f64::max);
     let mut rows: Vec<(String, f64, RGBColor)> = d
         .candidates
         .iter()
         .map(|c| {
             let chosen = c.name == d.verdict.best || d.verdict.standing.contains(&c.name);
             let colour = if chosen { RGBColor(205, 120, 20) } else { RGBColor(110, 110, 160) };
-            (short_name(&c.name), c.log_bayes_factor, colour)
+            // Without a fit of the model itself, each against the best candidate.
+            let against = if d.base_log_evidence.is_finite() { c.log_bayes_factor } else { c.log_evidence - best };
+            (short_name(&c.name), against, colour)
         })
         .collect();
-    rows.push(("model + MD".into(), d.md_log_evidence - d.base_log_evidence, RGBColor(30, 150, 60)));
-    rows.push(("model, no MD".into(), 0.0, RGBColor(200, 60, 50)));
+    if d.base_log_evidence.is_finite() {
+        rows.push(("model + MD".into(), d.md_log_evidence - d.base_log_evidence, RGBColor(30, 150, 60)));
+        rows.push(("model, no MD".into(), 0.0, RGBColor(200, 60, 50)));
+    }
     rows.retain(|r| r.1.is_finite());
     rows.sort_by(|a, b| b.1.total_cmp(&a.1));
     let leader = rows.first().map(|r| r.1).unwrap_or(0.0);

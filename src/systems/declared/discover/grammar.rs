@@ -231,7 +231,9 @@ pub fn instances(forms: &[TermForm], d: &Declared) -> Vec<Instance> {
                         rank,
                         symbols: combo.clone(),
                         parameters: f.parameters.iter().map(|(k, v)| (k.clone(), v.clone())).collect(),
-                        meaning: f.meaning.clone(),
+                        meaning: combo
+                            .first()
+                            .map_or(f.meaning.clone(), |s| f.meaning.replace("{s}", s).replace("{u}", s)),
                         operations: f.operations,
                         power: f.power.clone().filter(|_| combo.iter().all(|s| Some(s) == combo.first())),
                     });
@@ -250,16 +252,17 @@ fn arity(f: &TermForm) -> usize {
     ["{s4}", "{s3}", "{s2}", "{s}"].iter().position(|p| f.form.contains(p)).map_or(0, |i| 4 - i)
 }
 
-/// The values `{s0}` may take for the symbol `s`: each constant of the
-/// model, and for a state its initial value (where it rests before the
-/// law acts). Named by the constant, or `initial`. One empty origin when
-/// the form has no `{s0}`.
+/// The values `{s0}` may take for the symbol `s`: zero (unnamed), each
+/// constant of the model, and for a state its initial value (where it
+/// rests before the law acts). Named by the constant, or `initial`. One
+/// empty origin when the form has no `{s0}`.
 fn origins(f: &TermForm, d: &Declared, s: Option<&String>) -> Vec<(Option<String>, String)> {
     if !f.form.contains("{s0}") {
         return vec![(None, String::new())];
     }
-    let mut out: Vec<(Option<String>, String)> =
-        d.constants.iter().map(|(c, _)| (Some(c.clone()), c.clone())).collect();
+    // Zero, where a quantity rests (a current, a speed): named by nothing.
+    let mut out: Vec<(Option<String>, String)> = vec![(None, "0".into())];
+    out.extend(d.constants.iter().map(|(c, _)| (Some(c.clone()), c.clone())));
     if let Some(state) = s.and_then(|s| d.states.iter().find(|st| &st.name == s)) {
         out.push((Some("initial".into()), format!("({})", state.initial.text)));
     }
@@ -276,7 +279,7 @@ fn observables(d: &Declared) -> Vec<(String, String)> {
 
 /// The states whose rate is a law, with the rate: not a kinematic identity
 /// (`dh/dt = v`), which is a definition and exact.
-fn laws(d: &Declared) -> Vec<(String, String)> {
+pub fn laws(d: &Declared) -> Vec<(String, String)> {
     use crate::engine::formula::notation::{parse, Expr};
     let identity = |text: &str| match parse(text) {
         Ok(Expr::Name(n)) => d.states.iter().any(|s| s.name == n),
@@ -321,7 +324,7 @@ mod tests {
     fn the_bundled_grammar_parses_and_every_form_names_its_parameters() {
         let forms = forms(None).unwrap();
         assert!(forms.iter().any(|f| f.name == "periodic" && f.to == To::Rates));
-        assert!(forms.iter().any(|f| f.name == "signed_square" && f.to == To::Observables));
+        assert!(forms.iter().any(|f| f.name == "gain" && f.to == To::Measured));
         // Every bundled form says what it means to a physicist.
         assert!(forms.iter().all(|f| !f.meaning.is_empty()), "a bundled form without its meaning");
         let bad = "[[terms]]\nname = \"x\"\nform = \"{c}\"\nto = \"state\"\nparameters = { c = \"coefficient\" }\n";

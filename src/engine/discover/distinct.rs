@@ -1,8 +1,8 @@
 //! One explanation per way of fitting the data: the screening's rule for
 //! when two screened terms (or corrections) are the same explanation.
 
-use super::fit::Fitted;
-use super::{standardize_blocks, ScreeningData};
+use crate::engine::model::fit::Fitted;
+use crate::engine::model::{standardize_blocks, ScreeningData};
 
 /// Two fits with as many parameters whose predictions differ by less than
 /// this χ² are one explanation: the data cannot tell them apart by even

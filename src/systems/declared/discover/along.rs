@@ -1,0 +1,191 @@
+//! A declared model's data as the discovery engine screens them (`engine::
+//! discover::along`): for an ODE, each law's rate where its state is
+//! observed (or, through a kinematic identity dx/dt = v, where x is), read
+//! off the data by smoothing, with every state's value at those times; for
+//! an expression model, each observable as measured, its symbol the input.
+
+use super::super::declaration::{Declared, Variables, MAX_NAMES};
+use crate::engine::discover::along::{Along, AlongModel, Place};
+use crate::engine::discover::library::{Scale, Symbol};
+use crate::engine::discover::smooth::{smooth, Smoothed};
+use crate::engine::formula::notation::{parse, Expr};
+use crate::engine::formula::Formula;
+use crate::engine::model::{ScreeningData, Simulator};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// A smoothed series may not claim a rate more precise than this fraction
+/// of the largest rate it carries: the smoother's own error (a process
+/// that is not quite a Gaussian process) is not in its variance.
+const RATE_FLOOR: f64 = 0.01;
+
+/// The data along the places of a declared model, and the model along them.
+pub struct DeclaredAlong {
+    pub along: Along,
+    pub model: Box<dyn AlongModel>,
+    /// Each place's target: the state whose law it is, or the observable.
+    pub targets: Vec<String>,
+}
+
+/// An ODE's laws along the data: `None` when no law's rate can be read off
+/// the data (no state observed).
+pub fn ode(
+    file: &str,
+    d: &Declared,
+    data: &ScreeningData,
+    trajectory: &dyn Fn(&str) -> Option<Vec<f64>>,
+) -> Option<DeclaredAlong> {
+    let series = observed_series(d, data);
+    let identity = |rate: &str| match parse(rate) {
+        Ok(Expr::Name(n)) => d.states.iter().position(|s| s.name == n),
+        _ => None,
+    };
+    // Each state's values and rate along some times: observed, or the rate of an observed one.
+    let mut known: BTreeMap<usize, (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>)> = BTreeMap::new();
+    for (k, (t, s)) in &series {
+        known.insert(*k, (t.clone(), s.value.clone(), s.rate.clone(), s.rate_sd.clone()));
+    }
+    for (k, state) in d.states.iter().enumerate() {
+        if let (Some((t, s)), Some(v)) = (series.get(&k), identity(&state.rate.text)) {
+            known.entry(v).or_insert_with(|| (t.clone(), s.rate.clone(), s.second.clone(), s.second_sd.clone()));
+        }
+    }
+    let variables = Variables::of(file, d).ok()?;
+    let scope = variables.scope(variables.rate_at);
+    let (mut target, mut sd, mut places, mut targets, mut laws) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut states_at: Vec<Vec<f64>> = Vec::new();
+    let mut times: Vec<f64> = Vec::new();
+    for (k, state) in d.states.iter().enumerate() {
+        let Some((t, _, rate, rate_sd)) = known.get(&k) else { continue };
+        if identity(&state.rate.text).is_some() {
+            continue;
+        }
+        let values: Vec<Vec<f64>> = d
+            .states
+            .iter()
+            .enumerate()
+            .map(|(j, s)| match known.get(&j) {
+                Some((tj, v, _, _)) if tj == t => Some(v.clone()),
+                _ => trajectory(&s.name).and_then(|all| at_times(data, &all, t)),
+            })
+            .collect::<Option<_>>()?;
+        let formula = Formula::parse(&state.rate.text, &scope, &state.rate.place).ok()?;
+        let floor = RATE_FLOOR * rate.iter().fold(0.0f64, |m, r| m.max(r.abs()));
+        let start = target.len();
+        for i in 0..t.len() {
+            target.push(rate[i]);
+            sd.push(rate_sd[i].hypot(floor).max(f64::MIN_POSITIVE));
+            times.push(t[i]);
+            states_at.push(values.iter().map(|v| v[i]).collect());
+        }
+        let symbols = d
+            .states
+            .iter()
+            .zip(&values)
+            .filter_map(|(s, v)| Some(Symbol { name: s.name.clone(), scale: Scale::of(v)?, values: v.clone() }))
+            .collect();
+        places.push(Place { name: format!("d{}/dt", state.name), rows: start..target.len(), symbols });
+        targets.push(state.name.clone());
+        laws.push(formula);
+    }
+    if places.is_empty() {
+        return None;
+    }
+    let rows_of: Vec<usize> = places.iter().flat_map(|p| p.rows.clone().map(|_| 0)).collect();
+    let mut law_of = rows_of;
+    for (k, p) in places.iter().enumerate() {
+        p.rows.clone().for_each(|r| law_of[r] = k);
+    }
+    let model = Laws { variables, laws, law_of, times, states: states_at };
+    Some(DeclaredAlong { along: Along { target, sd, places }, model: Box::new(model), targets })
+}
+
+/// An expression model's observables along the data, its input the symbol.
+pub fn expression(d: &Declared, data: &ScreeningData, model: Arc<dyn Simulator>) -> Option<DeclaredAlong> {
+    let (mut target, mut sd, mut places, mut targets, mut blocks) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for b in &data.blocks {
+        let (name, _) = d.observables.get(b.model_index)?;
+        let scale = Scale::of(b.x)?;
+        let start = target.len();
+        target.extend_from_slice(b.y);
+        sd.extend_from_slice(b.error);
+        let symbols = vec![Symbol { name: d.input.clone(), values: b.x.to_vec(), scale }];
+        places.push(Place { name: name.clone(), rows: start..target.len(), symbols });
+        targets.push(name.clone());
+        blocks.push((b.model_index, b.x.to_vec()));
+    }
+    (!places.is_empty()).then(|| DeclaredAlong {
+        along: Along { target, sd, places },
+        model: Box::new(Observables { model, blocks }),
+        targets,
+    })
+}
+
+/// Each state observed as itself (an observable whose formula is the
+/// state's name), smoothed along its data.
+fn observed_series(d: &Declared, data: &ScreeningData) -> BTreeMap<usize, (Vec<f64>, Smoothed)> {
+    let mut out = BTreeMap::new();
+    for b in &data.blocks {
+        let Some((_, formula)) = d.observables.get(b.model_index) else { continue };
+        let Ok(Expr::Name(name)) = parse(&formula.text) else { continue };
+        let Some(k) = d.states.iter().position(|s| s.name == name) else { continue };
+        if out.contains_key(&k) || b.x.windows(2).any(|w| w[1] <= w[0]) {
+            continue;
+        }
+        if let Some(s) = smooth(b.x, b.y, b.error) {
+            out.insert(k, (b.x.to_vec(), s));
+        }
+    }
+    out
+}
+
+/// Values of a series given at every point of the data (blocks in a row)
+/// at the times `t`, taken from the first block that has them all.
+fn at_times(data: &ScreeningData, all: &[f64], t: &[f64]) -> Option<Vec<f64>> {
+    let mut offset = 0;
+    for b in &data.blocks {
+        if b.x == t {
+            return Some(all[offset..offset + b.x.len()].to_vec());
+        }
+        offset += b.x.len();
+    }
+    None
+}
+
+/// The laws' rates at the states read off the data.
+struct Laws {
+    variables: Variables,
+    laws: Vec<Formula>,
+    law_of: Vec<usize>,
+    times: Vec<f64>,
+    states: Vec<Vec<f64>>,
+}
+
+impl AlongModel for Laws {
+    fn predict(&self, theta: &[f64], out: &mut [f64]) {
+        let mut v: [f64; MAX_NAMES] = self.variables.at(theta);
+        for (i, o) in out.iter_mut().enumerate() {
+            v[0] = self.times[i];
+            v[self.variables.state_at..self.variables.state_at + self.states[i].len()].copy_from_slice(&self.states[i]);
+            *o = self.laws[self.law_of[i]].eval(&v);
+        }
+    }
+}
+
+/// An expression model's observables at the data.
+struct Observables {
+    model: Arc<dyn Simulator>,
+    blocks: Vec<(usize, Vec<f64>)>,
+}
+
+impl AlongModel for Observables {
+    fn predict(&self, theta: &[f64], out: &mut [f64]) {
+        let mut offset = 0;
+        for (index, x) in &self.blocks {
+            self.model.predict(*index, x, theta, &mut out[offset..offset + x.len()]);
+            offset += x.len();
+        }
+    }
+}
