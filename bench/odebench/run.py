@@ -43,6 +43,9 @@ def clopper_pearson(k, n):
     return lo, hi
 
 
+SAMPLER = ""
+
+
 def write_case(case, folder):
     folder.mkdir(parents=True, exist_ok=True)
     states = case["states"]
@@ -54,6 +57,8 @@ def write_case(case, folder):
     for name, p in case["parameters"].items():
         lines += [f"[parameters.{name}]", f"min = {p['min']!r}", f"max = {p['max']!r}"]
     lines += ["[discrepancy]", 'kernel = "II"']
+    if SAMPLER:
+        lines += ["[sampler.smc]", SAMPLER]
     (folder / "model.toml").write_text("\n".join(lines) + "\n")
     rows = ["observable,x,value,error"]
     for k, s in enumerate(states):
@@ -195,7 +200,10 @@ def main():
     ap.add_argument("--sindy", action="store_true")
     ap.add_argument("--no-mdpipe", action="store_true")
     ap.add_argument("--timeout", type=float, default=900)
+    ap.add_argument("--sampler", default="", help="e.g. 'particles = 500' for a quicker look, not the protocol's measure")
     args = ap.parse_args()
+    global SAMPLER
+    SAMPLER = args.sampler
     fixture = json.loads(FIXTURE.read_text())
     cases = fixture["nulls"] if args.nulls else fixture["cases"]
     chosen = [int(i) for i in args.cases.split(",") if i] or range(len(cases))

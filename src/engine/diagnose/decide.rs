@@ -83,6 +83,8 @@ pub(super) fn rivals<'c>(
             let theirs = members(&c.name);
             !mine.is_subset(&theirs) && !theirs.is_subset(&mine) && !within(c, best) && !within(best, c)
         })
+        // The same fit read another way is the same explanation, not a rival.
+        .filter(|c| !best.same_fit_as.contains(&c.name))
         .filter(|c| best.log_evidence - c.log_evidence <= decisive_lead(best, c, settings))
         .collect()
 }
@@ -153,11 +155,32 @@ pub(super) fn decide(
         }
         Some(c) => {
             // What a reader means by confidence in "the data need c": the
-            // probability of every model that contains c, pairs included.
+            // probability of every model that contains c, pairs included,
+            // and of the other readings of the same fit.
             let mine = members(&c.name);
-            let needed =
-                candidates.iter().filter(|k| mine.is_subset(&members(&k.name))).map(|k| prob(k.log_evidence)).sum();
-            verdict(&c.name, named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch), needed)
+            let needed: f64 = candidates
+                .iter()
+                .filter(|k| mine.is_subset(&members(&k.name)) || c.same_fit_as.contains(&k.name))
+                .map(|k| prob(k.log_evidence))
+                .sum();
+            if needed < MIN_NAMED_PROBABILITY {
+                // Ahead of every other candidate, but less probable than not:
+                // the model-discrepancy fit stays the more probable account.
+                let statement = format!(
+                    "{}the best candidate, {} (log BF {:.1} against the model as it is, χ²/dof {:.2}), has posterior probability {:.3}, below one half, and the model-discrepancy fit {:.3}: it is not named; the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.",
+                    mismatch_phrase(mismatch),
+                    c.name,
+                    c.log_bayes_factor,
+                    c.chi2_per_dof,
+                    needed,
+                    prob(z_md),
+                    z_md - z_base
+                );
+                return verdict("unexplained", statement, prob(z_md));
+            }
+            let mut statement = named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch);
+            statement.push_str(&same_fit_phrase(c, candidates));
+            verdict(&c.name, statement, needed)
         }
         None if significant => {
             let w = worst
@@ -179,6 +202,27 @@ pub(super) fn decide(
             verdict("none", statement, prob(z_base))
         }
     }
+}
+
+/// No verdict names a candidate whose explanation (every model that
+/// contains it, and the other readings of its fit) is less probable than not.
+pub const MIN_NAMED_PROBABILITY: f64 = 0.5;
+
+/// " On these data it is the same fit as X (what X is): one explanation, read two ways."
+fn same_fit_phrase(c: &CandidateResult, candidates: &[CandidateResult]) -> String {
+    let others: Vec<String> = candidates
+        .iter()
+        .filter(|k| c.same_fit_as.contains(&k.name))
+        .map(|k| format!("{} ({})", k.name, k.description))
+        .collect();
+    if others.is_empty() {
+        return String::new();
+    }
+    format!(
+        " On these data it is the same fit as {}: one explanation, read {} ways, which data over a wider range would tell apart.",
+        others.join(" and "),
+        others.len() + 1
+    )
 }
 
 /// Whether a fit rests on its emulator: the emulator's share of the

@@ -44,6 +44,8 @@
 
 mod decide;
 mod discover;
+mod fits;
+mod precision;
 mod locate;
 mod reuse;
 mod suggest;
@@ -59,6 +61,7 @@ use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::{CandidateModel, SpecialCase};
 use anyhow::Result;
 use decide::*;
+use fits::*;
 use locate::{locate, mismatch_phrase};
 pub use reuse::Reuse;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
@@ -73,175 +76,45 @@ fn p_value(chi2: f64, dof: usize) -> f64 {
     ChiSquared::new(dof.max(1) as f64).map(|d| 1.0 - d.cdf(chi2)).unwrap_or(f64::NAN)
 }
 
-fn evidence(s: &Summary) -> (f64, f64) {
-    (s.log_evidence.unwrap_or(f64::NEG_INFINITY), s.log_evidence_err.unwrap_or(f64::NAN))
-}
+/// Two fits are one explanation when their model predictions at the
+/// measured points differ by less than this χ² (in the data's errors): the
+/// data cannot tell them apart by even one standard deviation in all.
+const SAME_FIT: f64 = 1.0;
 
-fn delta_max_sigma(problem: &Problem, preds: &[PredictionRow]) -> BTreeMap<String, f64> {
-    let mut out = BTreeMap::new();
-    for b in &problem.likelihood.blocks {
-        let m = preds
+/// Marks each run's fits that are the same on these data (`SAME_FIT`).
+fn mark_same_fits(runs: &mut [CandidateRun]) {
+    let at_data = |r: &CandidateRun| -> Vec<(String, f64, f64)> {
+        r.calibration
+            .predictions
             .iter()
-            .filter(|r| r.observable == b.name && r.kind == "data")
-            .filter_map(|r| b.x.iter().position(|x| *x == r.x).map(|i| (r.delta_mean / b.error[i]).abs()))
-            .fold(0.0, f64::max);
-        out.insert(b.name.clone(), m);
-    }
-    out
-}
-
-fn figures(label: &str, problem: &Problem, cal: &Calibration) -> FitFigures {
-    let (z, e) = evidence(&cal.summary);
-    let theta: Vec<String> = problem.simulator.parameter_names();
-    FitFigures {
-        label: label.to_string(),
-        chi2_per_dof: cal.summary.fit.chi2_per_dof,
-        log_evidence: z,
-        log_evidence_err: e,
-        parameters: theta.iter().map(|n| (n.clone(), cal.summary.parameters[n].clone())).collect(),
-        delta_max_sigma: delta_max_sigma(problem, &cal.predictions),
-    }
-}
-
-/// One candidate's fit, kept with what made it.
-struct CandidateRun {
-    result: CandidateResult,
-    candidate: CandidateModel,
-    problem: Problem,
-    calibration: Calibration,
-}
-
-impl CandidateRun {
-    fn fit(&self) -> suggest::Fit<'_> {
-        suggest::Fit { name: &self.result.name, problem: &self.problem, calibration: &self.calibration }
-    }
-}
-
-/// What every calibration of one diagnosis shares.
-struct Diagnoser<'a> {
-    overrides: &'a Overrides,
-    out: Option<&'a Path>,
-    observer: &'a dyn Observer,
-    reuse: &'a Reuse,
-}
-
-impl Diagnoser<'_> {
-    /// Calibrates `analysis` with `kernel` (None: no MD) and writes it to `out/name`.
-    fn calibrate(
-        &self,
-        analysis: &Analysis,
-        kernel: Option<DiscrepancyKernel>,
-        seed: u64,
-        name: &str,
-    ) -> Result<(Problem, Calibration)> {
-        self.calibrate_judged(analysis, kernel, seed, name, &|_, _| true)
-    }
-
-    /// As `calibrate`, sampling again for convergence only while `matters`.
-    fn calibrate_judged(
-        &self,
-        analysis: &Analysis,
-        kernel: Option<DiscrepancyKernel>,
-        seed: u64,
-        name: &str,
-        matters: calibrate::Matters,
-    ) -> Result<(Problem, Calibration)> {
-        let problem = Problem::new(
-            analysis,
-            &Overrides { kernel: Some(DiscrepancyKernel::choice(kernel)), ..self.overrides.clone() },
-        )?;
-        let cal = match self.reuse.get(name, &problem, seed) {
-            Some((cal, whence)) => {
-                crate::base::messages::say!("  {name}: the same problem was fitted in {whence}; that fit is used");
-                cal
+            .filter(|p| p.kind == "data")
+            .filter_map(|p| {
+                let b = r.problem.likelihood.blocks.iter().find(|b| b.name == p.observable)?;
+                let i = b.x.iter().position(|v| *v == p.x)?;
+                Some((p.observable.clone(), p.model[2], b.error[i]))
+            })
+            .collect()
+    };
+    let predictions: Vec<Vec<(String, f64, f64)>> = runs.iter().map(at_data).collect();
+    runs.iter_mut().for_each(|r| r.result.same_fit_as.clear());
+    for a in 0..runs.len() {
+        for b in 0..runs.len() {
+            let (pa, pb) = (&predictions[a], &predictions[b]);
+            if a == b || pa.is_empty() || pa.len() != pb.len() {
+                continue;
             }
-            None => {
-                let cal = calibrate::run_judged(&problem, seed, self.observer, matters)?;
-                self.reuse.keep(name, &problem, seed, &cal);
-                cal
+            let chi2: f64 = pa.iter().zip(pb).map(|((_, ma, e), (_, mb, _))| ((ma - mb) / e).powi(2)).sum();
+            if chi2 < SAME_FIT {
+                let other = runs[b].result.name.clone();
+                runs[a].result.same_fit_as.push(other);
             }
-        };
-        if let Some(dir) = self.out {
-            calibrate::write_outputs(&dir.join(name), &problem, &cal)?;
         }
-        Ok((problem, cal))
     }
-
-    /// Explain: each candidate fitted without MD. A discovered term's prior
-    /// log odds (paying for the search) join its log evidence. A candidate
-    /// that trails the best so far (`leader`, and each run here) by more
-    /// than any verdict could turn on is not sampled again for convergence
-    /// (`hopeless`).
-    fn explain(
-        &self,
-        analysis: &Analysis,
-        candidates: Vec<(CandidateModel, f64)>,
-        seed: u64,
-        (z_base, e_base): (f64, f64),
-        (leader, strong_log_bf): (f64, f64),
-    ) -> Result<Vec<CandidateRun>> {
-        let mut runs: Vec<CandidateRun> = Vec::new();
-        for (k, (candidate, prior_log_odds)) in candidates.into_iter().enumerate() {
-            let best = runs.iter().map(|r| r.result.log_evidence).fold(leader, f64::max);
-            let matters = |z: f64, e: f64| !hopeless(z + prior_log_odds, e, best, strong_log_bf);
-            let fitted = self.calibrate_judged(
-                &analysis.with_candidate(&candidate),
-                None,
-                seed.wrapping_add(10 + k as u64),
-                &format!("candidate_{}", candidate.name),
-                &matters,
-            );
-            let (problem, calibration) = match fitted {
-                Err(e) if e.downcast_ref::<calibrate::guard::NotComputable>().is_some() => {
-                    crate::base::messages::note!(
-                        "  candidate {} cannot be computed over the data: {e}",
-                        candidate.name
-                    );
-                    continue;
-                }
-                other => other?,
-            };
-            let (z, e) = evidence(&calibration.summary);
-            let z = z + prior_log_odds;
-            let result = CandidateResult {
-                name: candidate.name.clone(),
-                description: candidate.description.clone(),
-                log_evidence: z,
-                log_evidence_err: e,
-                log_bayes_factor: z - z_base,
-                log_bayes_factor_err: (e * e + e_base * e_base).sqrt(),
-                parameters: problem
-                    .simulator
-                    .parameter_names()
-                    .iter()
-                    .map(|n| (n.clone(), calibration.summary.parameters[n].clone()))
-                    .collect(),
-                chi2_per_dof: calibration.summary.fit.chi2_per_dof,
-                p_value: p_value(calibration.summary.fit.chi2, calibration.summary.fit.dof),
-                converged: calibration.summary.diagnostics.converged,
-                emulator_share: calibration.summary.fit.model_variance_share,
-                emulator_share_observable: worst_share_observable(&calibration.summary.fit),
-                prior_log_odds,
-                special_case_of: candidate.special_case_of.clone(),
-                own_emulator: candidate.own_emulator,
-            };
-            runs.push(CandidateRun { result, candidate, problem, calibration });
-        }
-        Ok(runs)
-    }
-}
-
-/// Whether a candidate of log evidence `z` (± `e`) trails `leader` by more
-/// than a verdict could turn on: the decisive margin, plus room for its
-/// estimate to move by ten of its errors (and at least 5 nats) as more
-/// sampling converges it.
-fn hopeless(z: f64, e: f64, leader: f64, strong_log_bf: f64) -> bool {
-    let room = 5.0f64.max(10.0 * if e.is_finite() { e } else { f64::INFINITY });
-    z < leader - strong_log_bf - room
 }
 
 /// Best evidence first, then Occam's choice moved to the front.
 fn rank(mut runs: Vec<CandidateRun>, strong_log_bf: f64) -> Vec<CandidateRun> {
+    mark_same_fits(&mut runs);
     // A stable sort keeps the library's order among equal evidences.
     runs.sort_by(|a, b| b.result.log_evidence.total_cmp(&a.result.log_evidence));
     if runs.is_empty() {
@@ -302,35 +175,80 @@ pub fn run_reusing(
     reuse: &Reuse,
 ) -> Result<DiagnoseRun> {
     let d = Diagnoser { overrides, out, observer, reuse };
-    let (base_problem, base) = match d.calibrate(analysis, None, seed, "base_no_md") {
+    // Every fit first as a scout; those the verdict turns on again in full (`precision`).
+    let scouting = precision::scout(analysis);
+    let first = scouting.as_ref().unwrap_or(analysis);
+    let (mut base_problem, mut base) = match d.calibrate(first, None, seed, "base_no_md") {
         Err(e) if e.downcast_ref::<calibrate::guard::NotComputable>().is_some() => {
             return uncomputable::run(&d, analysis, seed, settings, &e);
         }
         other => other?,
     };
-    let (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
-    let (z_base, e_base) = evidence(&base.summary);
-    let (z_md, _) = evidence(&md.summary);
-    let mismatch = locate(&md_problem, &md, &base_problem, &base);
+    let (mut md_problem, mut md) = d.calibrate(first, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
+    let (mut z_base, mut e_base) = evidence(&base.summary);
+    let (mut z_md, mut e_md) = evidence(&md.summary);
+    let mut mismatch = locate(&md_problem, &md, &base_problem, &base);
     let declared = analysis.candidates()?.into_iter().map(|c| (c, 0.0)).collect();
     let strong = settings.strong_log_bf;
-    let mut runs = rank(d.explain(analysis, declared, seed, (z_base, e_base), (f64::NEG_INFINITY, strong))?, strong);
+    let mut runs = rank(d.explain(first, declared, seed, (z_base, e_base), (f64::NEG_INFINITY, strong))?, strong);
     let (mut candidates, mut verdict, mut named_alone) =
         judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
     let mut discovery = None;
     if let Some(discoverer) = analysis.setup.discoverer().filter(|_| discover::wanted(settings.discover, &verdict)) {
-        {
-            let names = base_problem.simulator.parameter_names();
-            let theta = names.iter().map(|n| base.summary.parameters[n].median).collect();
-            let (report, proposals) = discover::screen(discoverer, &base_problem, theta)?;
-            let leader = runs.iter().map(|r| r.result.log_evidence).fold(f64::NEG_INFINITY, f64::max);
-            let found = d.explain(analysis, proposals, seed.wrapping_add(500), (z_base, e_base), (leader, strong))?;
-            runs.extend(found);
-            runs = rank(runs, settings.strong_log_bf);
+        let names = base_problem.simulator.parameter_names();
+        let theta = names.iter().map(|n| base.summary.parameters[n].median).collect();
+        let (report, proposals) = discover::screen(discoverer, &base_problem, theta)?;
+        let leader = runs.iter().map(|r| r.result.log_evidence).fold(f64::NEG_INFINITY, f64::max);
+        let found = d.explain(first, proposals, seed.wrapping_add(500), (z_base, e_base), (leader, strong))?;
+        runs.extend(found);
+        runs = rank(runs, settings.strong_log_bf);
+        (candidates, verdict, named_alone) = judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
+        discovery = Some(report);
+    }
+    if scouting.is_some() {
+        let mut full = vec![false; runs.len()];
+        let (mut base_full, mut md_full) = (false, false);
+        // Twice at most: a first refinement may move the verdict onto fits still scouted.
+        for _ in 0..2 {
+            let need = precision::needed(&runs, &verdict, settings, (z_base, e_base), (z_md, e_md), settings.repair);
+            let todo: Vec<usize> = need.candidates.iter().copied().filter(|i| !full[*i]).collect();
+            if todo.is_empty() && (!need.base || base_full) && (!need.md || md_full) {
+                break;
+            }
+            if need.base && !base_full {
+                (base_problem, base) = d.calibrate(analysis, None, seed, "base_no_md")?;
+                (z_base, e_base) = evidence(&base.summary);
+                base_full = true;
+            }
+            if need.md && !md_full {
+                (md_problem, md) = d.calibrate(analysis, Some(settings.kernel), seed.wrapping_add(1), "base_md")?;
+                (z_md, e_md) = evidence(&md.summary);
+                md_full = true;
+            }
+            for i in todo {
+                let r = &runs[i];
+                let (candidate, odds, seed) = (r.candidate.clone(), r.result.prior_log_odds, r.seed);
+                if let Some(refit) = d.fit_candidate(analysis, candidate, odds, seed, (z_base, e_base), &|_, _| true)? {
+                    runs[i] = refit;
+                }
+                full[i] = true;
+            }
+            for r in runs.iter_mut() {
+                r.result.log_bayes_factor = r.result.log_evidence - z_base;
+                r.result.log_bayes_factor_err = r.result.log_evidence_err.hypot(e_base);
+            }
+            mismatch = locate(&md_problem, &md, &base_problem, &base);
+            let order: Vec<String> = runs.iter().map(|r| r.result.name.clone()).collect();
+            runs = rank(runs, strong);
+            full = runs.iter().map(|r| full[order.iter().position(|n| *n == r.result.name).unwrap_or(0)]).collect();
             (candidates, verdict, named_alone) = judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
-            discover::word(&mut verdict, &report);
-            discovery = Some(report);
         }
+        for (c, f) in candidates.iter_mut().zip(&full) {
+            c.scout = !f;
+        }
+    }
+    if let Some(report) = &discovery {
+        discover::word(&mut verdict, report);
     }
 
     // Repair: refit the winner with MD on top, to show δ shrink.

@@ -108,6 +108,15 @@ pub struct CandidateResult {
     /// A variant emulator of its own (`CandidateModel::own_emulator`).
     #[serde(default)]
     pub own_emulator: bool,
+    /// Other candidates whose fits are the same on these data (their
+    /// predictions at the measured points within one standard deviation of
+    /// the data in all): one explanation read two ways.
+    #[serde(default)]
+    pub same_fit_as: Vec<String>,
+    /// Sampled only as a scout (a quarter of the particles): far enough
+    /// from every decision that more precision could not change the verdict.
+    #[serde(default)]
+    pub scout: bool,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

@@ -160,7 +160,11 @@ pub fn print(d: &Diagnosis) {
         } else {
             String::new()
         };
-        let flag = if c.converged { "" } else { "   not converged" };
+        let flag = match (c.converged, c.scout) {
+            (false, _) => "   not converged",
+            (true, true) => "   (scout: far from any decision)",
+            _ => "",
+        };
         let (what, z, e) = if d.base_log_evidence.is_finite() {
             ("log BF", c.log_bayes_factor, c.log_bayes_factor_err)
         } else {

@@ -56,9 +56,21 @@ pub struct Found {
 /// How many terms are fitted in full along the data, per term handed on.
 const REFINED_PER_KEPT: usize = 3;
 
+/// The model fitted along the data by least squares from the best of
+/// `starts`, every parameter within `bounds`: a model with a term of its
+/// own (a parameter that varies, a drive in t) screened where the data are.
+pub fn fit(along: &Along, model: &dyn AlongModel, starts: &[Vec<f64>], bounds: &[(f64, f64)]) -> Option<Fitted> {
+    let rows: Vec<f64> = (0..along.target.len()).map(|i| i as f64).collect();
+    let block =
+        [ScreeningBlock { model_index: 0, x: &rows, y: &along.target, error: &along.sd, covariance_factor: None }];
+    let plain = AsSimulator { model, n_theta: bounds.len(), term: None, rows: along.target.len() };
+    LeastSquares { blocks: &block, model: &plain, bounds: bounds.to_vec() }.best_of(starts)
+}
+
 /// The terms of `library(place)` that most lower χ² along the data, best
-/// first, at most `keep` of them, each worth its parameters by BIC; None
-/// when the model cannot be fitted along the data at all.
+/// first, at most `keep` of them, each worth its parameters by BIC; with
+/// the model's own fit along the data. None when the model cannot be
+/// fitted along the data at all.
 pub fn screen(
     along: &Along,
     model: &dyn AlongModel,
@@ -66,7 +78,7 @@ pub fn screen(
     theta: &[f64],
     bounds: &[(f64, f64)],
     keep: usize,
-) -> Option<Vec<Found>> {
+) -> Option<(Fitted, Vec<Found>)> {
     let rows: Vec<f64> = (0..along.target.len()).map(|i| i as f64).collect();
     let block =
         [ScreeningBlock { model_index: 0, x: &rows, y: &along.target, error: &along.sd, covariance_factor: None }];
@@ -101,7 +113,7 @@ pub fn screen(
     });
     found.retain(|f| f.delta_chi2 - (1 + f.term.nonlinear.len()) as f64 * n.ln() > 0.0);
     found.truncate(keep);
-    Some(found)
+    Some((base_fit, found))
 }
 
 /// The base fit along the data, linearized in θ: the standardized
@@ -121,6 +133,12 @@ impl Linearized {
         let residual: Vec<f64> = (0..b.y.len()).map(|i| (b.y[i] - base.prediction[i]) / b.error[i]).collect();
         let mut jacobian: Vec<Vec<f64>> = Vec::new();
         for (k, (lo, hi)) in fit.bounds.iter().enumerate() {
+            // A θ held at its prior's edge cannot move with a term: a term
+            // that does what it would do beyond the edge is new physics.
+            let edge = 1e-6 * (hi - lo);
+            if base.phi[k] - lo <= edge || hi - base.phi[k] <= edge {
+                continue;
+            }
             let mut h = 1e-6 * (hi - lo).max(1e-12);
             if base.phi[k] + h > *hi {
                 h = -h;
@@ -340,7 +358,7 @@ mod tests {
         let along =
             Along { target, sd, places: vec![Place { name: "dy/dt".into(), rows: 0..30, symbols: vec![symbol] }] };
         let model = Decay { y };
-        let found = screen(&along, &model, &|p| library::terms(&p.symbols), &[1.0], &[(0.0, 5.0)], 3).unwrap();
+        let (_, found) = screen(&along, &model, &|p| library::terms(&p.symbols), &[1.0], &[(0.0, 5.0)], 3).unwrap();
         let best = &found[0];
         assert_eq!(
             best.term.factors[0].unary,

@@ -27,38 +27,59 @@ pub struct DeclaredAlong {
     pub targets: Vec<String>,
 }
 
-/// An ODE's laws along the data: `None` when no law's rate can be read off
-/// the data (no state observed).
+/// Each state's values and rate along some times, read off the data: a
+/// state observed as itself, or the rate of one observed through a
+/// kinematic identity (`dx/dt = v`, x observed: v is x's rate, and v's rate
+/// is x's second derivative). Read once; every model with these states
+/// (the base and each candidate) is screened against them.
+pub struct Observed {
+    /// State index → times, values, rates and the rates' errors.
+    known: BTreeMap<usize, (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>)>,
+}
+
+impl Observed {
+    pub fn read(d: &Declared, data: &ScreeningData) -> Observed {
+        let series = observed_series(d, data);
+        let mut known = BTreeMap::new();
+        for (k, (t, s)) in &series {
+            known.insert(*k, (t.clone(), s.value.clone(), s.rate.clone(), s.rate_sd.clone()));
+        }
+        for (k, state) in d.states.iter().enumerate() {
+            if let (Some((t, s)), Some(v)) = (series.get(&k), identity(d, &state.rate.text)) {
+                known.entry(v).or_insert_with(|| (t.clone(), s.rate.clone(), s.second.clone(), s.second_sd.clone()));
+            }
+        }
+        Observed { known }
+    }
+}
+
+/// The state a rate is, when it is a kinematic identity (`dh/dt = v`).
+fn identity(d: &Declared, rate: &str) -> Option<usize> {
+    match parse(rate) {
+        Ok(Expr::Name(n)) => d.states.iter().position(|s| s.name == n),
+        _ => None,
+    }
+}
+
+/// An ODE's laws along the data (the model `d`: the base, or the base with
+/// a candidate in); `None` when no law's rate can be read off the data (no
+/// state observed).
 pub fn ode(
     file: &str,
     d: &Declared,
     data: &ScreeningData,
+    observed: &Observed,
     trajectory: &dyn Fn(&str) -> Option<Vec<f64>>,
 ) -> Option<DeclaredAlong> {
-    let series = observed_series(d, data);
-    let identity = |rate: &str| match parse(rate) {
-        Ok(Expr::Name(n)) => d.states.iter().position(|s| s.name == n),
-        _ => None,
-    };
-    // Each state's values and rate along some times: observed, or the rate of an observed one.
-    let mut known: BTreeMap<usize, (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>)> = BTreeMap::new();
-    for (k, (t, s)) in &series {
-        known.insert(*k, (t.clone(), s.value.clone(), s.rate.clone(), s.rate_sd.clone()));
-    }
-    for (k, state) in d.states.iter().enumerate() {
-        if let (Some((t, s)), Some(v)) = (series.get(&k), identity(&state.rate.text)) {
-            known.entry(v).or_insert_with(|| (t.clone(), s.rate.clone(), s.second.clone(), s.second_sd.clone()));
-        }
-    }
+    let known = &observed.known;
     let variables = Variables::of(file, d).ok()?;
     let scope = variables.scope(variables.rate_at);
-    let (mut target, mut sd, mut places, mut targets, mut laws) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut target, mut sd, mut places, mut targets, mut laws) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut states_at: Vec<Vec<f64>> = Vec::new();
     let mut times: Vec<f64> = Vec::new();
     for (k, state) in d.states.iter().enumerate() {
         let Some((t, _, rate, rate_sd)) = known.get(&k) else { continue };
-        if identity(&state.rate.text).is_some() {
+        if identity(d, &state.rate.text).is_some() {
             continue;
         }
         let values: Vec<Vec<f64>> = d
@@ -92,8 +113,7 @@ pub fn ode(
     if places.is_empty() {
         return None;
     }
-    let rows_of: Vec<usize> = places.iter().flat_map(|p| p.rows.clone().map(|_| 0)).collect();
-    let mut law_of = rows_of;
+    let mut law_of = vec![0; target.len()];
     for (k, p) in places.iter().enumerate() {
         p.rows.clone().for_each(|r| law_of[r] = k);
     }

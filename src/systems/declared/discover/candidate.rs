@@ -359,21 +359,7 @@ impl<'a> Context<'a> {
                 return None;
             }
         }
-        let d = &self.discoverer.base;
-        let suffixes: Vec<String> = if parts.len() > 1 {
-            vec!["1".into(), "2".into()]
-        } else if parts[0].parameters.iter().any(|(p, _, _)| d.knows(p)) {
-            vec!["_new".into()]
-        } else {
-            vec![String::new()]
-        };
-        // In the order the compiled model takes them: a candidate's parameters by name.
-        let mut ranges: Vec<(String, Range, Option<f64>)> = parts
-            .iter()
-            .zip(&suffixes)
-            .flat_map(|(c, s)| c.parameters.iter().map(move |(p, r, v)| (format!("{p}{s}"), r.clone(), *v)))
-            .collect();
-        ranges.sort_by(|a, b| a.0.cmp(&b.0));
+        let (suffixes, ranges) = self.named(parts);
         let n_theta = self.data.theta.len();
         let measured = ranges.iter().any(|(_, r, _)| matches!(r, Range::Coefficient));
         let reach = if measured {
@@ -409,6 +395,35 @@ impl<'a> Context<'a> {
         }
         let fitted = ls.best_of(&all)?;
         Some(Screened { parts: parts.iter().map(|c| (*c).clone()).collect(), table, simulator, fitted })
+    }
+
+    /// Each part's suffix for its parameters' names (a pair keeps its two
+    /// apart; a name the model has already gets `_new`), and every
+    /// parameter so named, in the order the compiled model takes them: by name.
+    fn named(&self, parts: &[&Candidate]) -> (Vec<String>, Vec<(String, Range, Option<f64>)>) {
+        let d = &self.discoverer.base;
+        let suffixes: Vec<String> = if parts.len() > 1 {
+            vec!["1".into(), "2".into()]
+        } else if parts[0].parameters.iter().any(|(p, _, _)| d.knows(p)) {
+            vec!["_new".into()]
+        } else {
+            vec![String::new()]
+        };
+        let mut ranges: Vec<(String, Range, Option<f64>)> = parts
+            .iter()
+            .zip(&suffixes)
+            .flat_map(|(c, s)| c.parameters.iter().map(move |(p, r, v)| (format!("{p}{s}"), r.clone(), *v)))
+            .collect();
+        ranges.sort_by(|a, b| a.0.cmp(&b.0));
+        (suffixes, ranges)
+    }
+
+    /// The candidate's table with its coefficients within ±`coefficient`,
+    /// and its starting points (θ from `theta`): for a fit along the data.
+    pub fn along_table(&self, c: &Candidate, coefficient: f64, theta: &[f64]) -> (CandidateTable, Vec<Vec<f64>>) {
+        let (suffixes, ranges) = self.named(&[c]);
+        let table = self.table(&[c], &suffixes, &ranges, coefficient);
+        (table, starts(theta, &ranges))
     }
 
     /// Two screened terms fitted together, also from where each fitted alone.

@@ -24,17 +24,16 @@ pub mod grammar;
 
 use super::declaration::{Declared, Written};
 use super::DeclaredFamily;
-use crate::engine::discover::along::screen as screen_along;
+use crate::engine::discover::along::{fit as along_fit, screen as screen_along};
 use crate::engine::discover::distinct::{distinct, Explanation};
 use crate::engine::discover::library::{self, Unary};
 use crate::engine::discover::prior::FormPrior;
 use crate::engine::model::fit::{Fitted, LeastSquares};
-use crate::engine::model::{Discoverer, Screening, ScreeningData, Simulator, SpecialCase};
+use crate::engine::model::{Discoverer, Screening, ScreeningData, SpecialCase};
 use anyhow::Result;
 use candidate::{Candidate, Screened};
 use grammar::{Power, TermForm, To};
 use rayon::prelude::*;
-use std::sync::Arc;
 
 /// How many screened terms (or pairs) go on to full calibration.
 const PROPOSALS: usize = 3;
@@ -57,6 +56,12 @@ const ALONG_KEPT: usize = 10;
 /// Library terms fitted through the model for a law whose rate the data do
 /// not show (no state observed): the cheapest by the prior over forms.
 const UNOBSERVED_BUDGET: usize = 24;
+/// The grammar's forms that change a law, fitted along the data, that go
+/// on to the fit through the model.
+const PRESCREEN_KEPT: usize = 6;
+/// A grammar coefficient's bound in a fit along the data, in units of the
+/// largest rate there: wide enough never to bind.
+const ALONG_COEFFICIENT: f64 = 1e3;
 
 pub struct DeclaredDiscoverer {
     pub(super) family: DeclaredFamily,
@@ -78,10 +83,22 @@ impl Discoverer for DeclaredDiscoverer {
             prediction: vec![f64::NAN; base.points()],
         });
         let context = candidate::Context::new(self, data, &base_fit)?;
-        let mut all = context.grammar_candidates(&self.forms);
-        let (library, library_nats) = self.library_candidates(data, &base_model, &base_fit, &context);
-        all.extend(library);
-        let searched = context.searched(&self.forms, &all, &library_nats);
+        let grammar = context.grammar_candidates(&self.forms);
+        let observed = along::Observed::read(&self.base, data);
+        let trajectory = |state: &str| context.trajectory(state);
+        let along_base = if self.base.states.is_empty() {
+            along::expression(&self.base, data, base_model.clone())
+        } else {
+            along::ode(&self.file, &self.base, data, &observed, &trajectory)
+        };
+        let theta = &base_fit.phi[..data.theta.len()];
+        let (library, library_nats) = self.library_candidates(data, theta, along_base.as_ref(), &context);
+        let mut all = library;
+        let searched = context.searched(&self.forms, &grammar, &library_nats);
+        all.extend(match &along_base {
+            Some(a) if !self.base.states.is_empty() => self.prescreen(grammar, a, data, &observed, &context, theta),
+            _ => grammar,
+        });
         let mut singles: Vec<Screened> = all.par_iter().filter_map(|c| context.fit(&[c], None)).collect();
         let points = base.points() as f64;
         let reference = if base_fit.chi2.is_finite() {
@@ -139,26 +156,17 @@ impl DeclaredDiscoverer {
     fn library_candidates(
         &self,
         data: &ScreeningData,
-        model: &Arc<dyn Simulator>,
-        base: &Fitted,
+        theta: &[f64],
+        found: Option<&along::DeclaredAlong>,
         context: &candidate::Context,
     ) -> (Vec<Candidate>, Vec<f64>) {
-        let theta = &base.phi;
-        let ode = !self.base.states.is_empty();
-        let trajectory = |state: &str| context.trajectory(state);
-        let found = if ode {
-            along::ode(&self.file, &self.base, data, &trajectory)
-        } else {
-            along::expression(&self.base, data, model.clone())
-        };
-        let to = if ode { To::Rates } else { To::Observables };
+        let to = if self.base.states.is_empty() { To::Observables } else { To::Rates };
         let (mut out, mut nats) = (Vec::new(), Vec::new());
         let mut covered = Vec::new();
-        if let Some(a) = &found {
+        if let Some(a) = found {
             let library = |p: &crate::engine::discover::along::Place| library::terms(&p.symbols);
-            let theta = &theta[..data.theta.len()];
             let kept = screen_along(&a.along, a.model.as_ref(), &library, theta, &data.bounds, ALONG_KEPT);
-            for f in kept.unwrap_or_default() {
+            for f in kept.map(|(_, k)| k).unwrap_or_default() {
                 let place = &a.along.places[f.place];
                 out.push(Candidate::from_found(&f, &place.symbols, to, &a.targets[f.place]));
             }
@@ -176,6 +184,44 @@ impl DeclaredDiscoverer {
             }
         }
         (out, nats)
+    }
+
+    /// The grammar's forms that change a law (a term in it, a parameter
+    /// that varies) fitted along the data first, where no integration is
+    /// needed; the best `PRESCREEN_KEPT` of them, and every form that acts
+    /// on the measurement, go on to the fit through the model.
+    fn prescreen(
+        &self,
+        grammar: Vec<Candidate>,
+        base: &along::DeclaredAlong,
+        data: &ScreeningData,
+        observed: &along::Observed,
+        context: &candidate::Context,
+        theta: &[f64],
+    ) -> Vec<Candidate> {
+        let Some(base_fit) = along_fit(&base.along, base.model.as_ref(), &[theta.to_vec()], &data.bounds) else {
+            return grammar;
+        };
+        let trajectory = |state: &str| context.trajectory(state);
+        let rows = base.along.target.len() as f64;
+        let (laws, measured): (Vec<Candidate>, Vec<Candidate>) =
+            grammar.into_iter().partition(|c| matches!(c.to, To::Rates | To::Parameters));
+        let size = base.along.target.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(f64::MIN_POSITIVE);
+        let mut scored: Vec<(f64, Candidate)> = laws
+            .into_par_iter()
+            .filter_map(|c| {
+                let (table, starts) = context.along_table(&c, ALONG_COEFFICIENT * size, theta);
+                let declared = self.base.with_candidate(&self.file, &table).ok()?;
+                let a = along::ode(&self.file, &declared, data, observed, &trajectory)?;
+                let mut bounds = data.bounds.clone();
+                bounds.extend(table.parameters.values().map(|p| (p.min, p.max)));
+                let fit = along_fit(&a.along, a.model.as_ref(), &starts, &bounds)?;
+                let score = base_fit.chi2 - fit.chi2 - table.parameters.len() as f64 * rows.ln();
+                (score > 0.0).then_some((score, c))
+            })
+            .collect();
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        scored.into_iter().take(PRESCREEN_KEPT).map(|(_, c)| c).chain(measured).collect()
     }
 }
 

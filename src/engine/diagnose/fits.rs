@@ -1,0 +1,191 @@
+//! The fits one diagnosis makes: the model with and without MD, and each
+//! candidate (`Diagnoser`), each written beside the others and reused
+//! where the same problem was fitted before.
+
+use super::*;
+
+pub(super) fn evidence(s: &Summary) -> (f64, f64) {
+    (s.log_evidence.unwrap_or(f64::NEG_INFINITY), s.log_evidence_err.unwrap_or(f64::NAN))
+}
+
+fn delta_max_sigma(problem: &Problem, preds: &[PredictionRow]) -> BTreeMap<String, f64> {
+    let mut out = BTreeMap::new();
+    for b in &problem.likelihood.blocks {
+        let m = preds
+            .iter()
+            .filter(|r| r.observable == b.name && r.kind == "data")
+            .filter_map(|r| b.x.iter().position(|x| *x == r.x).map(|i| (r.delta_mean / b.error[i]).abs()))
+            .fold(0.0, f64::max);
+        out.insert(b.name.clone(), m);
+    }
+    out
+}
+
+pub(super) fn figures(label: &str, problem: &Problem, cal: &Calibration) -> FitFigures {
+    let (z, e) = evidence(&cal.summary);
+    let theta: Vec<String> = problem.simulator.parameter_names();
+    FitFigures {
+        label: label.to_string(),
+        chi2_per_dof: cal.summary.fit.chi2_per_dof,
+        log_evidence: z,
+        log_evidence_err: e,
+        parameters: theta.iter().map(|n| (n.clone(), cal.summary.parameters[n].clone())).collect(),
+        delta_max_sigma: delta_max_sigma(problem, &cal.predictions),
+    }
+}
+
+/// One candidate's fit, kept with what made it.
+pub(super) struct CandidateRun {
+    pub(super) result: CandidateResult,
+    pub(super) candidate: CandidateModel,
+    pub(super) problem: Problem,
+    pub(super) calibration: Calibration,
+    /// The seed its calibration used: a refit with more particles uses it again.
+    pub(super) seed: u64,
+}
+
+impl CandidateRun {
+    pub(super) fn fit(&self) -> suggest::Fit<'_> {
+        suggest::Fit { name: &self.result.name, problem: &self.problem, calibration: &self.calibration }
+    }
+}
+
+/// What every calibration of one diagnosis shares.
+pub(super) struct Diagnoser<'a> {
+    pub(super) overrides: &'a Overrides,
+    pub(super) out: Option<&'a Path>,
+    pub(super) observer: &'a dyn Observer,
+    pub(super) reuse: &'a Reuse,
+}
+
+impl Diagnoser<'_> {
+    /// Calibrates `analysis` with `kernel` (None: no MD) and writes it to `out/name`.
+    pub(super) fn calibrate(
+        &self,
+        analysis: &Analysis,
+        kernel: Option<DiscrepancyKernel>,
+        seed: u64,
+        name: &str,
+    ) -> Result<(Problem, Calibration)> {
+        self.calibrate_judged(analysis, kernel, seed, name, &|_, _| true)
+    }
+
+    /// As `calibrate`, sampling again for convergence only while `matters`.
+    pub(super) fn calibrate_judged(
+        &self,
+        analysis: &Analysis,
+        kernel: Option<DiscrepancyKernel>,
+        seed: u64,
+        name: &str,
+        matters: calibrate::Matters,
+    ) -> Result<(Problem, Calibration)> {
+        let problem = Problem::new(
+            analysis,
+            &Overrides { kernel: Some(DiscrepancyKernel::choice(kernel)), ..self.overrides.clone() },
+        )?;
+        let cal = match self.reuse.get(name, &problem, seed) {
+            Some((cal, whence)) => {
+                crate::base::messages::say!("  {name}: the same problem was fitted in {whence}; that fit is used");
+                cal
+            }
+            None => {
+                let cal = calibrate::run_judged(&problem, seed, self.observer, matters)?;
+                self.reuse.keep(name, &problem, seed, &cal);
+                cal
+            }
+        };
+        if let Some(dir) = self.out {
+            calibrate::write_outputs(&dir.join(name), &problem, &cal)?;
+        }
+        Ok((problem, cal))
+    }
+
+    /// Explain: each candidate fitted without MD. A discovered term's prior
+    /// log odds (paying for the search) join its log evidence. A candidate
+    /// that trails the best so far (`leader`, and each run here) by more
+    /// than any verdict could turn on is not sampled again for convergence
+    /// (`hopeless`).
+    pub(super) fn explain(
+        &self,
+        analysis: &Analysis,
+        candidates: Vec<(CandidateModel, f64)>,
+        seed: u64,
+        (z_base, e_base): (f64, f64),
+        (leader, strong_log_bf): (f64, f64),
+    ) -> Result<Vec<CandidateRun>> {
+        let mut runs: Vec<CandidateRun> = Vec::new();
+        for (k, (candidate, prior_log_odds)) in candidates.into_iter().enumerate() {
+            let best = runs.iter().map(|r| r.result.log_evidence).fold(leader, f64::max);
+            let matters = |z: f64, e: f64| !hopeless(z + prior_log_odds, e, best, strong_log_bf);
+            let seed = seed.wrapping_add(10 + k as u64);
+            if let Some(run) = self.fit_candidate(analysis, candidate, prior_log_odds, seed, (z_base, e_base), &matters)? {
+                runs.push(run);
+            }
+        }
+        Ok(runs)
+    }
+
+    /// One candidate fitted without MD (None when it cannot be computed
+    /// over the data), its prior log odds joined to its log evidence.
+    pub(super) fn fit_candidate(
+        &self,
+        analysis: &Analysis,
+        candidate: CandidateModel,
+        prior_log_odds: f64,
+        seed: u64,
+        (z_base, e_base): (f64, f64),
+        matters: calibrate::Matters,
+    ) -> Result<Option<CandidateRun>> {
+        let fitted = self.calibrate_judged(
+            &analysis.with_candidate(&candidate),
+            None,
+            seed,
+            &format!("candidate_{}", candidate.name),
+            matters,
+        );
+        let (problem, calibration) = match fitted {
+            Err(e) if e.downcast_ref::<calibrate::guard::NotComputable>().is_some() => {
+                crate::base::messages::note!("  candidate {} cannot be computed over the data: {e}", candidate.name);
+                return Ok(None);
+            }
+            other => other?,
+        };
+        let (z, e) = evidence(&calibration.summary);
+        let z = z + prior_log_odds;
+        let result = CandidateResult {
+            name: candidate.name.clone(),
+            description: candidate.description.clone(),
+            log_evidence: z,
+            log_evidence_err: e,
+            log_bayes_factor: z - z_base,
+            log_bayes_factor_err: (e * e + e_base * e_base).sqrt(),
+            parameters: problem
+                .simulator
+                .parameter_names()
+                .iter()
+                .map(|n| (n.clone(), calibration.summary.parameters[n].clone()))
+                .collect(),
+            chi2_per_dof: calibration.summary.fit.chi2_per_dof,
+            p_value: p_value(calibration.summary.fit.chi2, calibration.summary.fit.dof),
+            converged: calibration.summary.diagnostics.converged,
+            emulator_share: calibration.summary.fit.model_variance_share,
+            emulator_share_observable: worst_share_observable(&calibration.summary.fit),
+            prior_log_odds,
+            special_case_of: candidate.special_case_of.clone(),
+            own_emulator: candidate.own_emulator,
+            same_fit_as: Vec::new(),
+            scout: false,
+        };
+        Ok(Some(CandidateRun { result, candidate, problem, calibration, seed }))
+    }
+}
+
+/// Whether a candidate of log evidence `z` (± `e`) trails `leader` by more
+/// than a verdict could turn on: the decisive margin, plus room for its
+/// estimate to move by ten of its errors (and at least 5 nats) as more
+/// sampling converges it.
+pub(super) fn hopeless(z: f64, e: f64, leader: f64, strong_log_bf: f64) -> bool {
+    let room = 5.0f64.max(10.0 * if e.is_finite() { e } else { f64::INFINITY });
+    z < leader - strong_log_bf - room
+}
+

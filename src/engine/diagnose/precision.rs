@@ -1,0 +1,119 @@
+//! Evidence only as precise as the verdict needs. Every fit of a diagnosis
+//! is first made as a scout (a quarter of the configured particles, no
+//! reruns for convergence), the verdict is decided on the scouts, and then
+//! each fit the verdict turns on is made again with the configured
+//! settings and the same seed, so that it is exactly the fit a full run
+//! makes: the named candidate and those it stands against, every candidate
+//! whose lead or lag is within a few of its standard errors of the decisive
+//! margin, and the fits with and without MD where a comparison with them is
+//! close (or where the verdict rests on them: `unexplained`, `none`, and
+//! the before-and-after of a repair). A candidate far behind keeps its
+//! scout, and says so: its answer could not have changed the verdict.
+
+use super::*;
+use crate::engine::calibrate::SamplerKind;
+
+/// A scout takes this fraction of the configured particles.
+const SCOUT_SHARE: usize = 4;
+/// The fewest particles per replicate worth scouting with: below them a
+/// scout's evidence is too rough to rule anything out.
+const SCOUT_MIN_PARTICLES: usize = 200;
+/// A comparison within this many of its standard errors of a threshold
+/// (and within `CLOSE_NATS` besides) is remade at full precision: a scout's
+/// error of a few tenths leaves its side of the line uncertain.
+const CLOSE_SIGMAS: f64 = 4.0;
+const CLOSE_NATS: f64 = 2.0;
+
+/// The analysis as a scout samples it; None where scouting does not apply
+/// (the ensemble sampler, or too few particles to divide).
+pub(super) fn scout(analysis: &Analysis) -> Option<Analysis> {
+    let s = &analysis.sampler;
+    if s.kind != SamplerKind::Smc || s.smc.particles / SCOUT_SHARE < SCOUT_MIN_PARTICLES {
+        return None;
+    }
+    let mut a = analysis.clone();
+    a.sampler.smc.particles /= SCOUT_SHARE;
+    a.sampler.adapt = false;
+    Some(a)
+}
+
+/// The fits a verdict turns on.
+#[derive(Debug, Default, PartialEq)]
+pub(super) struct Needed {
+    /// Indices into the ranked runs.
+    pub candidates: Vec<usize>,
+    pub base: bool,
+    pub md: bool,
+}
+
+/// Whether `a` and `b`, of standard errors `ea` and `eb`, sit within a
+/// scout's reach of `threshold` apart.
+fn close(a: f64, b: f64, threshold: f64, ea: f64, eb: f64) -> bool {
+    let err = (ea * ea + eb * eb).sqrt();
+    let err = if err.is_finite() { err } else { f64::INFINITY };
+    ((a - b) - threshold).abs() <= CLOSE_SIGMAS * err + CLOSE_NATS
+}
+
+/// Which scouted fits the verdict turns on (`repair`: the winner will be
+/// repaired, and its before-and-after shows the fits with and without MD).
+pub(super) fn needed(
+    runs: &[CandidateRun],
+    verdict: &Verdict,
+    settings: &DiagnoseSettings,
+    (z_base, e_base): (f64, f64),
+    (z_md, e_md): (f64, f64),
+    repair: bool,
+) -> Needed {
+    let strong = settings.strong_log_bf;
+    let index = |name: &str| runs.iter().position(|r| r.result.name == name);
+    let mut standing: Vec<usize> = match verdict.best.as_str() {
+        "ambiguous" | "emulator_limited" => verdict.standing.iter().filter_map(|n| index(n)).collect(),
+        name => index(name).into_iter().collect(),
+    };
+    // With nothing named, the leader's comparisons decide why.
+    if standing.is_empty() && !runs.is_empty() {
+        standing.push(0);
+    }
+    let mut need = Needed { candidates: standing.clone(), ..Default::default() };
+    for (i, r) in runs.iter().enumerate() {
+        let c = &r.result;
+        let near = standing.iter().any(|&s| {
+            let l = &runs[s].result;
+            let (el, ec) = (l.log_evidence_err, c.log_evidence_err);
+            // A candidate that contains the leader, or is within it, is
+            // weighed against it by Occam's margin; any other, as a rival.
+            let nested = members(&c.name).is_superset(&members(&l.name)) || within(c, l) || within(l, c);
+            let margin = if nested { strong } else { decisive_lead(l, c, settings) };
+            s != i && (close(c.log_evidence, l.log_evidence, margin, ec, el) || close(l.log_evidence, c.log_evidence, margin, el, ec))
+        });
+        if near && !need.candidates.contains(&i) {
+            need.candidates.push(i);
+        }
+    }
+    for &s in &standing {
+        let c = &runs[s].result;
+        let (z, e) = (c.log_evidence, c.log_evidence_err);
+        // Not beaten by MD by more than the margin (without the search's odds), and more probable than MD.
+        need.md |= close(z - c.prior_log_odds, z_md, -strong, e, e_md) || close(z, z_md, 0.0, e, e_md);
+        need.base |= close(z, z_base, strong, e, e_base);
+    }
+    need.md |= repair || matches!(verdict.best.as_str(), "unexplained" | "none");
+    need.base |= repair || verdict.best == "none" || close(z_md, z_base, strong, e_md, e_base);
+    need.candidates.sort_unstable();
+    need
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_comparison_is_close_within_four_errors_and_two_nats_of_its_threshold() {
+        // A lead of 9 against a margin of 3, errors 0.3 each: 6 from the line, beyond 4 × 0.42 + 2.
+        assert!(!close(9.0, 0.0, 3.0, 0.3, 0.3));
+        // A lead of 5.5: 2.5 from the line, within 3.7.
+        assert!(close(5.5, 0.0, 3.0, 0.3, 0.3));
+        // An unknown error is never far.
+        assert!(close(100.0, 0.0, 3.0, f64::NAN, 0.1));
+    }
+}
