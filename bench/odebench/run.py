@@ -4,7 +4,7 @@ For each case of tests/fixtures/odebench/cases.json (made by make_cases.py
 from the odd-id systems of ../shared/odebench/): writes the user's model
 (a declared ODE with no candidates) and data into a folder, runs
 `mdpipe diagnose model.toml --seed 1 --out diag` there as a user would
-(first verdicts: the data as given), and gives PySINDy the same data
+(first verdicts: the data as given; `--no-repair`, the verdict only), and gives PySINDy the same data
 (polynomials to degree 3, smoothed finite differences, thresholds chosen by
 AICc). Both are judged by the protocol (../shared/odebench/README.md): a
 law whose repaired rates, at the posterior medians (PySINDy: its
@@ -128,7 +128,7 @@ def run_mdpipe(case, folder, binary, timeout):
     write_case(case, folder)
     start = time.time()
     try:
-        done = subprocess.run([binary, "diagnose", "model.toml", "--seed", "1", "--out", "diag"], cwd=folder,
+        done = subprocess.run([binary, "diagnose", "model.toml", "--seed", "1", "--no-repair", "--out", "diag"], cwd=folder,
                               capture_output=True, text=True, timeout=timeout)
         ok = done.returncode == 0
     except subprocess.TimeoutExpired:
@@ -217,7 +217,7 @@ def main():
             if args.nulls:
                 write_case(case, folder)
                 start = time.time()
-                subprocess.run([binary, "diagnose", "model.toml", "--seed", "1", "--discover", "--out", "diag"], cwd=folder,
+                subprocess.run([binary, "diagnose", "model.toml", "--seed", "1", "--discover", "--no-repair", "--out", "diag"], cwd=folder,
                                capture_output=True, text=True, timeout=args.timeout)
                 seconds = time.time() - start
                 d = json.loads((folder / "diag" / "diagnosis.json").read_text())

@@ -74,6 +74,9 @@ pub enum Command {
         /// Never search for undeclared terms
         #[arg(long)]
         no_discover: bool,
+        /// The verdict only: skip the repaired fit with MD on top (the before-and-after)
+        #[arg(long)]
+        no_repair: bool,
     },
     /// Build a self-contained HTML report from run folders (calibrate, compare or diagnose outputs)
     Report {
@@ -250,7 +253,9 @@ impl Command {
                 commands::calibrate(args, kernel, observables, sampler, time_limit)
             }
             Command::Compare { args, sampler, replicates } => commands::compare(args, sampler, replicates),
-            Command::Diagnose { args, discover, no_discover } => commands::diagnose(args, discover, no_discover),
+            Command::Diagnose { args, discover, no_discover, no_repair } => {
+                commands::diagnose(args, discover, no_discover, no_repair)
+            }
             Command::Design { spec, points, seed, out } => commands::design(&spec, points, seed, &out),
             Command::TrainEmulator { config, training, design, seed, out } => {
                 commands::train_emulator(&config, &training, design.as_deref(), seed, &out)

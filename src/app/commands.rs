@@ -84,7 +84,7 @@ pub fn compare(args: CalibrationArgs, sampler: Option<SamplerKind>, replicates: 
     Ok(())
 }
 
-pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool) -> Result<()> {
+pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool, no_repair: bool) -> Result<()> {
     let analysis = crate::pipeline::load(&args.config, &super::systems())?;
     let overrides = parse_overrides(args.data, None, None, None)?;
     artifacts::check_writable(&args.out)?;
@@ -97,7 +97,7 @@ pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool) -> Res
         &analysis,
         &overrides,
         args.seed,
-        &diagnose::DiagnoseSettings { discover, ..Default::default() },
+        &diagnose::DiagnoseSettings { discover, repair: !no_repair, ..Default::default() },
         Some(&args.out),
         &Bars::default(),
     )?;

@@ -1,6 +1,6 @@
 //! Evidence only as precise as the verdict needs. Every fit of a diagnosis
-//! is first made as a scout (a quarter of the configured particles, no
-//! reruns for convergence), the verdict is decided on the scouts, and then
+//! is first made as a scout (a quarter of the configured particles, few
+//! final sweeps, no reruns for convergence), the verdict is decided on the scouts, and then
 //! each fit the verdict turns on is made again with the configured
 //! settings and the same seed, so that it is exactly the fit a full run
 //! makes: the named candidate and those it stands against, every candidate
@@ -15,6 +15,8 @@ use crate::engine::calibrate::SamplerKind;
 
 /// A scout takes this fraction of the configured particles.
 const SCOUT_SHARE: usize = 4;
+/// A scout's final sweeps per dimension (the configured default is 15).
+const SCOUT_FINAL_STEPS_PER_DIM: f64 = 2.0;
 /// The fewest particles per replicate worth scouting with: below them a
 /// scout's evidence is too rough to rule anything out.
 const SCOUT_MIN_PARTICLES: usize = 200;
@@ -32,7 +34,12 @@ pub(super) fn scout(analysis: &Analysis) -> Option<Analysis> {
         return None;
     }
     let mut a = analysis.clone();
-    a.sampler.smc.particles /= SCOUT_SHARE;
+    let smc = &mut a.sampler.smc;
+    smc.particles /= SCOUT_SHARE;
+    // The final sweeps decorrelate the draws a reported posterior needs;
+    // a scout's evidence is made before them.
+    smc.final_steps_per_dim = smc.final_steps_per_dim.min(SCOUT_FINAL_STEPS_PER_DIM);
+    smc.final_mixture_proposals = smc.final_mixture_proposals.min(smc.mixture_proposals);
     a.sampler.adapt = false;
     Some(a)
 }

@@ -95,21 +95,23 @@ pub fn screen(
             let linear = &linear;
             library(place).into_par_iter().filter_map(move |term| {
                 let (nonlinear, gain) = linear.best_on_grid(along, place, &term)?;
-                let score = gain - (1 + term.nonlinear.len()) as f64 * n.ln();
-                (score > 0.0).then_some((k, term, nonlinear, gain))
+                let bic = gain - (1 + term.nonlinear.len()) as f64 * n.ln();
+                (bic > 0.0).then_some((k, term, nonlinear, gain))
             })
         })
         .collect();
-    let score = |c: &(usize, Term, Vec<f64>, f64)| c.3 - (1 + c.1.nonlinear.len()) as f64 * n.ln();
-    candidates.sort_by(|a, b| score(b).total_cmp(&score(a)).then(a.1.nats.total_cmp(&b.1.nats)));
+    // ΔBIC/2 less the term's prior cost: about a log posterior odds, so that
+    // of forms the data cannot tell apart the simpler leads.
+    let score = |c: &(usize, Term, Vec<f64>, f64)| 0.5 * (c.3 - (1 + c.1.nonlinear.len()) as f64 * n.ln()) - c.1.nats;
+    candidates.sort_by(|a, b| score(b).total_cmp(&score(a)));
     candidates.truncate(keep * REFINED_PER_KEPT);
     let mut found: Vec<Found> = candidates
         .into_par_iter()
         .filter_map(|(k, term, nonlinear, _)| refine(along, model, &base_fit, bounds, k, term, nonlinear))
         .collect();
     found.sort_by(|a, b| {
-        let s = |f: &Found| f.delta_chi2 - (1 + f.term.nonlinear.len()) as f64 * n.ln();
-        s(b).total_cmp(&s(a)).then(a.term.nats.total_cmp(&b.term.nats))
+        let s = |f: &Found| 0.5 * (f.delta_chi2 - (1 + f.term.nonlinear.len()) as f64 * n.ln()) - f.term.nats;
+        s(b).total_cmp(&s(a))
     });
     found.retain(|f| f.delta_chi2 - (1 + f.term.nonlinear.len()) as f64 * n.ln() > 0.0);
     found.truncate(keep);
@@ -146,7 +148,11 @@ impl Linearized {
             let mut moved = base.phi.clone();
             moved[k] += h;
             let p = fit.predict(&moved)?;
-            jacobian.push((0..p.len()).map(|i| (p[i] - base.prediction[i]) / (h * b.error[i])).collect());
+            let column: Vec<f64> = (0..p.len()).map(|i| (p[i] - base.prediction[i]) / (h * b.error[i])).collect();
+            // A θ the laws do not read (an initial value) moves nothing here.
+            if column.iter().any(|v| *v != 0.0) {
+                jacobian.push(column);
+            }
         }
         let k = jacobian.len();
         let mut jtj = vec![0.0; k * k];

@@ -37,12 +37,11 @@ use rayon::prelude::*;
 
 /// How many screened terms (or pairs) go on to full calibration.
 const PROPOSALS: usize = 3;
-/// How far below the best a term's ΔBIC may be and still be calibrated.
-/// ΔBIC/2 approximates a log Bayes factor, so a term 20 below trails by
-/// about 10 in log evidence, beyond any decisive lead (3) and the prior
-/// odds between forms: its calibration could not change the verdict
-/// unless BIC misjudged the evidence by more than that.
-const BIC_REACH: f64 = 20.0;
+/// How far below the best a term's score (ΔBIC/2 plus its prior log odds,
+/// about a log posterior odds) may be and still be calibrated: a term 10
+/// below trails beyond any decisive lead (3), and its calibration could not
+/// change the verdict unless BIC misjudged the evidence by more than that.
+const SCORE_REACH: f64 = 10.0;
 /// Singles whose pairs are screened.
 const PAIRED: usize = 5;
 /// Pairs among the proposals: the best pair, the other slots to singles. A
@@ -107,12 +106,16 @@ impl Discoverer for DeclaredDiscoverer {
             singles.iter().map(|s| s.fitted.chi2).fold(0.0, f64::max)
         };
         let bic = bic_of(reference, points);
-        singles.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
+        let prior = FormPrior::over(&searched.nats);
+        // Ranked by ΔBIC/2 (about a log Bayes factor) plus the prior's log
+        // odds: about a log posterior odds, the order the calibrations will judge in.
+        let score = |s: &Screened| 0.5 * bic(s) + prior.log_odds(&s.parts.iter().map(|p| p.nats).collect::<Vec<_>>());
+        singles.sort_by(|a, b| score(b).total_cmp(&score(a)));
         let singles = distinct(singles, data);
         let top: Vec<&Screened> = singles.iter().take(PAIRED).collect();
         let pairs: Vec<(&Screened, &Screened)> =
             top.iter().enumerate().flat_map(|(i, a)| top[i + 1..].iter().map(move |b| (*a, *b))).collect();
-        let best_single = singles.first().map_or(f64::NEG_INFINITY, &bic);
+        let best_single = singles.first().map_or(f64::NEG_INFINITY, &score);
         let mut ranked: Vec<Screened> = pairs
             .par_iter()
             .filter_map(|(a, b)| context.pair(a, b))
@@ -120,17 +123,16 @@ impl Discoverer for DeclaredDiscoverer {
             // beats every single term (not only its own two). A pair below
             // some single is, by the screening's own criterion, a worse
             // explanation than one already proposed.
-            .filter(|s| bic(s) > best_single)
+            .filter(|s| score(s) > best_single)
             .collect();
         ranked.extend(singles);
-        ranked.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
+        ranked.sort_by(|a, b| score(b).total_cmp(&score(a)));
         let ranked = distinct(ranked, data);
-        let prior = FormPrior::over(&searched.nats);
-        let best = ranked.first().map_or(f64::NEG_INFINITY, &bic);
+        let best = ranked.first().map_or(f64::NEG_INFINITY, &score);
         let mut pairs = 0;
         let proposals = ranked
             .into_iter()
-            .filter(|s| bic(s) > 0.0 && bic(s) >= best - BIC_REACH)
+            .filter(|s| bic(s) > 0.0 && score(s) >= best - SCORE_REACH)
             .filter(|s| {
                 pairs += usize::from(s.parts.len() > 1);
                 s.parts.len() == 1 || pairs <= PAIRS_PROPOSED
@@ -166,6 +168,12 @@ impl DeclaredDiscoverer {
         if let Some(a) = found {
             let library = |p: &crate::engine::discover::along::Place| library::terms(&p.symbols);
             let kept = screen_along(&a.along, a.model.as_ref(), &library, theta, &data.bounds, ALONG_KEPT);
+            if std::env::var("MDPIPE_DEBUG").is_ok() {
+                let mut out = vec![0.0; a.along.target.len()];
+                a.model.predict(theta, &mut out);
+                eprintln!("along rows {} places {:?} nan pred {} nan target {} nan sd {} theta {:?} bounds {:?}", out.len(), a.along.places.iter().map(|p| (&p.name, p.rows.clone())).collect::<Vec<_>>(), out.iter().filter(|v| !v.is_finite()).count(), a.along.target.iter().filter(|v| !v.is_finite()).count(), a.along.sd.iter().filter(|v| !v.is_finite() || **v <= 0.0).count(), theta, data.bounds);
+                eprintln!("along: {:?}", kept.as_ref().map(|(b, k)| (b.chi2, k.iter().map(|f| (f.term.name(&a.along.places[f.place].symbols), a.along.places[f.place].name.clone(), f.delta_chi2)).collect::<Vec<_>>())));
+            }
             for f in kept.map(|(_, k)| k).unwrap_or_default() {
                 let place = &a.along.places[f.place];
                 out.push(Candidate::from_found(&f, &place.symbols, to, &a.targets[f.place]));
