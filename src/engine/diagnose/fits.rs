@@ -118,7 +118,9 @@ impl Diagnoser<'_> {
             let best = runs.iter().map(|r| r.result.log_evidence).fold(leader, f64::max);
             let matters = |z: f64, e: f64| !hopeless(z + prior_log_odds, e, best, strong_log_bf);
             let seed = seed.wrapping_add(10 + k as u64);
-            if let Some(run) = self.fit_candidate(analysis, candidate, prior_log_odds, seed, (z_base, e_base), &matters)? {
+            if let Some(run) =
+                self.fit_candidate(analysis, candidate, prior_log_odds, seed, (z_base, e_base), &matters)?
+            {
                 runs.push(run);
             }
         }
@@ -188,4 +190,3 @@ pub(super) fn hopeless(z: f64, e: f64, leader: f64, strong_log_bf: f64) -> bool 
     let room = 5.0f64.max(10.0 * if e.is_finite() { e } else { f64::INFINITY });
     z < leader - strong_log_bf - room
 }
-

@@ -45,8 +45,8 @@
 mod decide;
 mod discover;
 mod fits;
-mod precision;
 mod locate;
+mod precision;
 mod reuse;
 mod suggest;
 mod types;
@@ -339,6 +339,8 @@ mod tests {
                 prior_log_odds: 0.0,
                 special_case_of: Vec::new(),
                 own_emulator: true,
+                same_fit_as: Vec::new(),
+                scout: false,
             })
             .collect()
     }

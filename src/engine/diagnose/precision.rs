@@ -91,7 +91,9 @@ pub(super) fn needed(
             // weighed against it by Occam's margin; any other, as a rival.
             let nested = members(&c.name).is_superset(&members(&l.name)) || within(c, l) || within(l, c);
             let margin = if nested { strong } else { decisive_lead(l, c, settings) };
-            s != i && (close(c.log_evidence, l.log_evidence, margin, ec, el) || close(l.log_evidence, c.log_evidence, margin, el, ec))
+            s != i
+                && (close(c.log_evidence, l.log_evidence, margin, ec, el)
+                    || close(l.log_evidence, c.log_evidence, margin, el, ec))
         });
         if near && !need.candidates.contains(&i) {
             need.candidates.push(i);

@@ -74,7 +74,8 @@ pub fn ode(
     let known = &observed.known;
     let variables = Variables::of(file, d).ok()?;
     let scope = variables.scope(variables.rate_at);
-    let (mut target, mut sd, mut places, mut targets, mut laws) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut target, mut sd, mut places, mut targets, mut laws) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut states_at: Vec<Vec<f64>> = Vec::new();
     let mut times: Vec<f64> = Vec::new();
     for (k, state) in d.states.iter().enumerate() {

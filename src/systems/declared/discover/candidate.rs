@@ -278,10 +278,10 @@ impl<'a> Context<'a> {
 
     /// The grammar's instances on this model, as candidates.
     pub fn grammar_candidates(&self, forms: &[TermForm]) -> Vec<Candidate> {
-        grammar::instances(forms, &self.discoverer.base).into_iter().filter_map(|i| self.from_instance(&i)).collect()
+        grammar::instances(forms, &self.discoverer.base).into_iter().filter_map(|i| self.candidate_of(&i)).collect()
     }
 
-    fn from_instance(&self, i: &Instance) -> Option<Candidate> {
+    fn candidate_of(&self, i: &Instance) -> Option<Candidate> {
         let scale = i.symbols.first().and_then(|s| self.scales.get(s));
         let mut template = i.form.clone();
         if let Some(s) = scale {

@@ -168,12 +168,6 @@ impl DeclaredDiscoverer {
         if let Some(a) = found {
             let library = |p: &crate::engine::discover::along::Place| library::terms(&p.symbols);
             let kept = screen_along(&a.along, a.model.as_ref(), &library, theta, &data.bounds, ALONG_KEPT);
-            if std::env::var("MDPIPE_DEBUG").is_ok() {
-                let mut out = vec![0.0; a.along.target.len()];
-                a.model.predict(theta, &mut out);
-                eprintln!("along rows {} places {:?} nan pred {} nan target {} nan sd {} theta {:?} bounds {:?}", out.len(), a.along.places.iter().map(|p| (&p.name, p.rows.clone())).collect::<Vec<_>>(), out.iter().filter(|v| !v.is_finite()).count(), a.along.target.iter().filter(|v| !v.is_finite()).count(), a.along.sd.iter().filter(|v| !v.is_finite() || **v <= 0.0).count(), theta, data.bounds);
-                eprintln!("along: {:?}", kept.as_ref().map(|(b, k)| (b.chi2, k.iter().map(|f| (f.term.name(&a.along.places[f.place].symbols), a.along.places[f.place].name.clone(), f.delta_chi2)).collect::<Vec<_>>())));
-            }
             for f in kept.map(|(_, k)| k).unwrap_or_default() {
                 let place = &a.along.places[f.place];
                 out.push(Candidate::from_found(&f, &place.symbols, to, &a.targets[f.place]));
