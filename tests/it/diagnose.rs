@@ -393,3 +393,38 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
         assert_eq!(wall(a), wall(b), "{name}");
     }
 }
+
+/// Evidence as precise as the verdict needs (`diagnose::precision`): on the
+/// bundled oscillator (three candidates and their pairs), a candidate far
+/// behind keeps its scout's fit (a quarter of the particles, no reruns for
+/// convergence), and the verdict is the one every fit sampled in full gives.
+/// Each candidate left as a scout is beyond the decisive margin in the full
+/// run too, and the named candidate is the very fit the full run makes
+/// (same settings, same seed). Reruns for convergence are off in both, so
+/// the full run stays within the first tier's time.
+#[test]
+fn a_hopeless_candidate_stopped_early_leaves_the_verdict_unchanged() {
+    let path = crate::declared::root().join("pipeline/examples/oscillator.toml");
+    let mut analysis = mdpipe::systems::load(&path).unwrap();
+    analysis.sampler.adapt = false;
+    let run = |scouts| {
+        let settings = DiagnoseSettings { repair: false, scouts, ..Default::default() };
+        diagnose::run(&analysis, &Overrides::default(), 1, &settings, None, &Silent).unwrap().diagnosis
+    };
+    let (quick, full) = (run(true), run(false));
+    assert_eq!(quick.verdict.best, full.verdict.best, "{}\n{}", quick.verdict.statement, full.verdict.statement);
+    assert_eq!(quick.verdict.standing, full.verdict.standing);
+    let scouts: Vec<_> = quick.candidates.iter().filter(|c| c.scout).collect();
+    assert!(!scouts.is_empty(), "no candidate was left as a scout: {:?}", quick.candidates);
+    assert!(full.candidates.iter().all(|c| !c.scout));
+    let in_full = |name: &str| full.candidates.iter().find(|c| c.name == name).unwrap();
+    let leader = full.candidates[0].log_evidence;
+    for s in scouts {
+        let behind = leader - in_full(&s.name).log_evidence;
+        assert!(behind > 3.0, "{} was left as a scout {behind:.1} behind the leader", s.name);
+    }
+    let named = quick.candidates.iter().find(|c| c.name == quick.verdict.best).expect("a candidate is named");
+    assert!(!named.scout);
+    assert_eq!(named.log_evidence, in_full(&named.name).log_evidence, "the same fit, same settings and seed");
+    assert_eq!(named.parameters, in_full(&named.name).parameters);
+}

@@ -179,7 +179,7 @@ pub fn run_reusing(
 ) -> Result<DiagnoseRun> {
     let d = Diagnoser { overrides, out, observer, reuse };
     // Every fit first as a scout; those the verdict turns on again in full (`precision`).
-    let scouting = precision::scout(analysis);
+    let scouting = precision::scout(analysis).filter(|_| settings.scouts);
     let first = scouting.as_ref().unwrap_or(analysis);
     let (mut base_problem, mut base) = match d.calibrate(first, None, seed, "base_no_md") {
         Err(e) if e.downcast_ref::<calibrate::guard::NotComputable>().is_some() => {

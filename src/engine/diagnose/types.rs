@@ -12,6 +12,10 @@ pub struct DiagnoseSettings {
     pub repair: bool,
     /// When to search the model's grammar for a term nobody declared.
     pub discover: Discover,
+    /// Every fit first as a scout, and again in full only where the verdict
+    /// turns on it (`precision`); false samples every fit in full, the
+    /// check that a scout left behind could not have changed the verdict.
+    pub scouts: bool,
 }
 
 /// When `diagnose` searches for a term nobody declared.
@@ -31,6 +35,7 @@ impl Default for DiagnoseSettings {
             min_p_value: 1e-3,
             repair: true,
             discover: Discover::WhenUnexplained,
+            scouts: true,
         }
     }
 }
