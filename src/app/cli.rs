@@ -77,6 +77,9 @@ pub enum Command {
         /// The verdict only: skip the repaired fit with MD on top (the before-and-after)
         #[arg(long)]
         no_repair: bool,
+        /// Print where the time went: each fit's wall time, particles and model evaluations
+        #[arg(long)]
+        profile: bool,
     },
     /// Build a self-contained HTML report from run folders (calibrate, compare or diagnose outputs)
     Report {
@@ -253,8 +256,8 @@ impl Command {
                 commands::calibrate(args, kernel, observables, sampler, time_limit)
             }
             Command::Compare { args, sampler, replicates } => commands::compare(args, sampler, replicates),
-            Command::Diagnose { args, discover, no_discover, no_repair } => {
-                commands::diagnose(args, discover, no_discover, no_repair)
+            Command::Diagnose { args, discover, no_discover, no_repair, profile } => {
+                commands::diagnose(args, discover, no_discover, no_repair, profile)
             }
             Command::Design { spec, points, seed, out } => commands::design(&spec, points, seed, &out),
             Command::TrainEmulator { config, training, design, seed, out } => {

@@ -84,7 +84,13 @@ pub fn compare(args: CalibrationArgs, sampler: Option<SamplerKind>, replicates: 
     Ok(())
 }
 
-pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool, no_repair: bool) -> Result<()> {
+pub fn diagnose(
+    args: CalibrationArgs,
+    discover: bool,
+    no_discover: bool,
+    no_repair: bool,
+    profile: bool,
+) -> Result<()> {
     let analysis = crate::pipeline::load(&args.config, &super::systems())?;
     let overrides = parse_overrides(args.data, None, None, None)?;
     artifacts::check_writable(&args.out)?;
@@ -102,6 +108,9 @@ pub fn diagnose(args: CalibrationArgs, discover: bool, no_discover: bool, no_rep
         &Bars::default(),
     )?;
     diagnose::print(&run.diagnosis);
+    if profile {
+        diagnose::print_profile(&run.diagnosis);
+    }
     report::write(
         std::slice::from_ref(&args.out),
         &args.out.join("report.html"),

@@ -56,6 +56,8 @@ pub(super) struct Diagnoser<'a> {
     pub(super) out: Option<&'a Path>,
     pub(super) observer: &'a dyn Observer,
     pub(super) reuse: &'a Reuse,
+    /// Each fit's wall time, for `Diagnosis::profile`.
+    pub(super) times: std::sync::Mutex<Vec<FitTime>>,
 }
 
 impl Diagnoser<'_> {
@@ -68,6 +70,17 @@ impl Diagnoser<'_> {
         name: &str,
     ) -> Result<(Problem, Calibration)> {
         self.calibrate_judged(analysis, kernel, seed, name, &|_, _| true)
+    }
+
+    fn record(&self, name: &str, analysis: &Analysis, seconds: f64, cal: &Calibration) {
+        let evaluations = cal.summary.diagnostics.likelihood_evaluations;
+        let fit = FitTime { fit: name.to_string(), particles: analysis.sampler.smc.particles, seconds, evaluations };
+        self.times.lock().unwrap_or_else(|e| e.into_inner()).push(fit);
+    }
+
+    /// The fits' times so far, in the order made.
+    pub(super) fn profile(&self) -> Vec<FitTime> {
+        self.times.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
     /// As `calibrate`, sampling again for convergence only while `matters`.
@@ -89,8 +102,10 @@ impl Diagnoser<'_> {
                 cal
             }
             None => {
+                let started = std::time::Instant::now();
                 let cal = calibrate::run_judged(&problem, seed, self.observer, matters)?;
                 self.reuse.keep(name, &problem, seed, &cal);
+                self.record(name, analysis, started.elapsed().as_secs_f64(), &cal);
                 cal
             }
         };

@@ -69,8 +69,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 pub use suggest::{Suggestion, MAX_REPEATS};
 pub use types::*;
-pub use wording::print;
 use wording::*;
+pub use wording::{print, print_profile};
 
 fn p_value(chi2: f64, dof: usize) -> f64 {
     ChiSquared::new(dof.max(1) as f64).map(|d| 1.0 - d.cdf(chi2)).unwrap_or(f64::NAN)
@@ -177,7 +177,7 @@ pub fn run_reusing(
     observer: &dyn Observer,
     reuse: &Reuse,
 ) -> Result<DiagnoseRun> {
-    let d = Diagnoser { overrides, out, observer, reuse };
+    let d = Diagnoser { overrides, out, observer, reuse, times: Default::default() };
     // Every fit first as a scout; those the verdict turns on again in full (`precision`).
     let scouting = precision::scout(analysis).filter(|_| settings.scouts);
     let first = scouting.as_ref().unwrap_or(analysis);
@@ -291,6 +291,7 @@ pub fn run_reusing(
         base_log_evidence: z_base,
         md_log_evidence: z_md,
         discovery,
+        profile: d.profile(),
         provenance: base_problem.provenance(seed, "diagnose"),
     };
     if let Some(dir) = out {

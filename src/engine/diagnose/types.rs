@@ -239,7 +239,23 @@ pub struct Diagnosis {
     /// What the search for undeclared terms tried, when it ran.
     #[serde(default)]
     pub discovery: Option<DiscoveryReport>,
+    /// Where the time went: every fit in the order it was made.
+    #[serde(default)]
+    pub profile: Vec<FitTime>,
     pub provenance: Provenance,
+}
+
+/// One fit of a diagnosis and its wall time (zero when a stored fit of the
+/// same problem was taken).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FitTime {
+    /// `base_no_md`, `base_md`, a candidate's name, `repaired`, `repaired_md`.
+    pub fit: String,
+    /// Particles per replicate: a scout's are a quarter of the configured.
+    pub particles: usize,
+    pub seconds: f64,
+    /// Model evaluations, the sampler's own count.
+    pub evaluations: u64,
 }
 
 /// The search for a term nobody declared.

@@ -47,6 +47,7 @@ pub(super) fn run(
         base_log_evidence: f64::NEG_INFINITY,
         md_log_evidence: f64::NEG_INFINITY,
         discovery,
+        profile: d.profile(),
         provenance: problem.provenance(seed, "diagnose"),
     };
     if let Some(dir) = d.out {

@@ -240,3 +240,22 @@ fn name_column(name: &str, width: usize) -> String {
         format!("{name}\n  {:<width$}", "")
     }
 }
+
+/// Where the time went (`mdpipe diagnose --profile`): each fit, the
+/// screening, and what the fits took together.
+pub fn print_profile(d: &Diagnosis) {
+    let fits: f64 = d.profile.iter().map(|f| f.seconds).sum();
+    crate::base::messages::say!("Profile (wall seconds; {} fits, {fits:.1} s in all):", d.profile.len());
+    if let Some(r) = &d.discovery {
+        crate::base::messages::say!("  {:<40} {:>8.1} s", "screening of discovered terms", r.screening_seconds);
+    }
+    for f in &d.profile {
+        crate::base::messages::say!(
+            "  {:<40} {:>8.1} s  {:>6} particles  {:>10} evaluations",
+            f.fit,
+            f.seconds,
+            f.particles,
+            f.evaluations
+        );
+    }
+}
