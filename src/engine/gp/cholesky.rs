@@ -324,19 +324,19 @@ pub fn gaussian_logpdf_factored(ws: &CholeskyWorkspace, r: &mut [f64]) -> f64 {
     -0.5 * (quad + ws.log_det() + r.len() as f64 * (2.0 * std::f64::consts::PI).ln())
 }
 
-/// `log N(r | 0, A)` for a dense covariance (convenience, allocates).
-pub fn gaussian_logpdf(r: &[f64], cov: &[f64]) -> Result<f64, NotPositiveDefinite> {
-    let n = r.len();
-    let mut ws = CholeskyWorkspace::new(n);
-    ws.factor.copy_from_slice(cov);
-    ws.factorize()?;
-    let mut z = r.to_vec();
-    Ok(gaussian_logpdf_factored(&ws, &mut z))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `log N(r | 0, A)` for a dense covariance (convenience, allocates).
+    fn gaussian_logpdf(r: &[f64], cov: &[f64]) -> Result<f64, NotPositiveDefinite> {
+        let n = r.len();
+        let mut ws = CholeskyWorkspace::new(n);
+        ws.factor.copy_from_slice(cov);
+        ws.factorize()?;
+        let mut z = r.to_vec();
+        Ok(gaussian_logpdf_factored(&ws, &mut z))
+    }
     use crate::engine::gp::discrepancy::{discrepancy_cross_cov, DiscrepancyKernel};
 
     #[test]

@@ -178,11 +178,7 @@ fn read_point_events(dir: &Path, format: RunFormat) -> Result<(String, Vec<Event
         }
         for f in &h5_files {
             let (good, bad) = hdf5::read_events(f)?;
-            let prefix = if h5_files.len() > 1 {
-                format!("{}:", f.file_name().unwrap().to_string_lossy())
-            } else {
-                String::new()
-            };
+            let prefix = if h5_files.len() > 1 { format!("{}:", file_name(f)) } else { String::new() };
             events.extend(good.into_iter().map(|mut e| {
                 e.label = format!("{prefix}{}", e.label);
                 e
@@ -191,8 +187,7 @@ fn read_point_events(dir: &Path, format: RunFormat) -> Result<(String, Vec<Event
                 bad.into_iter().map(|b| SkippedEvent { event: format!("{prefix}{}", b.label), reason: b.reason }),
             );
         }
-        let names: Vec<String> =
-            h5_files.iter().map(|f| f.file_name().unwrap().to_string_lossy().into_owned()).collect();
+        let names: Vec<String> = h5_files.iter().map(|f| file_name(f)).collect();
         Ok((format!("hdf5: {}", names.join(", ")), events, skipped))
     } else {
         if text_dirs.is_empty() {
@@ -201,28 +196,16 @@ fn read_point_events(dir: &Path, format: RunFormat) -> Result<(String, Vec<Event
         for d in &text_dirs {
             match layout::read_text_event(d) {
                 Ok(e) => events.push(e),
-                Err(e) => skipped.push(SkippedEvent {
-                    event: d.file_name().unwrap().to_string_lossy().into_owned(),
-                    reason: format!("{e:#}"),
-                }),
+                Err(e) => skipped.push(SkippedEvent { event: file_name(d), reason: format!("{e:#}") }),
             }
         }
         Ok((format!("text: {} event folders", text_dirs.len()), events, skipped))
     }
 }
 
-/// Analyses the events of one design point: the observables, or why not.
-pub fn analyse_events(
-    design_id: i64,
-    events: &[Event],
-    settings: &IngestSettings,
-    skipped: &mut Vec<SkippedEvent>,
-) -> Result<Vec<IngestedRow>> {
-    Ok(analyse_events_with_covariance(design_id, events, settings, skipped)?.0)
-}
-
-/// [`analyse_events`], with the jackknife covariance between the rows that
-/// are defined (every pair of them, off the diagonal).
+/// Analyses the events of one design point: the observables (or why not),
+/// with the jackknife covariance between the rows that are defined (every
+/// pair of them, off the diagonal).
 pub fn analyse_events_with_covariance(
     design_id: i64,
     events: &[Event],
@@ -397,6 +380,11 @@ pub fn ingest_runs(
 }
 
 /// The design point folders of a runs folder (named by design id, e.g. `0007`), sorted.
+/// A path's last component as text; the whole path where it has none (`..`).
+fn file_name(path: &Path) -> String {
+    path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
+
 pub(crate) fn point_folders(runs_dir: &Path) -> Result<Vec<(i64, PathBuf)>> {
     let mut folders: Vec<(i64, PathBuf)> = Vec::new();
     for entry in std::fs::read_dir(runs_dir).with_context(|| format!("listing runs folder {}", runs_dir.display()))? {
@@ -404,7 +392,7 @@ pub(crate) fn point_folders(runs_dir: &Path) -> Result<Vec<(i64, PathBuf)>> {
         if !path.is_dir() {
             continue;
         }
-        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let name = file_name(&path);
         // Hidden folders are staging areas of writes in progress (or interrupted).
         if name.starts_with('.') {
             continue;
