@@ -143,7 +143,9 @@ pub struct Verdict {
     /// candidate models: for a named candidate, of every model that contains
     /// it (the probability that the data need it); for `none`, of the base
     /// model; for `unexplained`, of the MD model; otherwise of the models
-    /// still standing.
+    /// still standing. NaN (null in JSON) for `unexplained` when the model
+    /// as declared cannot be computed: there is no MD fit to weigh.
+    #[serde(deserialize_with = "nan_if_null")]
     pub confidence: f64,
 }
 
@@ -154,6 +156,9 @@ impl Verdict {
         let p = v.confidence;
         let what = match v.best.as_str() {
             "none" => "that nothing is missing".to_string(),
+            "unexplained" if !p.is_finite() => {
+                return "no posterior probability: the model as declared cannot be computed, so it has no model-discrepancy fit".to_string()
+            }
             "unexplained" => "of the model-discrepancy fit".to_string(),
             "ambiguous" | "emulator_limited" => "of the models still standing".to_string(),
             name => format!("that the data need {name}, over every model that contains it"),
@@ -297,4 +302,30 @@ pub struct DiagnoseRun {
     pub md: Option<Calibration>,
     pub candidates: Vec<(String, Calibration)>,
     pub repaired_md: Option<Calibration>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A model that cannot be computed has no MD fit: its `unexplained`
+    /// carries no probability, says why, and survives JSON (null) intact.
+    #[test]
+    fn an_uncomputable_models_verdict_has_no_probability_and_round_trips() {
+        let v = Verdict {
+            best: "unexplained".into(),
+            standing: Vec::new(),
+            suggestion: None,
+            refine: Vec::new(),
+            statement: String::new(),
+            confidence: f64::NAN,
+        };
+        assert!(v.confidence_phrase().contains("cannot be computed"), "{}", v.confidence_phrase());
+        let text = serde_json::to_string(&v).unwrap();
+        assert!(text.contains("\"confidence\":null"), "{text}");
+        let back: Verdict = serde_json::from_str(&text).unwrap();
+        assert!(back.confidence.is_nan());
+        let fitted = Verdict { confidence: 0.25, ..v };
+        assert_eq!(fitted.confidence_phrase(), "posterior probability 0.250 of the model-discrepancy fit");
+    }
 }

@@ -79,7 +79,8 @@ fn verdict(candidates: &[CandidateResult], runs: &[CandidateRun], settings: &Dia
         suggestion: None,
         refine: Vec::new(),
         statement: String::new(),
-        confidence: 0.0,
+        // Unless a candidate is named or standing, there is no fit to weigh.
+        confidence: f64::NAN,
     };
     match named {
         Some(c) if rivals.is_empty() => {
