@@ -303,10 +303,11 @@ pub fn run(problem: &Problem, seed: u64, observer: &dyn Observer) -> Result<Cali
     run_checkpointed(problem, seed, observer, None)
 }
 
-/// Whether a calibration's answer can still matter to whoever asked for it,
-/// given its log evidence and that estimate's error: a candidate so far
-/// behind the leader that no convergence could bring it within reach is
-/// not sampled again to chase R̂ and ESS (`run_smc_until_converged`).
+/// Whether sampling a calibration again for convergence can still matter
+/// to whoever asked for it, given its log evidence and that estimate's
+/// error: a candidate so far behind the leader that no convergence could
+/// bring it within reach, or one weighed only by its evidence, is not
+/// sampled again to chase R̂ and ESS (`run_smc_until_converged`).
 pub type Matters<'a> = &'a (dyn Fn(f64, f64) -> bool + Sync);
 
 /// As `run`, sampling again for convergence only while `matters` says the
@@ -455,7 +456,7 @@ fn run_smc_until_converged(
         let said = format!("{label}: not converged (largest R̂ {:.3}, smallest ESS {:.0})", c.max_rhat, c.min_ess);
         if let Some((z, e)) = sampled.evidence.filter(|(z, e)| !matters(*z, *e)) {
             crate::base::messages::note!(
-                "  {said}; not sampled again: its log evidence {z:.1} ± {e:.1} cannot change the decision"
+                "  {said}; not sampled again: the decision weighs its log evidence {z:.1} ± {e:.1} as it is"
             );
             break;
         }

@@ -106,7 +106,8 @@ pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
         None => format!(
             " A search of {} terms built from the model's own symbols (forms: {}) found none that explains the data decisively.",
             report.searched,
-            report.forms.join("; ")
+            // The grammar's forms without their placeholders' braces: `c*(y)^2`.
+            report.forms.iter().map(|f| f.replace(['{', '}'], "")).collect::<Vec<_>>().join("; ")
         ),
     });
 }

@@ -197,6 +197,24 @@ impl Diagnoser<'_> {
     }
 }
 
+/// A scouted candidate made again with the configured settings and its own
+/// seed. Only the verdict's named candidate, whose posterior is the
+/// answer (the discovered term's parameters, the repair's "after"), is
+/// sampled again for convergence; any other is weighed by its evidence,
+/// whose error already counts the replicates' disagreement
+/// (`calibrate::smc`), and its diagnostics say whether it converged.
+pub(super) fn refit(
+    d: &Diagnoser,
+    analysis: &Analysis,
+    run: &CandidateRun,
+    verdict: &Verdict,
+    base: (f64, f64),
+) -> Result<Option<CandidateRun>> {
+    let answer = verdict.best == run.result.name;
+    let (candidate, odds) = (run.candidate.clone(), run.result.prior_log_odds);
+    d.fit_candidate(analysis, candidate, odds, run.seed, base, &|_, _| answer)
+}
+
 /// Whether a candidate of log evidence `z` (± `e`) trails `leader` by more
 /// than a verdict could turn on: the decisive margin, plus room for its
 /// estimate to move by ten of its errors (and at least 5 nats) as more

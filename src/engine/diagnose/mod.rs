@@ -213,7 +213,9 @@ pub fn run_reusing(
         let (mut base_full, mut md_full) = (false, false);
         // Twice at most: a first refinement may move the verdict onto fits still scouted.
         for _ in 0..2 {
-            let need = precision::needed(&runs, &verdict, settings, (z_base, e_base), (z_md, e_md), settings.repair);
+            let base_p = p_value(base.summary.fit.chi2, base.summary.fit.dof);
+            let need =
+                precision::needed(&runs, &verdict, settings, (z_base, e_base), (z_md, e_md), base_p, settings.repair);
             let todo: Vec<usize> = need.candidates.iter().copied().filter(|i| !full[*i]).collect();
             if todo.is_empty() && (!need.base || base_full) && (!need.md || md_full) {
                 break;
@@ -229,9 +231,7 @@ pub fn run_reusing(
                 md_full = true;
             }
             for i in todo {
-                let r = &runs[i];
-                let (candidate, odds, seed) = (r.candidate.clone(), r.result.prior_log_odds, r.seed);
-                if let Some(refit) = d.fit_candidate(analysis, candidate, odds, seed, (z_base, e_base), &|_, _| true)? {
+                if let Some(refit) = refit(&d, analysis, &runs[i], &verdict, (z_base, e_base))? {
                     runs[i] = refit;
                 }
                 full[i] = true;

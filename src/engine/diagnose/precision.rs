@@ -3,12 +3,14 @@
 //! final sweeps, no reruns for convergence), the verdict is decided on the scouts, and then
 //! each fit the verdict turns on is made again with the configured
 //! settings and the same seed, so that it is exactly the fit a full run
-//! makes: the named candidate and those it stands against, every candidate
-//! whose lead or lag is within a few of its standard errors of the decisive
-//! margin, and the fits with and without MD where a comparison with them is
-//! close (or where the verdict rests on them: `unexplained`, `none`, and
-//! the before-and-after of a repair). A candidate far behind keeps its
-//! scout, and says so: its answer could not have changed the verdict.
+//! makes: every candidate whose lead or lag is within a few of its
+//! standard errors of the decisive margin, the one it is compared with,
+//! and the fits with and without MD where a comparison with them is
+//! close. With the repair, the fits its before-and-after shows (the named
+//! candidate, those it stands against, and the fits with and without MD)
+//! are made in full too; without it (`--no-repair`, the blind tests) the
+//! verdict is the whole answer. A candidate far behind keeps its scout,
+//! and says so: its answer could not have changed the verdict.
 
 use super::*;
 use crate::engine::calibrate::SamplerKind;
@@ -25,6 +27,10 @@ const SCOUT_MIN_PARTICLES: usize = 200;
 /// error of a few tenths leaves its side of the line uncertain.
 const CLOSE_SIGMAS: f64 = 4.0;
 const CLOSE_NATS: f64 = 2.0;
+/// A base fit whose χ² p-value is below this share of `min_p_value` is a
+/// significant mismatch however the scout's posterior median moves within
+/// its error (a χ² of 2.0 per point over 80 points has p ≈ 1e-7).
+const CLEAR_P_SHARE: f64 = 0.01;
 
 /// The analysis as a scout samples it; None where scouting does not apply
 /// (the ensemble sampler, or too few particles to divide).
@@ -69,6 +75,7 @@ pub(super) fn needed(
     settings: &DiagnoseSettings,
     (z_base, e_base): (f64, f64),
     (z_md, e_md): (f64, f64),
+    base_p_value: f64,
     repair: bool,
 ) -> Needed {
     let strong = settings.strong_log_bf;
@@ -81,33 +88,60 @@ pub(super) fn needed(
     if standing.is_empty() && !runs.is_empty() {
         standing.push(0);
     }
-    let mut need = Needed { candidates: standing.clone(), ..Default::default() };
+    // With the repair, the standing fits' posteriors are shown (the
+    // before-and-after), so they are made in full; without it the verdict
+    // is the answer, and a fit is made again only where a comparison it
+    // enters is close.
+    let mut need = Needed { candidates: if repair { standing.clone() } else { Vec::new() }, ..Default::default() };
+    let (mut md, mut base) = (false, false);
+    let mut add = |i: usize| {
+        if !need.candidates.contains(&i) {
+            need.candidates.push(i);
+        }
+    };
+    // A standing candidate that cannot come within reach of the base
+    // model's margin cannot be named, whatever its rivals or the MD fit
+    // do: those comparisons then decide nothing.
+    let nameable = |s: usize| {
+        let c = &runs[s].result;
+        c.log_evidence - z_base > strong || close(c.log_evidence, z_base, strong, c.log_evidence_err, e_base)
+    };
+    let standing: Vec<usize> = standing.into_iter().filter(|&s| nameable(s)).collect();
     for (i, r) in runs.iter().enumerate() {
         let c = &r.result;
-        let near = standing.iter().any(|&s| {
+        for &s in standing.iter().filter(|&&s| s != i) {
             let l = &runs[s].result;
             let (el, ec) = (l.log_evidence_err, c.log_evidence_err);
             // A candidate that contains the leader, or is within it, is
             // weighed against it by Occam's margin; any other, as a rival.
             let nested = members(&c.name).is_superset(&members(&l.name)) || within(c, l) || within(l, c);
             let margin = if nested { strong } else { decisive_lead(l, c, settings) };
-            s != i
-                && (close(c.log_evidence, l.log_evidence, margin, ec, el)
-                    || close(l.log_evidence, c.log_evidence, margin, el, ec))
-        });
-        if near && !need.candidates.contains(&i) {
-            need.candidates.push(i);
+            if close(c.log_evidence, l.log_evidence, margin, ec, el)
+                || close(l.log_evidence, c.log_evidence, margin, el, ec)
+            {
+                add(i);
+                add(s);
+            }
         }
     }
     for &s in &standing {
         let c = &runs[s].result;
         let (z, e) = (c.log_evidence, c.log_evidence_err);
         // Not beaten by MD by more than the margin (without the search's odds), and more probable than MD.
-        need.md |= close(z - c.prior_log_odds, z_md, -strong, e, e_md) || close(z, z_md, 0.0, e, e_md);
-        need.base |= close(z, z_base, strong, e, e_base);
+        let md_close = close(z - c.prior_log_odds, z_md, -strong, e, e_md) || close(z, z_md, 0.0, e, e_md);
+        let base_close = close(z, z_base, strong, e, e_base);
+        if md_close || base_close {
+            add(s);
+        }
+        (md, base) = (md || md_close, base || base_close);
     }
-    need.md |= repair || matches!(verdict.best.as_str(), "unexplained" | "none");
-    need.base |= repair || verdict.best == "none" || close(z_md, z_base, strong, e_md, e_base);
+    need.md |= repair || md;
+    // Whether the mismatch is significant turns on MD against the base
+    // only where the base fit's χ² test does not already say so by far.
+    let significant_by_chi2 = base_p_value < CLEAR_P_SHARE * settings.min_p_value;
+    let md_against_base = !significant_by_chi2 && close(z_md, z_base, strong, e_md, e_base);
+    need.base |= repair || base || md_against_base;
+    need.md |= md_against_base;
     need.candidates.sort_unstable();
     need
 }

@@ -9,7 +9,9 @@
 //! sample size of `ess_fraction × particles`. It returns equally weighted
 //! posterior draws and the log-evidence. The evidence's standard error comes
 //! from the genealogy-based variance estimator of Lee & Whiteley (2018), which
-//! needs multinomial resampling at every step, as done here.
+//! needs multinomial resampling at every step, as done here; replicates
+//! whose log-evidences scatter beyond those errors (stuck in different
+//! modes) give the error of their scatter instead (`pooled`).
 //!
 //! When the likelihood is a sum of independent terms (one per observable, each
 //! with its own discrepancy hyperparameters), each sweep also moves the shared
@@ -35,6 +37,7 @@ use rayon::prelude::*;
 
 mod mixture;
 mod moves;
+mod pooled;
 mod tempering;
 
 use mixture::Mixture;
@@ -190,12 +193,11 @@ impl Smc {
         for (r, end) in results.into_iter().enumerate() {
             replicates.push(end.into_result(ck, started, &format!("replicate {r}: "))?);
         }
-        // Pooled estimate Ẑ = mean_k Ẑ_k; its relative variance is Σ_k v_k / K²
-        // (replicates are independent and each Ẑ_k ≈ Z).
+        // Pooled estimate Ẑ = mean_k Ẑ_k; its error from the replicates' own
+        // and, where they disagree beyond it, from their scatter (`pooled`).
         let logs: Vec<f64> = replicates.iter().map(|r| r.log_evidence).collect();
-        let log_evidence = log_sum_exp(&logs) - (k as f64).ln();
-        let rel_var: f64 = replicates.iter().map(|r| r.relative_variance.max(0.0)).sum::<f64>() / (k * k) as f64;
-        let log_evidence_err = rel_var.ln_1p().sqrt();
+        let variances: Vec<f64> = replicates.iter().map(|r| r.relative_variance).collect();
+        let (log_evidence, log_evidence_err) = pooled::pool(&logs, &variances);
         let chains = Chains {
             names: prior.names.clone(),
             dim: prior.dim(),
