@@ -189,7 +189,8 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
     assert_eq!(across.len(), half * half);
     let kernel = DiscrepancyKernel::KernelII;
     let lik = MdLikelihood::new(Arc::new(LinearModel), blocks, Some(kernel)).joint(&across);
-    assert!(!mdpipe::calibrate::LogLikelihood::term_structure(&lik).unwrap().separable);
+    assert!(mdpipe::calibrate::LogLikelihood::term_structure(&lik).is_some());
+    assert!(mdpipe::calibrate::LogLikelihood::separable_terms(&lik).is_none(), "joined blocks are not separable");
     // C = errors² + normalization + each block's δ (in data units), by hand.
     let n = x.len();
     let mut cov = vec![norm; n * n];

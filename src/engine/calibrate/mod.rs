@@ -42,7 +42,7 @@ pub use prior::UniformPrior;
 pub use settings::{SamplerConfig, SamplerKind};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-pub use target::{LogLikelihood, TermStructure};
+pub use target::{LogLikelihood, SeparableTerms, TermStatistics, TermStructure};
 
 /// Posterior draws grouped into chains (walkers for the ensemble sampler,
 /// replicates for SMC). Each chain is row-major `draws × dim`.

@@ -13,17 +13,6 @@ pub trait LogLikelihood: Sync {
         None
     }
 
-    /// The log-likelihood, with each term written to `terms` (only called when
-    /// `term_structure` is given).
-    fn log_likelihood_terms(&self, x: &[f64], _terms: &mut [f64]) -> f64 {
-        self.log_likelihood(x)
-    }
-
-    /// One term (only called when `term_structure` is given).
-    fn log_likelihood_term(&self, _x: &[f64], _term: usize) -> f64 {
-        unreachable!("log_likelihood_term needs a term structure")
-    }
-
     /// For terms that are not separable: a cheap, fixed function of `x` whose
     /// change with term `term`'s own parameters tracks the likelihood's. A
     /// sampler may screen a move of those parameters with it before paying
@@ -33,37 +22,50 @@ pub trait LogLikelihood: Sync {
         None
     }
 
+    /// The terms evaluated one at a time, when they are independent (a
+    /// separable `term_structure`); `None` otherwise.
+    fn separable_terms(&self) -> Option<&dyn SeparableTerms> {
+        None
+    }
+
     /// For terms linked only through a small term that does not move with
-    /// their own parameters: how many values each term's statistics take
-    /// (`block_stats`); 0 when they are not so. A sampler that keeps every
-    /// term's statistics moves one term's own parameters at that term's
-    /// cost, exactly.
-    fn term_stats_width(&self) -> usize {
-        0
+    /// their own parameters: each term's statistics (`block_stats`); `None`
+    /// when they are not so. A sampler that keeps every term's statistics
+    /// moves one term's own parameters at that term's cost, exactly.
+    fn term_statistics(&self) -> Option<&dyn TermStatistics> {
+        None
     }
+}
 
-    /// The log-likelihood, with every term's statistics written to `stats`
-    /// (only called when `term_stats_width` is not 0).
-    fn log_likelihood_stats(&self, x: &[f64], _stats: &mut [f64]) -> f64 {
-        self.log_likelihood(x)
-    }
+/// Independent terms: `log L = Σ_t L_t`, each computable alone.
+pub trait SeparableTerms: Sync {
+    /// The log-likelihood, with each term written to `terms`.
+    fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64;
+    /// One term.
+    fn log_likelihood_term(&self, x: &[f64], term: usize) -> f64;
+}
 
+/// Linked terms whose link is a small term: every term's statistics kept,
+/// one term's recomputed when its own parameters move.
+pub trait TermStatistics: Sync {
+    /// How many values each term's statistics take (at least 1).
+    fn width(&self) -> usize;
+    /// The log-likelihood, with every term's statistics written to `stats`.
+    fn log_likelihood_stats(&self, x: &[f64], stats: &mut [f64]) -> f64;
     /// Term `term`'s statistics recomputed at `x` in `stats` (every term's),
     /// and the log-likelihood from them.
-    fn update_term_stats(&self, _x: &[f64], _term: usize, _stats: &mut [f64]) -> f64 {
-        unreachable!("update_term_stats needs term statistics")
-    }
+    fn update_term_stats(&self, x: &[f64], term: usize, stats: &mut [f64]) -> f64;
 }
 
 /// `log L(x) = const + Σ_t L_t(x_shared, x_own(t))`: every term depends on the
 /// shared parameters (θ) and on its own (one observable's φ), and on no other.
-/// When the terms are not `separable` (a joint likelihood), the groups still
-/// make good Gibbs moves, but each costs a whole evaluation.
+/// When the terms are not separable (a joint likelihood, no
+/// `LogLikelihood::separable_terms`), the groups still make good Gibbs
+/// moves, but each costs a whole evaluation.
 #[derive(Clone, Debug)]
 pub struct TermStructure {
     pub shared: Vec<usize>,
     pub own: Vec<Vec<usize>>,
-    pub separable: bool,
 }
 
 impl LogLikelihood for MdLikelihood {
@@ -77,19 +79,31 @@ impl LogLikelihood for MdLikelihood {
         }
         let own =
             (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
-        Some(TermStructure { shared: (0..self.n_theta).collect(), own, separable: self.joint.is_none() })
+        Some(TermStructure { shared: (0..self.n_theta).collect(), own })
     }
+    fn screening_term(&self, x: &[f64], term: usize) -> Option<f64> {
+        MdLikelihood::screening_term(self, x, term)
+    }
+    fn separable_terms(&self) -> Option<&dyn SeparableTerms> {
+        (self.n_hyper() > 0 && self.joint.is_none()).then_some(self as &dyn SeparableTerms)
+    }
+    fn term_statistics(&self) -> Option<&dyn TermStatistics> {
+        (self.term_stats_width() > 0).then_some(self as &dyn TermStatistics)
+    }
+}
+
+impl SeparableTerms for MdLikelihood {
     fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64 {
         MdLikelihood::log_likelihood_terms(self, x, terms)
     }
     fn log_likelihood_term(&self, x: &[f64], term: usize) -> f64 {
         MdLikelihood::log_likelihood_term(self, x, term)
     }
-    fn screening_term(&self, x: &[f64], term: usize) -> Option<f64> {
-        MdLikelihood::screening_term(self, x, term)
-    }
-    fn term_stats_width(&self) -> usize {
-        MdLikelihood::term_stats_width(self)
+}
+
+impl TermStatistics for MdLikelihood {
+    fn width(&self) -> usize {
+        self.term_stats_width()
     }
     fn log_likelihood_stats(&self, x: &[f64], stats: &mut [f64]) -> f64 {
         MdLikelihood::log_likelihood_stats(self, x, stats)

@@ -27,7 +27,7 @@
 use super::checkpoint::{f64_bit, f64_bits, Checkpointing};
 use super::kernel::{drive, End, SamplerError, SamplerKernel, Stopped};
 use super::prior::UniformPrior;
-use super::{Chains, LogLikelihood, TermStructure};
+use super::{Chains, LogLikelihood, SeparableTerms, TermStatistics, TermStructure};
 use crate::base::progress::Observer;
 use crate::engine::gp::CholeskyWorkspace;
 use rand::{Rng, SeedableRng};
@@ -251,7 +251,7 @@ struct Kernel<'a> {
     likelihood: &'a dyn LogLikelihood,
     structure: Option<TermStructure>,
     /// What each particle keeps of the likelihood's terms, and how many values.
-    cache: (TermCache, usize),
+    cache: (TermCache<'a>, usize),
     n: usize,
     dim: usize,
     base_steps: f64,

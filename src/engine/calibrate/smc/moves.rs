@@ -107,26 +107,28 @@ pub(super) fn update_factors(groups: &mut [MoveGroup], x: &[f64], dim: usize) {
 }
 
 /// What each particle keeps of its likelihood's terms, so that a move of one
-/// term's own parameters costs that term.
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
-pub(super) enum TermCache {
+/// term's own parameters costs that term, with the likelihood's interface
+/// that computes them.
+#[derive(Clone, Copy)]
+pub(super) enum TermCache<'a> {
     /// Nothing: a term's move is screened, then pays a whole evaluation.
     None,
     /// Each separable term's value (their sum is the log-likelihood).
-    Terms,
-    /// Each linked term's statistics (`LogLikelihood::term_stats_width`).
-    Stats,
+    Terms(&'a dyn SeparableTerms),
+    /// Each linked term's statistics (`TermStatistics::width` values each).
+    Stats(&'a dyn TermStatistics),
 }
 
-impl TermCache {
+impl<'a> TermCache<'a> {
     /// The cache a likelihood allows and how many values it keeps per particle.
-    pub(super) fn of(structure: Option<&TermStructure>, likelihood: &dyn LogLikelihood) -> (TermCache, usize) {
-        match structure {
-            Some(s) if s.separable => (TermCache::Terms, s.own.len()),
-            Some(s) if likelihood.term_stats_width() > 0 => {
-                (TermCache::Stats, s.own.len() * likelihood.term_stats_width())
-            }
-            _ => (TermCache::None, 0),
+    pub(super) fn of(structure: Option<&TermStructure>, likelihood: &'a dyn LogLikelihood) -> (TermCache<'a>, usize) {
+        let Some(s) = structure else {
+            return (TermCache::None, 0);
+        };
+        match (likelihood.separable_terms(), likelihood.term_statistics()) {
+            (Some(terms), _) => (TermCache::Terms(terms), s.own.len()),
+            (None, Some(stats)) => (TermCache::Stats(stats), s.own.len() * stats.width()),
+            (None, None) => (TermCache::None, 0),
         }
     }
 
@@ -134,8 +136,8 @@ impl TermCache {
     fn evaluate(self, likelihood: &dyn LogLikelihood, x: &[f64], values: &mut [f64]) -> f64 {
         match self {
             TermCache::None => likelihood.log_likelihood(x),
-            TermCache::Terms => likelihood.log_likelihood_terms(x, values),
-            TermCache::Stats => likelihood.log_likelihood_stats(x, values),
+            TermCache::Terms(terms) => terms.log_likelihood_terms(x, values),
+            TermCache::Stats(stats) => stats.log_likelihood_stats(x, values),
         }
     }
 }
@@ -146,7 +148,7 @@ impl TermCache {
 pub(super) struct Target<'a> {
     pub(super) prior: &'a UniformPrior,
     pub(super) likelihood: &'a dyn LogLikelihood,
-    pub(super) cache: TermCache,
+    pub(super) cache: TermCache<'a>,
 }
 
 /// The particle cloud between tempering steps, in the unbounded coordinates u.
@@ -283,7 +285,7 @@ pub(super) fn mutate(
                     // Terms linked without kept statistics (no cache) move at the cost
                     // of a whole evaluation, paid only for moves their screen lets through.
                     let screened = match g.term {
-                        Some(t) if cache == TermCache::None => {
+                        Some(t) if matches!(cache, TermCache::None) => {
                             screen_change(likelihood, prior, xi, &prop_x, &mut cur_x, &mut screens[t], t)
                         }
                         None | Some(_) => None,
@@ -296,15 +298,15 @@ pub(super) fn mutate(
                         }
                     }
                     let (lp, new_term) = match (g.term, cache) {
-                        (Some(t), TermCache::Terms) => {
+                        (Some(t), TermCache::Terms(terms)) => {
                             counts.term_evaluations += 1;
-                            let lt = likelihood.log_likelihood_term(&prop_x, t);
+                            let lt = terms.log_likelihood_term(&prop_x, t);
                             (*li - ti[t] + lt, lt)
                         }
-                        (Some(t), TermCache::Stats) => {
+                        (Some(t), TermCache::Stats(stats)) => {
                             counts.term_evaluations += 1;
                             prop_terms.copy_from_slice(ti);
-                            (likelihood.update_term_stats(&prop_x, t, &mut prop_terms), f64::NAN)
+                            (stats.update_term_stats(&prop_x, t, &mut prop_terms), f64::NAN)
                         }
                         _ => {
                             counts.full_evaluations += 1;
@@ -331,7 +333,7 @@ pub(super) fn mutate(
                         *li = lp;
                         *pi = lpi;
                         match (g.term, cache) {
-                            (Some(t), TermCache::Terms) => ti[t] = new_term,
+                            (Some(t), TermCache::Terms(_)) => ti[t] = new_term,
                             _ => ti.copy_from_slice(&prop_terms),
                         }
                         match (g.term, screened) {
