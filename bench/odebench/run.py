@@ -217,12 +217,16 @@ def main():
             if args.nulls:
                 write_case(case, folder)
                 start = time.time()
-                subprocess.run([binary, "diagnose", "model.toml", "--seed", "1", "--discover", "--no-repair", "--out", "diag"], cwd=folder,
-                               capture_output=True, text=True, timeout=args.timeout)
-                seconds = time.time() - start
-                d = json.loads((folder / "diag" / "diagnosis.json").read_text())
-                found = any(c["name"] == d["verdict"]["best"] and c["prior_log_odds"] < 0 for c in d["candidates"])
-                row.update(mdpipe="discovered" if found else "clean", what=d["verdict"]["best"], seconds=seconds)
+                try:
+                    subprocess.run([binary, "diagnose", "model.toml", "--seed", "1", "--discover", "--no-repair", "--out", "diag"],
+                                   cwd=folder, capture_output=True, text=True, timeout=args.timeout)
+                    d = json.loads((folder / "diag" / "diagnosis.json").read_text())
+                    found = any(c["name"] == d["verdict"]["best"] and c["prior_log_odds"] < 0 for c in d["candidates"])
+                    row.update(mdpipe="discovered" if found else "clean", what=d["verdict"]["best"])
+                except (subprocess.TimeoutExpired, FileNotFoundError) as e:
+                    # A null that times out or fails discovered nothing, but is no clean answer either.
+                    row.update(mdpipe="failed or timed out", what=type(e).__name__)
+                row["seconds"] = time.time() - start
             else:
                 verdict, what, seconds = run_mdpipe(case, folder, binary, args.timeout)
                 row.update(mdpipe=verdict, what=what, seconds=seconds)

@@ -187,10 +187,7 @@ pub fn run_study(
     let config = Config::load(config)?;
     let run: crate::pipeline::RunConfig = match &config.run {
         Some(table) => crate::pipeline::RunConfig::decode(&config, table)?,
-        None => bail!(
-            "{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)",
-            config.path.display()
-        ),
+        None => return Err(crate::pipeline::no_run_table(&config.path)),
     };
     let out = crate::pipeline::study_out(&config, &run, out.as_deref());
     let start = std::time::Instant::now();

@@ -67,15 +67,18 @@ pub fn stages(systems: &Systems) -> Vec<&'static str> {
     plan::stages(systems).iter().map(|s| s.id().name()).collect()
 }
 
+/// The error for a config without `[run]`, pointing at a generic example.
+pub fn no_run_table(path: &std::path::Path) -> anyhow::Error {
+    anyhow!(
+        "{}: no [run] table; `mdpipe run` needs one (see examples/decay_counter/study.toml, your own simulator's run)",
+        path.display()
+    )
+}
+
 /// Runs the study (or one stage of it) with the systems `app::systems()`
 /// lists. Returns what ran and what was skipped.
 pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<StageOutcome>> {
-    let table = config.run.as_ref().ok_or_else(|| {
-        anyhow!(
-            "{}: no [run] table; `mdpipe run` needs one (see pipeline/heavy_ion_2param.toml)",
-            config.path.display()
-        )
-    })?;
+    let table = config.run.as_ref().ok_or_else(|| no_run_table(&config.path))?;
     let run: &RunConfig = &RunConfig::of(config, table)?;
     let spec = crate::engine::design::DesignSpec::load(&config.resolve(&run.design))?;
     let design_parameters: Vec<String> = spec.parameters.iter().map(|p| p.name.clone()).collect();

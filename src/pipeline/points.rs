@@ -42,30 +42,46 @@ pub(super) fn write_design(study: &Study<'_>, d: &NewDesign<'_>) -> Result<()> {
     Ok(())
 }
 
-/// Writes chosen points (emulator parameter order, `names`) as a design in
-/// `design_dir` (parameter files and a Slurm array over `ids`) whose array
-/// script runs `simulator` under `label`, and makes its `runs/` folder ready.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn write_chosen_points(
+/// Points chosen by a stage (emulator parameter order, `names`), to be run
+/// as a design of their own: which simulator, under which label and ids,
+/// with the provenance their design records.
+pub(super) struct ChosenPoints<'a> {
+    pub spec: &'a DesignSpec,
+    pub simulator: &'a SimulatorSpec,
+    pub label: &'a str,
+    pub ids: &'a [i64],
+    pub points: &'a [Vec<f64>],
+    pub names: &'a [String],
+    pub prov: &'a Provenance,
+}
+
+/// Writes the chosen points as a design in `design_dir`, runs them through
+/// the run's executor and ingests their runs into the training table `table`.
+pub(super) fn run_chosen_points(
     study: &Study<'_>,
-    spec: &DesignSpec,
-    simulator: &SimulatorSpec,
-    label: &str,
-    ids: &[i64],
-    points: &[Vec<f64>],
-    names: &[String],
-    prov: &Provenance,
+    chosen: &ChosenPoints,
     design_dir: &Path,
-) -> Result<PathBuf> {
-    let spec = with_array_command(study, spec, simulator, label);
+    table: &Path,
+) -> Result<()> {
+    write_chosen_points(study, chosen, design_dir)?;
+    run_design(study, design_dir, chosen.simulator, chosen.label)?;
+    ingest_design(study, design_dir, table)
+}
+
+/// Writes chosen points as a design in `design_dir` (parameter files and a
+/// Slurm array over their ids) whose array script runs their simulator
+/// under their label, and makes its `runs/` folder ready.
+fn write_chosen_points(study: &Study<'_>, c: &ChosenPoints, design_dir: &Path) -> Result<PathBuf> {
+    let spec = with_array_command(study, c.spec, c.simulator, c.label);
     // The design's parameter order may differ from the emulator's.
-    let rows: Vec<Vec<f64>> = points
+    let rows: Vec<Vec<f64>> = c
+        .points
         .iter()
         .map(|p| {
             spec.parameters
                 .iter()
                 .map(|sp| {
-                    names
+                    c.names
                         .iter()
                         .position(|n| *n == sp.name)
                         .map(|k| p[k])
@@ -74,8 +90,8 @@ pub(super) fn write_chosen_points(
                 .collect::<Result<Vec<f64>>>()
         })
         .collect::<Result<_>>()?;
-    let made_by = format!("mdpipe {label} ({} points)", ids.len());
-    crate::engine::design::write_points(&spec, ids, &rows, prov, &made_by, design_dir)?;
+    let made_by = format!("mdpipe {} ({} points)", c.label, c.ids.len());
+    crate::engine::design::write_points(&spec, c.ids, &rows, c.prov, &made_by, design_dir)?;
     let runs = design_dir.join("runs");
     std::fs::create_dir_all(&runs)?;
     std::fs::copy(design_dir.join("design.parquet"), runs.join("design.parquet"))?;

@@ -44,10 +44,10 @@ impl PointRunner for VariantRuns<'_, '_> {
             &format!("run {} --stage diagnose (refining {})", r.config.path.display(), self.variant.name),
         );
         let simulator = &self.variant.simulator;
-        points::write_chosen_points(r, &spec, simulator, &label, &ids, points, names, &prov, &design_dir)?;
-        points::run_design(r, &design_dir, simulator, &label)?;
+        let chosen =
+            points::ChosenPoints { spec: &spec, simulator, label: &label, ids: &ids, points, names, prov: &prov };
         let table = dir.join("training.parquet");
-        points::ingest_design(r, &design_dir, &table)?;
+        points::run_chosen_points(r, &chosen, &design_dir, &table)?;
         read_training_table(&table, names)
     }
 }

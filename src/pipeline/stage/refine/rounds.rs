@@ -184,10 +184,10 @@ fn run_new_points(
         &format!("run {} --stage refine", study.config.path.display()),
     );
     let spec = DesignSpec::load(&spec_path)?;
-    points::write_chosen_points(study, &spec, &simulator, &label, ids, points, names, &prov, &design_dir)?;
-    points::run_design(study, &design_dir, &simulator, &label)?;
+    let chosen =
+        points::ChosenPoints { spec: &spec, simulator: &simulator, label: &label, ids, points, names, prov: &prov };
     let table = round_dir.join("training.parquet");
-    points::ingest_design(study, &design_dir, &table)?;
+    points::run_chosen_points(study, &chosen, &design_dir, &table)?;
     Ok(table)
 }
 
