@@ -278,6 +278,9 @@ pub fn print_summary(s: &Summary) {
             100.0 * s.fit.model_variance_share
         );
     }
+    for piled in &s.piled_at_bounds {
+        eprintln!("  WARNING: {piled}");
+    }
     if d.converged {
         println!("  converged: R-hat <= 1.01 and ESS >= 400 for every parameter");
     } else {

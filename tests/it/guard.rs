@@ -130,7 +130,7 @@ fn smc_on_a_likelihood_that_is_nowhere_finite_stops_with_an_error() {
     assert!(err.to_string().contains("no particle has a finite likelihood"), "{err}");
     // Typed, for a caller that acts on it rather than prints it.
     assert!(
-        matches!(err.cause, Some(mdpipe::calibrate::kernel::SamplerError::NoFiniteLikelihood { beta }) if beta == 0.0),
+        matches!(err.cause, Some(mdpipe::calibrate::algorithm::SamplerError::NoFiniteLikelihood { beta }) if beta == 0.0),
         "{err:?}"
     );
 }

@@ -2,8 +2,8 @@
 //! updated in two halves as in emcee (Foreman-Mackey et al. 2013) so that
 //! each half's walkers move in parallel.
 
+use super::algorithm::{drive, SamplerError, SamplingAlgorithm, Stopped};
 use super::checkpoint::{f64_bit, f64_bits, Checkpointing};
-use super::kernel::{drive, SamplerError, SamplerKernel, Stopped};
 use super::prior::UniformPrior;
 use super::{Chains, LogLikelihood};
 use crate::base::progress::Observer;
@@ -124,7 +124,7 @@ impl Stretch<'_> {
     }
 }
 
-impl SamplerKernel for Stretch<'_> {
+impl SamplingAlgorithm for Stretch<'_> {
     type State = EnsembleState;
     type Output = EnsembleOutput;
 
@@ -220,8 +220,8 @@ impl Ensemble {
         observer: &dyn Observer,
         ck: Option<&Checkpointing>,
     ) -> Result<EnsembleOutput, Stopped> {
-        let kernel = Stretch { settings: &self.settings, prior, likelihood, dim: prior.dim() };
+        let algorithm = Stretch { settings: &self.settings, prior, likelihood, dim: prior.dim() };
         let started = std::time::Instant::now();
-        drive(&kernel, seed, observer, ck.map(|c| (c, "ensemble"))).into_result(ck, started, "")
+        drive(&algorithm, seed, observer, ck.map(|c| (c, "ensemble"))).into_result(ck, started, "")
     }
 }

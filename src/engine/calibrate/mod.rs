@@ -7,6 +7,7 @@
 
 pub mod across;
 pub mod adapt;
+pub mod algorithm;
 pub mod analysis;
 pub mod block;
 pub mod block_stats;
@@ -17,7 +18,6 @@ pub mod ensemble;
 pub mod fisher;
 pub mod guard;
 pub mod joint;
-pub mod kernel;
 pub mod likelihood;
 pub mod prior;
 pub mod settings;
@@ -383,7 +383,7 @@ pub fn run_and_write(
 /// As `run`; with `checkpoint` the SMC sampler saves its state as it goes and
 /// resumes from a matching saved state (the caller clears it once the
 /// outputs are safe: [`run_and_write`]). Stopped at the checkpoint's time
-/// limit it returns a `kernel::Stopped` error.
+/// limit it returns a `algorithm::Stopped` error.
 pub fn run_checkpointed(
     problem: &Problem,
     seed: u64,

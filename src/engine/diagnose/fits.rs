@@ -31,6 +31,7 @@ pub(super) fn figures(label: &str, problem: &Problem, cal: &Calibration) -> FitF
         log_evidence_err: e,
         parameters: theta.iter().map(|n| (n.clone(), cal.summary.parameters[n].clone())).collect(),
         delta_max_sigma: delta_max_sigma(problem, &cal.predictions),
+        piled_at_bounds: cal.summary.piled_at_bounds.clone(),
     }
 }
 

@@ -177,6 +177,10 @@ pub struct FitFigures {
     pub parameters: BTreeMap<String, ParamSummary>,
     /// Largest |posterior-mean δ|/σ per observable (0 without MD).
     pub delta_max_sigma: BTreeMap<String, f64>,
+    /// Parameters piled against a bound of the prior box (for an emulator,
+    /// its design box): the box, not the data, ends their posterior.
+    #[serde(default)]
+    pub piled_at_bounds: Vec<crate::engine::calibrate::summary::PiledAtBound>,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

@@ -212,6 +212,9 @@ pub fn print(d: &Diagnosis) {
                 dmax,
                 g.join(", ")
             );
+            for piled in &f.piled_at_bounds {
+                crate::base::messages::say!("    warning ({}): {piled}", f.label);
+            }
         }
         for (n, r) in &imp.interval_narrowing {
             let limit = imp

@@ -24,8 +24,8 @@
 //! the R̂/ESS diagnostics, with each replicate's draws ordered by ancestor so
 //! that copies of one particle that the moves failed to separate lower the ESS.
 
+use super::algorithm::{drive, End, SamplerError, SamplingAlgorithm, Stopped};
 use super::checkpoint::{f64_bit, f64_bits, Checkpointing};
-use super::kernel::{drive, End, SamplerError, SamplerKernel, Stopped};
 use super::prior::UniformPrior;
 use super::{Chains, LogLikelihood, SeparableTerms, TermStatistics, TermStructure};
 use crate::base::progress::Observer;
@@ -179,14 +179,14 @@ impl Smc {
         ck: Option<&Checkpointing>,
     ) -> Result<SmcOutput, Stopped> {
         let k = self.settings.replicates.max(1);
-        let kernel = Kernel::new(&self.settings, prior, likelihood);
+        let algorithm = Tempered::new(&self.settings, prior, likelihood);
         let started = std::time::Instant::now();
         let results: Vec<End<ReplicateOutput>> = (0..k)
             .into_par_iter()
             .map(|r| {
                 let rseed = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(r as u64 * 0xD1B5_4A32_D192_ED03 + 1);
                 let name = format!("replicate_{r}");
-                drive(&kernel, rseed, observer, ck.map(|c| (c, name.as_str())))
+                drive(&algorithm, rseed, observer, ck.map(|c| (c, name.as_str())))
             })
             .collect();
         let mut replicates = Vec::with_capacity(k);
@@ -245,7 +245,7 @@ struct ReplicateState {
 
 /// What stays fixed while a replicate tempers: the target and the settings
 /// derived from its size. `init`, `step` and `finish` move one state.
-struct Kernel<'a> {
+struct Tempered<'a> {
     settings: &'a SmcSettings,
     prior: &'a UniformPrior,
     likelihood: &'a dyn LogLikelihood,
@@ -260,7 +260,7 @@ struct Kernel<'a> {
     target_ess: f64,
 }
 
-impl SamplerKernel for Kernel<'_> {
+impl SamplingAlgorithm for Tempered<'_> {
     type State = ReplicateState;
     type Output = ReplicateOutput;
 
@@ -288,7 +288,7 @@ impl SamplerKernel for Kernel<'_> {
     }
 }
 
-impl<'a> Kernel<'a> {
+impl<'a> Tempered<'a> {
     fn new(settings: &'a SmcSettings, prior: &'a UniformPrior, likelihood: &'a dyn LogLikelihood) -> Self {
         let dim = prior.dim();
         let n = settings.particles.max(2);
@@ -303,7 +303,7 @@ impl<'a> Kernel<'a> {
             .max()
             .unwrap_or(dim);
         let base_steps = (settings.steps_per_dim * sweep_dim as f64).ceil().max(1.0);
-        Kernel {
+        Tempered {
             settings,
             prior,
             likelihood,

@@ -15,10 +15,12 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
+mod edges;
 mod fit;
 mod predictions;
 mod replicates;
 
+pub use edges::{piled_at_bounds, PiledAtBound};
 pub use fit::*;
 pub use predictions::*;
 pub use replicates::*;
@@ -249,6 +251,10 @@ pub struct Summary {
     pub log_evidence_err: Option<f64>,
     pub fit: FitQuality,
     pub diagnostics: Diagnostics,
+    /// Parameters whose draws pile against a bound of the prior box
+    /// (`edges`): the box, not the data, ends the posterior there.
+    #[serde(default)]
+    pub piled_at_bounds: Vec<PiledAtBound>,
     pub provenance: Provenance,
 }
 
@@ -315,6 +321,7 @@ pub fn summarize(
             sampler,
             adaptation: Vec::new(),
         },
+        piled_at_bounds: piled_at_bounds(chains, &problem.prior),
         provenance: problem.provenance(seed, "calibrate"),
     }
 }

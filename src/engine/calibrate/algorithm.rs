@@ -1,4 +1,5 @@
-//! One interface for every sampler, after BlackJAX's kernels and argmin's
+//! One interface for every sampling algorithm, after BlackJAX's sampling
+//! algorithms and argmin's
 //! executor: a sampler says how to make its state (`init`), how one step
 //! moves it (`step`) and what the final state yields (`finish`); [`drive`]
 //! owns the loop around them, so checkpoints, time limits and progress work
@@ -20,7 +21,7 @@ pub enum SamplerError {
     TemperingStalled { beta: f64, steps: usize },
 }
 
-pub trait SamplerKernel {
+pub trait SamplingAlgorithm {
     type State: serde::Serialize + serde::de::DeserializeOwned;
     type Output: serde::Serialize + serde::de::DeserializeOwned;
 
@@ -92,11 +93,11 @@ impl<O> End<O> {
     }
 }
 
-/// Runs `kernel` from its saved state under `name` in `ck` (or from `init`)
+/// Runs `algorithm` from its saved state under `name` in `ck` (or from `init`)
 /// to its end, saving the state at the checkpoint's interval, when stuck and
 /// at the time limit, and the finished output under `<name>.done`.
-pub fn drive<K: SamplerKernel>(
-    kernel: &K,
+pub fn drive<K: SamplingAlgorithm>(
+    algorithm: &K,
     seed: u64,
     observer: &dyn Observer,
     ck: Option<(&Checkpointing, &str)>,
@@ -104,14 +105,14 @@ pub fn drive<K: SamplerKernel>(
     let done_name = ck.map(|(_, name)| format!("{name}.done"));
     if let (Some((c, _)), Some(done)) = (ck, &done_name) {
         if let Some(out) = c.load::<K::Output>(done) {
-            observer.advance(kernel.progress_units());
+            observer.advance(algorithm.progress_units());
             return End::Done(out);
         }
     }
-    let mut state = ck.and_then(|(c, name)| c.load::<K::State>(name)).unwrap_or_else(|| kernel.init(seed));
+    let mut state = ck.and_then(|(c, name)| c.load::<K::State>(name)).unwrap_or_else(|| algorithm.init(seed));
     let mut last_save = std::time::Instant::now();
     loop {
-        let stuck = match kernel.step(&mut state, observer) {
+        let stuck = match algorithm.step(&mut state, observer) {
             Ok(true) => break,
             Ok(false) => None,
             Err(why) => Some(why),
@@ -130,7 +131,7 @@ pub fn drive<K: SamplerKernel>(
             return End::Stuck(why);
         }
     }
-    let out = kernel.finish(state);
+    let out = algorithm.finish(state);
     if let (Some((c, _)), Some(done)) = (ck, &done_name) {
         c.save(done, &out);
     }
