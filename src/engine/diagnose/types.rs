@@ -150,6 +150,20 @@ pub struct Verdict {
 }
 
 impl Verdict {
+    /// `unexplained` for a model that cannot be computed over the data:
+    /// there is no MD fit to weigh, so no probability until a candidate is
+    /// named or standing.
+    pub(super) fn uncomputable() -> Verdict {
+        Verdict {
+            best: "unexplained".into(),
+            standing: Vec::new(),
+            suggestion: None,
+            refine: Vec::new(),
+            statement: String::new(),
+            confidence: f64::NAN,
+        }
+    }
+
     /// The verdict's probability in words: what it is the probability of.
     pub fn confidence_phrase(&self) -> String {
         let v = self;
@@ -316,14 +330,7 @@ mod tests {
     /// carries no probability, says why, and survives JSON (null) intact.
     #[test]
     fn an_uncomputable_models_verdict_has_no_probability_and_round_trips() {
-        let v = Verdict {
-            best: "unexplained".into(),
-            standing: Vec::new(),
-            suggestion: None,
-            refine: Vec::new(),
-            statement: String::new(),
-            confidence: f64::NAN,
-        };
+        let v = Verdict::uncomputable();
         assert!(v.confidence_phrase().contains("cannot be computed"), "{}", v.confidence_phrase());
         let text = serde_json::to_string(&v).unwrap();
         assert!(text.contains("\"confidence\":null"), "{text}");

@@ -73,15 +73,7 @@ fn verdict(candidates: &[CandidateResult], runs: &[CandidateRun], settings: &Dia
         // No measurement is proposed here: readings of one fit are one explanation.
         super::decide::drop_inseparable(c, &mut rivals, false);
     }
-    let mut v = Verdict {
-        best: "unexplained".into(),
-        standing: Vec::new(),
-        suggestion: None,
-        refine: Vec::new(),
-        statement: String::new(),
-        // Unless a candidate is named or standing, there is no fit to weigh.
-        confidence: f64::NAN,
-    };
+    let mut v = Verdict::uncomputable();
     match named {
         Some(c) if rivals.is_empty() => {
             let mine = members(&c.name);
