@@ -121,7 +121,7 @@ pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingR
         let overrides = Overrides { kernel: Some(crate::base::choices::Kernel::II), ..Default::default() };
         let mut problem = Problem::new(&analysis, &overrides)?;
         let setup_seconds = start.elapsed().as_secs_f64();
-        let rank = problem.likelihood.structure.as_ref().map(|s| s.rank);
+        let rank = problem.likelihood.form.structure().map(|s| s.rank);
         let mut emulated = analysis.clone();
         emulated.simulator = Arc::new(EmulatedModel::new(emulator_of(&problem)?));
         let structured_per_second = rate(&problem, seconds);
@@ -130,7 +130,7 @@ pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingR
             rate(&problem, seconds)
         });
         let mut problem = Problem::new(&emulated, &overrides)?;
-        let emulator_rank = problem.likelihood.structure.as_ref().and_then(|s| s.model.as_ref()).map(|m| m.rank);
+        let emulator_rank = problem.likelihood.form.structure().and_then(|s| s.model()).map(|m| m.rank);
         let emulated_structured_per_second = rate(&problem, seconds);
         let emulated_dense_per_second = (n <= DENSE_UP_TO).then(|| {
             problem.likelihood = problem.likelihood.dense();

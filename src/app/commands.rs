@@ -5,7 +5,7 @@ use crate::base::artifacts;
 use crate::base::choices::{Executor, Kernel};
 use crate::base::config::Config;
 use crate::base::progress::Bars;
-use crate::engine::calibrate::{self, summary::Summary, Overrides, Problem, SamplerKind};
+use crate::engine::calibrate::{self, results::summary::Summary, Overrides, Problem, SamplerKind};
 use crate::engine::{compare, diagnose, report};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -50,7 +50,7 @@ pub fn calibrate(
     }
     artifacts::check_writable(&args.out)?;
     let limit = time_limit.map(std::time::Duration::from_secs_f64);
-    let checkpoint = calibrate::checkpoint::Checkpointing::new(
+    let checkpoint = calibrate::sampler::checkpoint::Checkpointing::new(
         &args.out.join(".checkpoint"),
         calibrate::checkpoint_key(&problem, args.seed),
         limit,

@@ -108,8 +108,8 @@ fn write_tables(analysis: &Analysis, cases: &[CompareCase], out: &Path) -> Resul
             md.push_str(&format!(
                 " {} ({}, {}) |",
                 p.interval(),
-                crate::engine::calibrate::summary::readable(p.q16),
-                crate::engine::calibrate::summary::readable(p.q84)
+                crate::engine::calibrate::results::summary::readable(p.q16),
+                crate::engine::calibrate::results::summary::readable(p.q84)
             ));
             c_obs.push(case.observables.join("+"));
             c_kernel.push(s.kernel.clone());

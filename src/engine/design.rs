@@ -475,4 +475,37 @@ mod tests {
         // One point at the centre in 1-d: CD² = 13/12 - 2 + 1 = 1/12.
         assert!((centered_l2_discrepancy(&[0.5], 1) - (1.0f64 / 12.0).sqrt()).abs() < 1e-12);
     }
+
+    /// The closest-pair swaps of `maximin`, on designs from this module.
+    mod closest_pair_swaps {
+        use super::super::*;
+        use crate::engine::maximin::*;
+
+        fn is_latin(x: &[f64], d: usize) -> bool {
+            let n = x.len() / d;
+            (0..d).all(|k| {
+                let mut cells: Vec<usize> = (0..n).map(|i| (x[i * d + k] * n as f64).floor() as usize).collect();
+                cells.sort();
+                cells == (0..n).collect::<Vec<_>>()
+            })
+        }
+
+        #[test]
+        fn swaps_at_the_closest_pair_keep_the_design_latin_and_never_lower_its_minimum_distance() {
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(4);
+            for &(n, d) in &[(30usize, 2usize), (120, 5), (60, 8)] {
+                let mut x = random_lhs(n, d, &mut rng);
+                let start = min_distance(&x, d);
+                let mut last = start;
+                for _ in 0..20 {
+                    refine_closest_pairs(&mut x, d, 500, &mut rng);
+                    let now = min_distance(&x, d);
+                    assert!(now >= last, "n={n} d={d}: {now} after {last}");
+                    assert!(is_latin(&x, d), "n={n} d={d}: no longer Latin");
+                    last = now;
+                }
+                assert!(last > 1.5 * start, "n={n} d={d}: {start} → {last}");
+            }
+        }
+    }
 }

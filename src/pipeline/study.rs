@@ -179,7 +179,7 @@ impl Study<'_> {
 
     /// The calibrations written under `dir`, at most three folders down (the
     /// calibrate stage's cases, the refine rounds' pilots), in path order:
-    /// fits a later stage may take for the same problem (`calibrate::stored`).
+    /// fits a later stage may take for the same problem (`calibrate::results::stored`).
     pub(super) fn stored_fits(&self, dir: &Path) -> Vec<PathBuf> {
         let mut found = Vec::new();
         let mut level = vec![dir.to_path_buf()];
@@ -189,7 +189,7 @@ impl Study<'_> {
                 let Ok(entries) = std::fs::read_dir(d) else { continue };
                 next.extend(entries.flatten().map(|e| e.path()).filter(|p| p.is_dir()));
             }
-            found.extend(next.iter().filter(|p| p.join(calibrate::stored::KEY_FILE).is_file()).cloned());
+            found.extend(next.iter().filter(|p| p.join(calibrate::results::stored::KEY_FILE).is_file()).cloned());
             level = next;
         }
         found.sort();

@@ -2,8 +2,9 @@
 //! (`pipeline/ball_drop_data.csv`, made by `mdpipe simulate ball-drop --seed 1`),
 //! agreement of the two samplers, and clear errors on bad input.
 
-use mdpipe::calibrate::summary::{ParamSummary, Summary};
-use mdpipe::calibrate::{self, diagnostics, Analysis, Overrides, Problem, SamplerKind};
+use mdpipe::calibrate::results::summary::{ParamSummary, Summary};
+use mdpipe::calibrate::sampler::diagnostics;
+use mdpipe::calibrate::{self, Analysis, Overrides, Problem, SamplerKind};
 use mdpipe::compare;
 use mdpipe::config::Config;
 use mdpipe::gp::DiscrepancyKernel;

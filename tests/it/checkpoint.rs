@@ -3,8 +3,8 @@
 //! uninterrupted run; a saved state from another run is never resumed; and
 //! `mdpipe calibrate --time-limit` stops cleanly and resumes from the CLI.
 
-use mdpipe::calibrate::checkpoint::Checkpointing;
-use mdpipe::calibrate::smc::Smc;
+use mdpipe::calibrate::sampler::checkpoint::Checkpointing;
+use mdpipe::calibrate::sampler::smc::Smc;
 use mdpipe::calibrate::{Overrides, Problem};
 use mdpipe::progress::Silent;
 use std::path::Path;
@@ -67,7 +67,7 @@ fn resumed_smc_equals_uninterrupted_smc_bit_for_bit() {
 /// step and resumed each time, it ends with the draws of an uninterrupted run.
 #[test]
 fn resumed_ensemble_equals_uninterrupted_ensemble_bit_for_bit() {
-    use mdpipe::calibrate::ensemble::{Ensemble, EnsembleSettings};
+    use mdpipe::calibrate::sampler::ensemble::{Ensemble, EnsembleSettings};
     let p = problem();
     let ensemble = Ensemble::new(EnsembleSettings { walkers: 16, steps: 30, burn: 10, thin: 1, stretch: 2.0 });
     let whole = ensemble.run(&p.prior, &p.likelihood, 9, &Silent);
@@ -153,7 +153,7 @@ fn time_limit_stops_and_resumes(sampler: &[&str]) {
 /// kernel, nor for the same problem after its model changed.
 #[test]
 fn a_stored_fit_reads_back_whole_and_is_found_only_for_its_own_problem() {
-    use mdpipe::calibrate::stored;
+    use mdpipe::calibrate::results::stored;
     let p = problem();
     let fit = mdpipe::calibrate::run(&p, 11, &Silent).unwrap();
     let dir = std::env::temp_dir().join(format!("mdpipe-stored-{}", std::process::id()));

@@ -7,10 +7,12 @@
 
 use super::common::*;
 use mdpipe::artifacts::Measurement;
-use mdpipe::calibrate::ensemble::{Ensemble, EnsembleSettings};
-use mdpipe::calibrate::smc::{Smc, SmcSettings};
-use mdpipe::calibrate::summary::ParamSummary;
-use mdpipe::calibrate::{diagnostics, Chains};
+use mdpipe::calibrate::results::fisher;
+use mdpipe::calibrate::results::summary::ParamSummary;
+use mdpipe::calibrate::sampler::diagnostics;
+use mdpipe::calibrate::sampler::ensemble::{Ensemble, EnsembleSettings};
+use mdpipe::calibrate::sampler::smc::{Smc, SmcSettings};
+use mdpipe::calibrate::Chains;
 use mdpipe::calibrate::{MdLikelihood, ObservableBlock};
 use mdpipe::gp::{discrepancy_cross_cov, DiscrepancyKernel};
 use mdpipe::progress::Silent;
@@ -131,7 +133,7 @@ fn cramer_rao_sd_equals_the_linear_models_posterior_sd() {
         .map(|k| if k % (x.len() + 1) == 0 { err[k / (x.len() + 1)].powi(2) } else { 0.0 })
         .collect();
     let exact = analytic_linear(&x, &y, &diag);
-    let sd = lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).expect("identified parameters");
+    let sd = fisher::cramer_rao_sd(&lik, &[0.7, -3.0], &[1e-3, 1e-3]).expect("identified parameters");
     for p in 0..2 {
         assert!(
             (sd[p] / exact.sd[p] - 1.0).abs() < 1e-9,
@@ -143,7 +145,7 @@ fn cramer_rao_sd_equals_the_linear_models_posterior_sd() {
     // One x value cannot separate intercept and slope: F is singular, and no bound is claimed.
     let same_x = vec![0.5; 10];
     let lik = linear_likelihood(&measurements(&same_x, &y, &err), None);
-    assert!(lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).is_none());
+    assert!(fisher::cramer_rao_sd(&lik, &[0.7, -3.0], &[1e-3, 1e-3]).is_none());
 }
 
 /// Two observables of one line, every point sharing a normalization
@@ -178,7 +180,7 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
         .iter()
         .map(|n| ObservableBlock::new(n, 0, &rows.iter().filter(|r| &r.observable == n).collect::<Vec<_>>()).unwrap())
         .collect();
-    let across = mdpipe::calibrate::data_covariance::attach(
+    let across = mdpipe::calibrate::likelihood::data_covariance::attach(
         &mut blocks,
         &entries,
         &rows,
@@ -226,7 +228,7 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
         data_cov[i + i * n] += err[i] * err[i];
     }
     let exact = analytic_linear(&x, &y, &data_cov);
-    let sd = lik.cramer_rao_sd(&[0.7, -3.0], &[1e-3, 1e-3]).unwrap();
+    let sd = fisher::cramer_rao_sd(&lik, &[0.7, -3.0], &[1e-3, 1e-3]).unwrap();
     for p in 0..2 {
         assert!(
             (sd[p] / exact.sd[p] - 1.0).abs() < 1e-9,
@@ -287,7 +289,7 @@ fn smc_mixture_proposals_cross_a_curved_ridge() {
         }
         Smc::new(settings).run(&prior, &CurvedRidge, 5, &Silent).unwrap()
     };
-    let worst_ess = |out: &mdpipe::calibrate::smc::SmcOutput| {
+    let worst_ess = |out: &mdpipe::calibrate::sampler::smc::SmcOutput| {
         (0..2)
             .map(|p| {
                 let chains = out.chains.param_chains(p);

@@ -1,7 +1,7 @@
 //! Runs that cannot work stop at once with an error that says what to do,
 //! instead of running at full CPU with no output (issue: "never hang").
 
-use mdpipe::calibrate::smc::{Smc, SmcSettings};
+use mdpipe::calibrate::sampler::smc::{Smc, SmcSettings};
 use mdpipe::calibrate::{LogLikelihood, UniformPrior};
 use mdpipe::progress::Silent;
 use std::path::{Path, PathBuf};
@@ -130,7 +130,7 @@ fn smc_on_a_likelihood_that_is_nowhere_finite_stops_with_an_error() {
     assert!(err.to_string().contains("no particle has a finite likelihood"), "{err}");
     // Typed, for a caller that acts on it rather than prints it.
     assert!(
-        matches!(err.cause, Some(mdpipe::calibrate::algorithm::SamplerError::NoFiniteLikelihood { beta }) if beta == 0.0),
+        matches!(err.cause, Some(mdpipe::calibrate::sampler::algorithm::SamplerError::NoFiniteLikelihood { beta }) if beta == 0.0),
         "{err:?}"
     );
 }

@@ -10,9 +10,9 @@
 //!   same covariance: the posteriors agree within Monte Carlo error.
 
 use mdpipe::app::bench_scaling::write_problem;
-use mdpipe::calibrate::diagnostics;
-use mdpipe::calibrate::smc::Smc;
-use mdpipe::calibrate::summary::ParamSummary;
+use mdpipe::calibrate::results::summary::ParamSummary;
+use mdpipe::calibrate::sampler::diagnostics;
+use mdpipe::calibrate::sampler::smc::Smc;
 use mdpipe::calibrate::{Chains, Overrides, Problem};
 use mdpipe::progress::Silent;
 use std::io::{BufRead, Write};
@@ -93,7 +93,7 @@ fn the_structured_posterior_equals_the_dense_one_on_a_200_point_cut() {
     let overrides = Overrides { kernel: Some(mdpipe::base::choices::Kernel::II), ..Default::default() };
     let structured = Problem::new(&analysis, &overrides).unwrap();
     assert_eq!(structured.likelihood.blocks.iter().map(|b| b.len()).sum::<usize>(), 200);
-    assert!(structured.likelihood.structure.is_some(), "the cut's covariance has the structured form");
+    assert!(structured.likelihood.form.structure().is_some(), "the cut's covariance has the structured form");
     let mut dense = Problem::new(&analysis, &overrides).unwrap();
     dense.likelihood = dense.likelihood.dense();
     let settings = analysis.sampler.smc.clone();

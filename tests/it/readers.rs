@@ -5,8 +5,8 @@
 //! reproducible; inputs that once made a reader panic are kept under
 //! `tests/fixtures/corpus/<reader>/` and replayed by the corpus test.
 
-use mdpipe::calibrate::checkpoint::Checkpointing;
-use mdpipe::calibrate::smc::ReplicateOutput;
+use mdpipe::calibrate::sampler::checkpoint::Checkpointing;
+use mdpipe::calibrate::sampler::smc::ReplicateOutput;
 use proptest::collection::vec;
 use proptest::prelude::*;
 use proptest::test_runner::{Config as RunnerConfig, RngSeed, TestCaseError, TestRunner};

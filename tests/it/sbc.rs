@@ -6,8 +6,8 @@
 //! so the likelihood is exactly the generative model.
 
 use super::common::*;
-use mdpipe::calibrate::smc::{Smc, SmcSettings};
-use mdpipe::calibrate::{MdLikelihood, ObservableBlock, UniformPrior};
+use mdpipe::calibrate::sampler::smc::{Smc, SmcSettings};
+use mdpipe::calibrate::{MdLikelihood, ObservableBlock, TermStatistics, UniformPrior};
 use mdpipe::gp::{discrepancy_cross_cov, CholeskyWorkspace, DiscrepancyKernel};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -59,8 +59,8 @@ fn credible_intervals_have_nominal_coverage() {
                 let mut d = out.chains.param(p);
                 d.sort_by(|a, b| a.total_cmp(b));
                 for (l, level) in levels.iter().enumerate() {
-                    let lo = mdpipe::calibrate::diagnostics::quantile_sorted(&d, (1.0 - level) / 2.0);
-                    let hi = mdpipe::calibrate::diagnostics::quantile_sorted(&d, (1.0 + level) / 2.0);
+                    let lo = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 - level) / 2.0);
+                    let hi = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 + level) / 2.0);
                     covered[p][l] = lo <= truth[p] && truth[p] <= hi;
                 }
             }
@@ -133,7 +133,7 @@ fn linked_line(truth: &[f64], x: &[f64], err: f64, norm: f64, rng: &mut Xoshiro2
             b
         })
         .collect();
-    let across = mdpipe::calibrate::data_covariance::attach(
+    let across = mdpipe::calibrate::likelihood::data_covariance::attach(
         &mut blocks,
         &entries,
         &rows,
@@ -193,7 +193,7 @@ fn joint_coverage(prior: &UniformPrior, path: &str, failures: &mut Vec<String>) 
             let mut truth = vec![0.0; dim];
             prior.sample(&mut rng, &mut truth);
             let lik = linked_line(&truth, &x, 0.2, 0.1, &mut rng);
-            assert!(lik.term_stats_width() > 0);
+            assert!(TermStatistics::width(&lik) > 0);
             let screened = WithoutStatistics { lik: &lik, screen: true };
             let target: &dyn mdpipe::calibrate::LogLikelihood = if path == "statistics" { &lik } else { &screened };
             let out = Smc::new(SmcSettings { particles: 500, replicates: 2, ..Default::default() })
@@ -206,8 +206,8 @@ fn joint_coverage(prior: &UniformPrior, path: &str, failures: &mut Vec<String>) 
                     d.sort_by(|a, b| a.total_cmp(b));
                     let mut c = [false; 2];
                     for (l, level) in levels.iter().enumerate() {
-                        let lo = mdpipe::calibrate::diagnostics::quantile_sorted(&d, (1.0 - level) / 2.0);
-                        let hi = mdpipe::calibrate::diagnostics::quantile_sorted(&d, (1.0 + level) / 2.0);
+                        let lo = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 - level) / 2.0);
+                        let hi = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 + level) / 2.0);
                         c[l] = lo <= truth[p] && truth[p] <= hi;
                     }
                     c
@@ -270,7 +270,7 @@ fn statistics_screened_and_plain_phi_moves_give_the_same_posterior() {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(17);
     let truth = [0.5, -1.0, 0.4, 0.3, 1.0, 0.2, 0.6, 0.5];
     let lik = linked_line(&truth, &x, 0.2, 0.3, &mut rng);
-    assert!(lik.term_stats_width() > 0, "a systematic across two observables keeps the blocks' statistics");
+    assert!(TermStatistics::width(&lik) > 0, "a systematic across two observables keeps the blocks' statistics");
     let settings = SmcSettings { particles: 2000, replicates: 4, ..Default::default() };
     let run = |target: &dyn mdpipe::calibrate::LogLikelihood, seed| {
         Smc::new(settings.clone()).run(&prior, target, seed, &mdpipe::progress::Silent).unwrap()
@@ -308,8 +308,8 @@ fn statistics_screened_and_plain_phi_moves_give_the_same_posterior() {
 /// and sd within 4 Monte Carlo errors, and the evidences within 4 errors.
 fn agree(
     prior: &UniformPrior,
-    a: &mdpipe::calibrate::smc::SmcOutput,
-    b: &mdpipe::calibrate::smc::SmcOutput,
+    a: &mdpipe::calibrate::sampler::smc::SmcOutput,
+    b: &mdpipe::calibrate::sampler::smc::SmcOutput,
     report: &mut String,
 ) -> bool {
     let mut ok = true;
@@ -318,7 +318,7 @@ fn agree(
             let d = chains.param(p);
             let mean = d.iter().sum::<f64>() / d.len() as f64;
             let sd = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (d.len() - 1) as f64).sqrt();
-            (mean, sd, mdpipe::calibrate::diagnostics::ess_bulk(&chains.param_chains(p)))
+            (mean, sd, mdpipe::calibrate::sampler::diagnostics::ess_bulk(&chains.param_chains(p)))
         };
         let ((m1, s1, e1), (m2, s2, e2)) = (stats(&a.chains), stats(&b.chains));
         // Monte Carlo errors: sd/√ESS for a mean, sd/√(2 ESS) for an sd (near-Gaussian draws).

@@ -10,9 +10,10 @@
 //! systematics.
 
 use mdpipe::base::artifacts::Measurement;
-use mdpipe::calibrate::block::ObservableBlock;
-use mdpipe::calibrate::joint::CrossEntry;
-use mdpipe::calibrate::MdLikelihood;
+use mdpipe::calibrate::likelihood::block::ObservableBlock;
+use mdpipe::calibrate::likelihood::joint::CrossEntry;
+use mdpipe::calibrate::likelihood::structured::Moving;
+use mdpipe::calibrate::{MdLikelihood, TermStatistics};
 use mdpipe::gp::DiscrepancyKernel;
 use mdpipe::model::Simulator;
 use proptest::prelude::*;
@@ -180,7 +181,7 @@ fn the_structured_likelihood_equals_the_dense_one_on_random_problems() {
         let fast = likelihood(&p, kernel);
         let dense = likelihood(&p, kernel).dense();
         identifiable_cases.set(identifiable_cases.get() + usize::from(p.identifiable));
-        match &fast.structure {
+        match fast.form.structure() {
             Some(structure) => {
                 structured_cases.set(structured_cases.get() + 1);
                 prop_assert!(structure.rank >= p.spanning.min(1), "seed {seed}: rank {}", structure.rank);
@@ -221,7 +222,7 @@ fn a_fixed_covariance_is_factorized_once() {
     let mut p = problem(11);
     p.simulator = Arc::new(Wave { observables: p.blocks.len(), own_covariance: false });
     let fast = likelihood(&p, None);
-    assert!(fast.structure.as_ref().is_some_and(|s| s.fixed.is_some()));
+    assert!(fast.form.structure().is_some_and(|s| matches!(s.moving, Moving::Nothing(_))));
     let dense = likelihood(&p, None).dense();
     for theta in [[1.0, 1.0], [0.7, 1.3], [1.4, 0.6]] {
         let (a, b) = (fast.log_likelihood(&theta), dense.log_likelihood(&theta));
@@ -253,7 +254,7 @@ fn structured_solves_equal_the_dense_ones() {
         for (a, d) in alpha.iter().zip(&dense_alpha) {
             assert!((a - d).abs() <= 1e-9 * scale, "seed {seed}: Σ⁻¹r {a} vs {d}");
         }
-        let (b, rows) = (p.blocks.len() - 1, lik.joint.as_ref().unwrap().rows(p.blocks.len() - 1));
+        let (b, rows) = (p.blocks.len() - 1, lik.layout().unwrap().rows(p.blocks.len() - 1));
         let k: Vec<f64> = (0..rows.len()).map(|i| 0.3 + 0.1 * i as f64).collect();
         let mut whole = vec![0.0; n];
         whole[rows.clone()].copy_from_slice(&k);
@@ -277,7 +278,7 @@ fn nothing_between_the_blocks_is_a_structure_of_rank_zero() {
     let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(9);
     for kernel in [None, Some(DiscrepancyKernel::KernelII)] {
         let joint = likelihood(&p, kernel);
-        assert_eq!(joint.structure.as_ref().map(|s| s.rank), Some(0));
+        assert_eq!(joint.form.structure().map(|s| s.rank), Some(0));
         let blocks = MdLikelihood::new(p.simulator.clone(), p.blocks.clone(), kernel);
         let params = parameters(kernel, p.blocks.len(), &mut rng);
         let (a, b) = (joint.log_likelihood(&params), blocks.log_likelihood(&params));
@@ -304,8 +305,8 @@ fn one_blocks_statistics_updated_alone_give_the_whole_evaluation() {
         let kernel = [DiscrepancyKernel::KernelI, DiscrepancyKernel::KernelII][k];
         let p = problem(seed);
         let lik = likelihood(&p, Some(kernel));
-        let width = lik.term_stats_width();
-        if lik.structure.as_ref().is_none_or(|s| s.model.is_some()) {
+        let width = lik.width();
+        if lik.form.structure().is_none_or(|s| s.model().is_some()) {
             prop_assert_eq!(width, 0, "seed {}: statistics without the structured form", seed);
             // Asked anyway, the statistics' functions are the whole evaluation.
             let params =

@@ -6,8 +6,8 @@
 //! data with a systematic across every table, Kernels I and II and no MD.
 
 use mdpipe::base::artifacts::Measurement;
-use mdpipe::calibrate::block::ObservableBlock;
-use mdpipe::calibrate::joint::CrossEntry;
+use mdpipe::calibrate::likelihood::block::ObservableBlock;
+use mdpipe::calibrate::likelihood::joint::CrossEntry;
 use mdpipe::calibrate::MdLikelihood;
 use mdpipe::emulator::model::EmulatedModel;
 use mdpipe::emulator::{train, EmulatorSettings, OutputKey, TrainingTable};
@@ -115,8 +115,8 @@ fn the_emulators_covariance_across_observables_is_exact_in_the_structured_form()
         let (blocks, across) = data(&model);
         for kernel in [None, Some(DiscrepancyKernel::KernelI), Some(DiscrepancyKernel::KernelII)] {
             let fast = MdLikelihood::new(model.clone(), blocks.clone(), kernel).joint(&across);
-            let structure = fast.structure.as_ref().expect("an emulator's covariance has the structured form");
-            let model_rank = structure.model.as_ref().map(|m| m.rank).expect("with the model's term");
+            let structure = fast.form.structure().expect("an emulator's covariance has the structured form");
+            let model_rank = structure.model().map(|m| m.rank).expect("with the model's term");
             assert!(model_rank >= 4, "noise {noise}: rank {model_rank}");
             let dense = MdLikelihood::new(model.clone(), blocks.clone(), kernel).joint(&across).dense();
             for _ in 0..20 {
@@ -160,5 +160,5 @@ fn an_emulator_of_more_runs_than_points_stays_dense() {
     let model = emulated(0.0, 5, 80);
     let (blocks, across) = data(&model);
     let lik = MdLikelihood::new(model, blocks, Some(DiscrepancyKernel::KernelII)).joint(&across);
-    assert!(lik.structure.is_none());
+    assert!(lik.form.structure().is_none());
 }

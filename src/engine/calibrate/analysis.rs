@@ -2,7 +2,7 @@
 //! holds resolved values (the model family and its simulator, θ priors,
 //! kernel, sampler settings, units, the true process), built once.
 
-use super::settings::SamplerConfig;
+use super::sampler::settings::SamplerConfig;
 use crate::base::config::{BetweenObservables, Config, KernelInput, ParamSpec, PredictionConfig};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::{CandidateModel, ModelSetup, Registry, Simulator, Units};

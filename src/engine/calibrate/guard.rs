@@ -4,7 +4,7 @@
 //! spread of prior draws and stops at once, naming the observable and, where
 //! it can tell, why.
 
-use super::Problem;
+use super::problem::Problem;
 use anyhow::{bail, Result};
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;

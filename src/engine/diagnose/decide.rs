@@ -122,7 +122,7 @@ pub(super) fn decide(
     // Posterior model probabilities with equal prior odds.
     let mut all_z = vec![z_base, z_md];
     all_z.extend(candidates.iter().map(|c| c.log_evidence));
-    let lse = crate::engine::calibrate::smc::log_sum_exp(&all_z);
+    let lse = crate::engine::calibrate::sampler::smc::log_sum_exp(&all_z);
     let prob = |z: f64| (z - lse).exp();
     let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
     let verdict = |best: &str, statement: String, confidence: f64| Verdict {

@@ -203,7 +203,7 @@ impl Diagnoser<'_> {
 /// answer (the discovered term's parameters, the repair's "after"), is
 /// sampled again for convergence; any other is weighed by its evidence,
 /// whose error already counts the replicates' disagreement
-/// (`calibrate::smc`), and its diagnostics say whether it converged.
+/// (`calibrate::sampler::smc`), and its diagnostics say whether it converged.
 pub(super) fn refit(
     d: &Diagnoser,
     analysis: &Analysis,

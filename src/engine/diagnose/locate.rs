@@ -2,7 +2,7 @@
 //! no-MD fit's residuals.
 
 use super::{ObservableMismatch, Region};
-use crate::engine::calibrate::summary::PredictionRow;
+use crate::engine::calibrate::results::summary::PredictionRow;
 use crate::engine::calibrate::{Calibration, Problem};
 
 pub(super) fn locate(

@@ -55,7 +55,7 @@ mod wording;
 
 use crate::base::artifacts::{self, Provenance};
 use crate::base::progress::Observer;
-use crate::engine::calibrate::summary::{ParamSummary, PredictionRow, Summary, EMULATOR_DOMINATES};
+use crate::engine::calibrate::results::summary::{ParamSummary, PredictionRow, Summary, EMULATOR_DOMINATES};
 use crate::engine::calibrate::{self, Analysis, Calibration, Overrides, Problem};
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::{CandidateModel, SpecialCase};
@@ -310,7 +310,7 @@ fn information_limit(rep_problem: &Problem, rep: &Calibration, md: &Calibration)
     // Central differences at 1e-5 of the prior range: truncation ~1e-10 relative.
     let steps: Vec<f64> =
         (0..lik.n_theta).map(|k| 1e-5 * (rep_problem.prior.upper[k] - rep_problem.prior.lower[k])).collect();
-    let Some(sd) = lik.cramer_rao_sd(&theta, &steps) else {
+    let Some(sd) = calibrate::results::fisher::cramer_rao_sd(lik, &theta, &steps) else {
         return BTreeMap::new();
     };
     names

@@ -4,11 +4,11 @@
 //! are then the same problems with the same seeds, and sampling them again
 //! would give the same draws to the bit. And the study's calibrate stage has
 //! already fitted the base problems, without and with MD, with other seeds
-//! (`calibrate::stored`). A fit is taken only when its problem key (config,
+//! (`calibrate::results::stored`). A fit is taken only when its problem key (config,
 //! data, kernel, observables, prior, sampler settings, and the model's
 //! answers at probe points bit for bit) is the same.
 
-use crate::engine::calibrate::{stored, Calibration, Problem};
+use crate::engine::calibrate::{results::stored, Calibration, Problem};
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Mutex;

@@ -194,7 +194,7 @@ pub struct FitFigures {
     /// Parameters piled against a bound of the prior box (for an emulator,
     /// its design box): the box, not the data, ends their posterior.
     #[serde(default)]
-    pub piled_at_bounds: Vec<crate::engine::calibrate::summary::PiledAtBound>,
+    pub piled_at_bounds: Vec<crate::engine::calibrate::results::summary::PiledAtBound>,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

@@ -63,8 +63,9 @@ pub(super) fn run(
 /// `unexplained`. Probabilities are over the candidates: the model as
 /// declared has none.
 fn verdict(candidates: &[CandidateResult], runs: &[CandidateRun], settings: &DiagnoseSettings) -> Verdict {
-    let lse =
-        crate::engine::calibrate::smc::log_sum_exp(&candidates.iter().map(|c| c.log_evidence).collect::<Vec<_>>());
+    let lse = crate::engine::calibrate::sampler::smc::log_sum_exp(
+        &candidates.iter().map(|c| c.log_evidence).collect::<Vec<_>>(),
+    );
     let prob = |z: f64| (z - lse).exp();
     let cannot = "the model as declared cannot be computed over the data at any value its prior allows (its solution does not reach the data's last point); ";
     let named = named_candidate(candidates, settings, f64::NEG_INFINITY);

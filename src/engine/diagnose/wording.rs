@@ -37,7 +37,7 @@ pub(super) fn ambiguous_statement(
 }
 
 /// The observable where the emulator carries the largest share ("" when none does).
-pub(super) fn worst_share_observable(fit: &crate::engine::calibrate::summary::FitQuality) -> String {
+pub(super) fn worst_share_observable(fit: &crate::engine::calibrate::results::summary::FitQuality) -> String {
     fit.per_observable_share
         .iter()
         .filter(|(_, v)| **v > 0.0)

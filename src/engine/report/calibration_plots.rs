@@ -4,7 +4,7 @@
 use super::*;
 
 pub(super) fn quantile(v: &[f64], q: f64) -> f64 {
-    crate::engine::calibrate::diagnostics::quantile(v, q)
+    crate::engine::calibrate::sampler::diagnostics::quantile(v, q)
 }
 
 /// Corner plot of the model parameters for several runs overlaid.

@@ -5,7 +5,7 @@
 //! truth dashed grey.
 
 use crate::base::artifacts::{self, Measurement};
-use crate::engine::calibrate::summary::{ParamSummary, Summary};
+use crate::engine::calibrate::results::summary::{ParamSummary, Summary};
 use crate::engine::diagnose::Diagnosis;
 use anyhow::{Context, Result};
 use plotters::prelude::*;

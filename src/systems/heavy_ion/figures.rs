@@ -1,7 +1,7 @@
 //! Heavy-ion figures: η/s(T) posterior bands with the ε_sw posterior as an
 //! inset, and per-pT-bin prediction boxes against the data.
 
-use crate::engine::calibrate::diagnostics::quantile_sorted;
+use crate::engine::calibrate::sampler::diagnostics::quantile_sorted;
 use crate::engine::report::{kernel_colour, p, range_of, svg, RunArtifacts, SystemFigures, H, TRUTH, W};
 use crate::systems::heavy_ion::EtaOverS;
 use anyhow::Result;

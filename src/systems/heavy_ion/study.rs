@@ -5,7 +5,7 @@
 use super::figures as heavy_ion;
 use crate::base::artifacts::Measurement;
 use crate::base::config::Config;
-use crate::engine::calibrate::summary::Summary;
+use crate::engine::calibrate::results::summary::Summary;
 use crate::engine::report::RunArtifacts;
 use anyhow::Result;
 use std::collections::BTreeMap;
@@ -88,7 +88,7 @@ pub struct EtaSCoverage {
     pub missed: Vec<[f64; 2]>,
 }
 
-fn param_result(p: &crate::engine::calibrate::summary::ParamSummary, truth: Option<f64>) -> ParamResult {
+fn param_result(p: &crate::engine::calibrate::results::summary::ParamSummary, truth: Option<f64>) -> ParamResult {
     ParamResult {
         median: p.median,
         mean: p.mean,

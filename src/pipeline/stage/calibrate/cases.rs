@@ -64,24 +64,26 @@ pub(super) fn calibrate_case(study: &Study<'_>, analysis: &Analysis, c: &Case) -
     };
     let problem = Problem::new(analysis, &ov)?;
     // Killed mid-case, the case resumes from its last saved tempering step.
-    let checkpoint = calibrate::checkpoint::Checkpointing::new(
+    let checkpoint = calibrate::sampler::checkpoint::Checkpointing::new(
         &c.dir.join(".checkpoint"),
         calibrate::checkpoint_key(&problem, c.seed),
         None,
     );
     // The last refinement round fitted the same problem with the same emulator.
-    let (cal, whence) =
-        match calibrate::stored::find(&study.stored_fits(&crate::pipeline::rounds::refine_dir(study)), &problem) {
-            Some((dir, cal)) => {
-                calibrate::write_outputs(&c.dir, &problem, &cal)?;
-                checkpoint.clear();
-                (cal, format!(" when sampled in {}, the same problem; taken from there", dir.display()))
-            }
-            None => (
-                calibrate::run_and_write(&problem, c.seed, observer(study.opts.show_progress), &checkpoint, &c.dir)?,
-                String::new(),
-            ),
-        };
+    let (cal, whence) = match calibrate::results::stored::find(
+        &study.stored_fits(&crate::pipeline::rounds::refine_dir(study)),
+        &problem,
+    ) {
+        Some((dir, cal)) => {
+            calibrate::write_outputs(&c.dir, &problem, &cal)?;
+            checkpoint.clear();
+            (cal, format!(" when sampled in {}, the same problem; taken from there", dir.display()))
+        }
+        None => (
+            calibrate::run_and_write(&problem, c.seed, observer(study.opts.show_progress), &checkpoint, &c.dir)?,
+            String::new(),
+        ),
+    };
     let seconds = cal.summary.diagnostics.wall_seconds;
     let prov = Provenance::new(
         study.config.hash.clone(),

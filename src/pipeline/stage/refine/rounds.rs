@@ -148,7 +148,7 @@ fn pilot_draws(
             },
         )?;
         let seed = study.opts.seed.wrapping_add(5_000 + 10 * round as u64 + i as u64);
-        let checkpoint = calibrate::checkpoint::Checkpointing::new(
+        let checkpoint = calibrate::sampler::checkpoint::Checkpointing::new(
             &out.join(".checkpoint"),
             calibrate::checkpoint_key(&problem, seed),
             None,

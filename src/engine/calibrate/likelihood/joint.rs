@@ -13,7 +13,6 @@
 //! acceptance, `MdLikelihood::screening_term`).
 
 use super::block::ObservableBlock;
-use crate::base::config::BetweenObservables;
 
 /// A covariance entry between points of two different observable blocks.
 #[derive(Clone, Debug, PartialEq)]
@@ -43,16 +42,6 @@ pub struct JointLayout {
     pub cross_entries: usize,
     /// Whether the model's own covariance links the observables (added per evaluation).
     pub model_spans: bool,
-}
-
-/// Whether the likelihood must be joint: asked for, or `Auto` with something
-/// that links two observables.
-pub fn wanted(mode: BetweenObservables, blocks: usize, cross_entries: usize, model_spans: bool) -> bool {
-    match mode {
-        BetweenObservables::Joint => true,
-        BetweenObservables::Independent => false,
-        BetweenObservables::Auto => blocks > 1 && (cross_entries > 0 || model_spans),
-    }
 }
 
 impl JointLayout {

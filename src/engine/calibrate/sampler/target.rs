@@ -1,8 +1,6 @@
 //! What a sampler targets: a log-likelihood over the unbounded prior box,
 //! and how it splits into terms that a sampler may move one at a time.
 
-use super::MdLikelihood;
-
 /// Anything a sampler can target, given a uniform prior.
 pub trait LogLikelihood: Sync {
     fn log_likelihood(&self, x: &[f64]) -> f64;
@@ -66,49 +64,4 @@ pub trait TermStatistics: Sync {
 pub struct TermStructure {
     pub shared: Vec<usize>,
     pub own: Vec<Vec<usize>>,
-}
-
-impl LogLikelihood for MdLikelihood {
-    fn log_likelihood(&self, x: &[f64]) -> f64 {
-        MdLikelihood::log_likelihood(self, x)
-    }
-    fn term_structure(&self) -> Option<TermStructure> {
-        let nh = self.n_hyper();
-        if nh == 0 {
-            return None;
-        }
-        let own =
-            (0..self.blocks.len()).map(|b| (self.n_theta + b * nh..self.n_theta + (b + 1) * nh).collect()).collect();
-        Some(TermStructure { shared: (0..self.n_theta).collect(), own })
-    }
-    fn screening_term(&self, x: &[f64], term: usize) -> Option<f64> {
-        MdLikelihood::screening_term(self, x, term)
-    }
-    fn separable_terms(&self) -> Option<&dyn SeparableTerms> {
-        (self.n_hyper() > 0 && self.joint.is_none()).then_some(self as &dyn SeparableTerms)
-    }
-    fn term_statistics(&self) -> Option<&dyn TermStatistics> {
-        (self.term_stats_width() > 0).then_some(self as &dyn TermStatistics)
-    }
-}
-
-impl SeparableTerms for MdLikelihood {
-    fn log_likelihood_terms(&self, x: &[f64], terms: &mut [f64]) -> f64 {
-        MdLikelihood::log_likelihood_terms(self, x, terms)
-    }
-    fn log_likelihood_term(&self, x: &[f64], term: usize) -> f64 {
-        MdLikelihood::log_likelihood_term(self, x, term)
-    }
-}
-
-impl TermStatistics for MdLikelihood {
-    fn width(&self) -> usize {
-        self.term_stats_width()
-    }
-    fn log_likelihood_stats(&self, x: &[f64], stats: &mut [f64]) -> f64 {
-        MdLikelihood::log_likelihood_stats(self, x, stats)
-    }
-    fn update_term_stats(&self, x: &[f64], term: usize, stats: &mut [f64]) -> f64 {
-        MdLikelihood::update_term_stats(self, x, term, stats)
-    }
 }

@@ -3,10 +3,11 @@
 //! each half's walkers move in parallel.
 
 use super::algorithm::{drive, SamplerError, SamplingAlgorithm, Stopped};
+use super::chains::Chains;
 use super::checkpoint::{f64_bit, f64_bits, Checkpointing};
-use super::prior::UniformPrior;
-use super::{Chains, LogLikelihood};
+use super::target::LogLikelihood;
 use crate::base::progress::Observer;
+use crate::engine::calibrate::sampler::uniform_prior::UniformPrior;
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;

@@ -29,6 +29,7 @@
 
 use super::across::low_rank_across;
 use super::block::ObservableBlock;
+use super::factored::{Capacitance, Factored};
 use super::joint::JointLayout;
 use super::structured_model::{self as model_term, add_gram, add_transposed_product, ModelScratch, ModelTerm, SmallLu};
 use crate::engine::gp::CholeskyWorkspace;
@@ -49,10 +50,21 @@ pub struct Structure {
     /// Block b's part of the data's covariance that `V Vᵀ` leaves
     /// (errors² included; standardized, lower triangle, column-major).
     pub block_data: Vec<Vec<f64>>,
-    /// Every factor, when the covariance does not depend on the parameters.
-    pub fixed: Option<FixedFactors>,
-    /// The model's covariance across observables (`structured_model`).
-    pub model: Option<ModelTerm>,
+    /// What of the covariance moves with the parameters.
+    pub moving: Moving,
+}
+
+/// What of a structured covariance moves with the parameters.
+#[derive(Clone)]
+pub enum Moving {
+    /// Nothing (no δ, no model covariance): every factor computed once.
+    Nothing(FixedFactors),
+    /// Each block's own part (δ, a model's covariance within its block);
+    /// the low-rank term across blocks is the data's, fixed.
+    Blocks,
+    /// The blocks and the model's covariance across observables
+    /// (`structured_model`: an emulator's), whose columns follow θ.
+    BlocksAndModel(ModelTerm),
 }
 
 /// Factors of a covariance that does not change: each block's, `W = L⁻¹ V`
@@ -112,12 +124,23 @@ impl Structure {
             })
             .collect();
         let sizes = (0..blocks.len()).map(|b| joint.rows(b).len()).collect();
-        let model = model.map(|m| ModelTerm::new(m, &joint.offsets));
-        let mut structure = Structure { v_rows, rank, sizes, block_data, fixed: None, model };
+        let moving = match model {
+            Some(m) => Moving::BlocksAndModel(ModelTerm::new(m, &joint.offsets)),
+            None => Moving::Blocks,
+        };
+        let mut structure = Structure { v_rows, rank, sizes, block_data, moving };
         if fixed {
-            structure.fixed = Some(structure.factorize_fixed()?);
+            structure.moving = Moving::Nothing(structure.factorize_fixed()?);
         }
         Some(structure)
+    }
+
+    /// The model's term across observables, when it moves with θ.
+    pub fn model(&self) -> Option<&ModelTerm> {
+        match &self.moving {
+            Moving::BlocksAndModel(model) => Some(model),
+            _ => None,
+        }
     }
 
     fn factorize_fixed(&self) -> Option<FixedFactors> {
@@ -300,7 +323,7 @@ impl Structure {
         model_factors: Option<(&[f64], &[f64])>,
         mut fill_block: impl FnMut(usize, &mut [f64]),
     ) -> Option<Factored> {
-        let model = self.model.as_ref().zip(model_factors);
+        let model = self.model().zip(model_factors);
         let r = self.rank + model.map_or(0, |(m, _)| m.rank);
         let mut gram = vec![0.0; r * r];
         let mut blocks = Vec::with_capacity(self.sizes.len());
@@ -361,79 +384,6 @@ impl Structure {
     }
 }
 
-/// `M = I + Wᵀ W` (Cholesky) without a model term; `I + H C` (LU) with one.
-enum Capacitance {
-    Cholesky(CholeskyWorkspace),
-    General { lu: SmallLu, s: Vec<f64>, data_rank: usize },
-}
-
-/// Σ = blockdiag(L_b L_bᵀ) + U C Uᵀ factorized (`Structure::factor_at`).
-pub struct Factored {
-    blocks: Vec<CholeskyWorkspace>,
-    w_rows: Vec<Vec<f64>>,
-    capacitance: Capacitance,
-    rank: usize,
-}
-
-impl Factored {
-    /// `Σ⁻¹ r` in place (all points, block order): `L⁻ᵀ (z − W C (I + H C)⁻¹ Wᵀ z)`,
-    /// z = L⁻¹ r (C = I without a model term: `(I + Wᵀ W)⁻¹`).
-    pub fn solve_in_place(&self, r: &mut [f64]) {
-        let mut c = vec![0.0; self.rank];
-        let mut at = 0;
-        for (chol, w) in self.blocks.iter().zip(&self.w_rows) {
-            let nb = chol.n();
-            chol.solve_lower_in_place(&mut r[at..at + nb]);
-            add_transposed_product(w, nb, self.rank, &r[at..at + nb], &mut c);
-            at += nb;
-        }
-        if self.rank > 0 {
-            match &self.capacitance {
-                Capacitance::Cholesky(chol) => chol.solve_in_place(&mut c),
-                Capacitance::General { lu, s, data_rank } => {
-                    lu.solve_in_place(&mut c);
-                    let y = c.clone();
-                    model_term::weighted(s, *data_rank, &y, &mut c);
-                }
-            }
-        }
-        let mut at = 0;
-        for (chol, w) in self.blocks.iter().zip(&self.w_rows) {
-            let nb = chol.n();
-            let z = &mut r[at..at + nb];
-            for (p, cp) in c.iter().enumerate() {
-                z.iter_mut().zip(&w[p * nb..(p + 1) * nb]).for_each(|(zi, wi)| *zi -= wi * cp);
-            }
-            chol.solve_upper_in_place(z);
-            at += nb;
-        }
-    }
-
-    /// `kᵀ Σ⁻¹ k` for a vector nonzero only on block b's points (`k_b`,
-    /// overwritten): `‖L_b⁻¹ k_b‖² − aᵀ C (I + H C)⁻¹ a`, `a = W_bᵀ L_b⁻¹ k_b`.
-    pub fn block_quadratic(&self, b: usize, k_b: &mut [f64]) -> f64 {
-        let chol = &self.blocks[b];
-        chol.solve_lower_in_place(k_b);
-        let mut quad: f64 = k_b.iter().map(|v| v * v).sum();
-        if self.rank > 0 {
-            let mut c = vec![0.0; self.rank];
-            add_transposed_product(&self.w_rows[b], chol.n(), self.rank, k_b, &mut c);
-            match &self.capacitance {
-                Capacitance::Cholesky(m) => {
-                    m.solve_lower_in_place(&mut c);
-                    quad -= c.iter().map(|v| v * v).sum::<f64>();
-                }
-                Capacitance::General { lu, s, data_rank } => {
-                    let mut y = c.clone();
-                    lu.solve_in_place(&mut y);
-                    quad -= model_term::weighted_dot(&c, s, *data_rank, &y);
-                }
-            }
-        }
-        quad
-    }
-}
-
 impl Structure {
     /// Whether an evaluation costs fewer operations than the dense
     /// factorization of the same covariance: the low-rank term's rank R
@@ -443,9 +393,9 @@ impl Structure {
     /// cheaper dense.
     pub fn cheaper_than_dense(&self) -> bool {
         let n: usize = self.sizes.iter().sum();
-        let (n, r) = (n as f64, (self.rank + self.model.as_ref().map_or(0, |m| m.rank)) as f64);
+        let (n, r) = (n as f64, (self.rank + self.model().map_or(0, |m| m.rank)) as f64);
         let nb = self.sizes.iter().copied().max().unwrap_or(0) as f64;
-        let k = self.model.as_ref().map_or(0, |m| m.weighted.len()) as f64;
+        let k = self.model().map_or(0, |m| m.weighted.len()) as f64;
         n * nb * r + n * r * r + r * r * r < n * n * n / 3.0 + n * n * k
     }
 
@@ -519,13 +469,13 @@ pub struct Scratch {
 impl Scratch {
     pub fn new(s: &Structure) -> Self {
         let nmax = (0..s.block_data.len()).map(|b| s.nb(b)).max().unwrap_or(0);
-        let all = s.rank + s.model.as_ref().map_or(0, |m| m.rank);
+        let all = s.rank + s.model().map_or(0, |m| m.rank);
         let n = s.sizes.iter().sum();
         Scratch {
             w: vec![0.0; nmax * all],
             c: vec![0.0; s.rank],
             capacitance: CholeskyWorkspace::new(s.rank),
-            model: s.model.as_ref().map(|m| ModelScratch::new(n, s.rank, m)),
+            model: s.model().map(|m| ModelScratch::new(n, s.rank, m)),
         }
     }
 }

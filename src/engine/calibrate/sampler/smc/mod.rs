@@ -25,10 +25,11 @@
 //! that copies of one particle that the moves failed to separate lower the ESS.
 
 use super::algorithm::{drive, End, SamplerError, SamplingAlgorithm, Stopped};
+use super::chains::Chains;
 use super::checkpoint::{f64_bit, f64_bits, Checkpointing};
-use super::prior::UniformPrior;
-use super::{Chains, LogLikelihood, SeparableTerms, TermStatistics, TermStructure};
+use super::target::{LogLikelihood, SeparableTerms, TermStatistics, TermStructure};
 use crate::base::progress::Observer;
+use crate::engine::calibrate::sampler::uniform_prior::UniformPrior;
 use crate::engine::gp::CholeskyWorkspace;
 use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;

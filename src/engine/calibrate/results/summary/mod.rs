@@ -1,10 +1,11 @@
 //! Posterior summaries (`summary.json`) and posterior-predictive bands
 //! (`predictions.parquet`).
 
-use super::diagnostics::{self, ParamDiagnostics};
-use super::smc::{SmcOutput, SmcStep};
-use super::{Chains, Problem};
 use crate::base::artifacts::Provenance;
+use crate::engine::calibrate::problem::Problem;
+use crate::engine::calibrate::sampler::chains::Chains;
+use crate::engine::calibrate::sampler::diagnostics::{self, ParamDiagnostics};
+use crate::engine::calibrate::sampler::smc::{SmcOutput, SmcStep};
 use crate::engine::gp::{discrepancy_cross_cov, pow_r, CholeskyWorkspace, DiscrepancyKernel};
 use crate::engine::model::Units;
 use anyhow::Result;
@@ -157,15 +158,15 @@ pub struct Diagnostics {
     pub model_failures: u64,
     pub sampler: SamplerDetails,
     /// Every run, when the first did not converge and was sampled again
-    /// with more (`calibrate::adapt`); absent otherwise.
+    /// with more (`calibrate::sampler::adapt`); absent otherwise.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub adaptation: Vec<crate::engine::calibrate::adapt::Attempt>,
+    pub adaptation: Vec<crate::engine::calibrate::sampler::adapt::Attempt>,
 }
 
 impl Diagnostics {
     /// Records the runs of an adapted calibration, and says so among the
     /// warnings when even the last did not converge.
-    pub fn note_adaptation(&mut self, attempts: Vec<crate::engine::calibrate::adapt::Attempt>) {
+    pub fn note_adaptation(&mut self, attempts: Vec<crate::engine::calibrate::sampler::adapt::Attempt>) {
         if attempts.len() > 1 && !self.converged {
             let last = &attempts[attempts.len() - 1];
             self.warnings.push(format!(

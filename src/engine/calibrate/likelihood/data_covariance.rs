@@ -142,15 +142,15 @@ pub fn attach(
     Ok(across)
 }
 
+/// A line model, its measurements and covariance entries, for the tests
+/// of this module and of what is computed from its likelihoods.
 #[cfg(test)]
-mod tests {
+pub(crate) mod test_support {
     use super::*;
-    use crate::engine::calibrate::MdLikelihood;
     use crate::engine::model::Simulator;
-    use std::sync::Arc;
 
     /// η(x, θ) = θ₀ + θ₁ x for observables "a" and "b".
-    struct Line;
+    pub struct Line;
     impl Simulator for Line {
         fn parameter_names(&self) -> Vec<String> {
             vec!["c".into(), "m".into()]
@@ -165,7 +165,7 @@ mod tests {
         }
     }
 
-    fn data() -> Vec<Measurement> {
+    pub fn data() -> Vec<Measurement> {
         vec![
             Measurement::new("a", 0.0, 1.1, 0.1),
             Measurement::new("a", 1.0, 1.9, 0.2),
@@ -174,11 +174,11 @@ mod tests {
         ]
     }
 
-    fn entry(oa: &str, xa: f64, ob: &str, xb: f64, c: f64, line: usize) -> CovarianceEntry {
+    pub fn entry(oa: &str, xa: f64, ob: &str, xb: f64, c: f64, line: usize) -> CovarianceEntry {
         CovarianceEntry { observable_a: oa.into(), x_a: xa, observable_b: ob.into(), x_b: xb, covariance: c, line }
     }
 
-    fn blocks(m: &[Measurement]) -> Vec<ObservableBlock> {
+    pub fn blocks(m: &[Measurement]) -> Vec<ObservableBlock> {
         ["a", "b"]
             .iter()
             .enumerate()
@@ -187,6 +187,14 @@ mod tests {
             })
             .collect()
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::test_support::*;
+    use super::*;
+    use crate::engine::calibrate::likelihood::MdLikelihood;
+    use std::sync::Arc;
 
     #[test]
     fn the_likelihood_is_the_gaussian_density_with_the_whole_covariance() {
@@ -212,27 +220,6 @@ mod tests {
         let block_b = normal(1.0 - 1.0, 0.1) + normal(3.2 - 2.9, 0.1);
         let got = lik.log_likelihood(&theta);
         assert!((got - (block_a + block_b)).abs() < 1e-10, "{got} vs {}", block_a + block_b);
-        // Fisher information of the line: Jᵀ Σ⁻¹ J, J = [[1, x]] per point.
-        let f = lik.fisher_information(&theta, &[1e-3, 1e-3]).unwrap();
-        let inv = [s22 / det, -s12 / det, s11 / det];
-        let (xa, xb) = ([0.0, 1.0], [0.0, 2.0]);
-        let fa = |p: usize, q: usize| {
-            let j = |i: usize, k: usize| if k == 0 { 1.0 } else { xa[i] };
-            j(0, p) * (inv[0] * j(0, q) + inv[1] * j(1, q)) + j(1, p) * (inv[1] * j(0, q) + inv[2] * j(1, q))
-        };
-        let fb = |p: usize, q: usize| {
-            (0..2).map(|i| if p == 0 { 1.0 } else { xb[i] } * if q == 0 { 1.0 } else { xb[i] } / 0.01).sum::<f64>()
-        };
-        for p in 0..2 {
-            for q in 0..2 {
-                let expect = fa(p, q) + fb(p, q);
-                assert!(
-                    (f[p + 2 * q] - expect).abs() < 1e-6 * expect.abs().max(1.0),
-                    "F[{p},{q}] = {} vs {expect}",
-                    f[p + 2 * q]
-                );
-            }
-        }
     }
 
     #[test]

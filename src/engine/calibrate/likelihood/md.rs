@@ -15,8 +15,10 @@
 //! units and evidences are comparable with any other analysis of the same data.
 
 use super::block::ObservableBlock;
-use super::joint::{add_lower_block, JointLayout};
-use super::structured::{self, Structure, LN_2PI};
+use super::form::{BlockForm, Form};
+use super::joint::{add_lower_block, CrossEntry, JointLayout};
+use super::structured::{self, Moving, Structure, LN_2PI};
+use crate::base::config::BetweenObservables;
 use crate::engine::gp::{copy_lower, gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
 use crate::engine::model::Simulator;
 use std::cell::RefCell;
@@ -70,16 +72,9 @@ pub struct MdLikelihood {
     pub n_theta: usize,
     pub(super) log_jacobian: f64,
     /// The model adds its own predictive covariance (an emulator).
-    pub(super) model_covariance: bool,
-    /// One Gaussian over all points instead of independent blocks.
-    pub joint: Option<JointLayout>,
-    /// The joint covariance as blocks plus a low-rank term, when it is so
-    /// (`structured`); `None`: the dense factorization.
-    pub structure: Option<Structure>,
-    /// Each block's data covariance factorized once, when nothing in it
-    /// depends on the parameters (no MD, no model covariance); `None` for a
-    /// block of errors alone (no factorization needed) or otherwise.
-    fixed_blocks: Vec<Option<CholeskyWorkspace>>,
+    model_covariance: bool,
+    /// How an evaluation is done (`form`).
+    pub form: Form,
     /// Factorizations of this likelihood's covariances that needed jitter.
     jitter_events: AtomicUsize,
 }
@@ -100,12 +95,24 @@ impl MdLikelihood {
         }
     }
 
+    /// The likelihood with independent observable blocks.
     pub fn new(simulator: Arc<dyn Simulator>, blocks: Vec<ObservableBlock>, kernel: Option<DiscrepancyKernel>) -> Self {
+        Self::linked(simulator, blocks, kernel, BetweenObservables::Independent, &[])
+    }
+
+    /// The likelihood in the form `Form::choose` finds for these blocks, the
+    /// data's entries between them (`across`) and `mode`.
+    pub fn linked(
+        simulator: Arc<dyn Simulator>,
+        blocks: Vec<ObservableBlock>,
+        kernel: Option<DiscrepancyKernel>,
+        mode: BetweenObservables,
+        across: &[CrossEntry],
+    ) -> Self {
         let n_theta = simulator.parameter_names().len();
         let log_jacobian = -blocks.iter().map(|b| b.len() as f64 * b.scale.ln()).sum::<f64>();
         let model_covariance = simulator.has_model_covariance();
-        let fixed = kernel.is_none() && !model_covariance;
-        let fixed_blocks = blocks.iter().map(|b| fixed.then(|| b.fixed_factor()).flatten()).collect();
+        let form = Form::choose(&blocks, across, mode, simulator.as_ref(), kernel);
         MdLikelihood {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             simulator,
@@ -115,41 +122,35 @@ impl MdLikelihood {
             log_jacobian,
             model_covariance,
             jitter_events: AtomicUsize::new(0),
-            joint: None,
-            structure: None,
-            fixed_blocks,
+            form,
         }
     }
 
     /// This likelihood as one Gaussian over all points, with the data's
     /// entries between blocks `across` (and the model's covariance across
-    /// observables, when it has one).
-    pub fn joint(mut self, across: &[super::joint::CrossEntry]) -> Self {
-        let spans = self.model_covariance && self.simulator.model_covariance_spans_observables();
-        let layout = JointLayout::new(&self.blocks, across, spans);
-        // The structure is exact algebra on the same covariance; a model
-        // covariance across observables joins it when the model gives it in
-        // low-rank form (an emulator's), and keeps the dense form otherwise.
-        let fixed = self.kernel.is_none() && !self.model_covariance;
-        let model = spans.then(|| self.simulator.joint_model_low_rank(&layout.points, &layout.offsets));
-        self.structure = match model {
-            Some(None) => None,
-            Some(model) => Structure::find(&layout, &self.blocks, fixed, model).filter(|s| s.cheaper_than_dense()),
-            None => Structure::find(&layout, &self.blocks, fixed, None),
-        };
-        self.joint = Some(layout);
-        // A new id: workspaces of the block form must not be reused.
+    /// observables, when it has one), in its cheapest exact form.
+    pub fn joint(self, across: &[CrossEntry]) -> Self {
+        Self::linked(self.simulator, self.blocks, self.kernel, BetweenObservables::Joint, across)
+    }
+
+    /// This likelihood with the dense factorization of the whole
+    /// covariance, whatever its structure: the reference the structured
+    /// evaluation is tested and benchmarked against.
+    pub fn dense(mut self) -> Self {
+        self.form = self.form.dense();
+        // A new id: workspaces of the structured form must not be reused.
         self.id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
         self
     }
 
-    /// This joint likelihood with the dense factorization of the whole
-    /// covariance, whatever its structure: the reference the structured
-    /// evaluation is tested and benchmarked against.
-    pub fn dense(mut self) -> Self {
-        self.structure = None;
-        self.id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
-        self
+    /// The model adds its own predictive covariance (an emulator).
+    pub fn has_model_covariance(&self) -> bool {
+        self.model_covariance
+    }
+
+    /// The layout over all points, for the joint forms.
+    pub fn layout(&self) -> Option<&JointLayout> {
+        self.form.layout()
     }
 
     pub fn n_hyper(&self) -> usize {
@@ -187,15 +188,14 @@ impl MdLikelihood {
             resid: vec![0.0; nmax],
             xr: vec![0.0; nmax],
             corr: vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)],
-            joint_chol: self
-                .joint
-                .as_ref()
-                .filter(|_| self.structure.is_none())
-                .map(|j| CholeskyWorkspace::new(j.len())),
-            joint_resid: vec![0.0; self.joint.as_ref().map_or(0, |j| j.len())],
+            joint_chol: match &self.form {
+                Form::Dense(layout) => Some(CholeskyWorkspace::new(layout.len())),
+                _ => None,
+            },
+            joint_resid: vec![0.0; self.layout().map_or(0, |j| j.len())],
             joint_bases: Vec::new(),
             clock: 0,
-            structured: self.structure.as_ref().map(structured::Scratch::new),
+            structured: self.form.structure().map(structured::Scratch::new),
         }
     }
 
@@ -219,14 +219,12 @@ impl MdLikelihood {
 
     pub fn log_likelihood(&self, params: &[f64]) -> f64 {
         self.with_workspace(|ws| {
-            if let Some(joint) = &self.joint {
-                return self.log_jacobian + self.joint_log_likelihood(joint, params, ws);
-            }
-            let mut total = self.log_jacobian;
-            for b in 0..self.blocks.len() {
-                total += self.block_log_likelihood(params, b, ws);
-            }
-            total
+            let value = match &self.form {
+                Form::Blocks(_) => (0..self.blocks.len()).map(|b| self.block_log_likelihood(params, b, ws)).sum(),
+                Form::Dense(layout) => self.dense_log_likelihood(layout, params, ws),
+                Form::Structured(layout, structure) => self.structured_log_likelihood(structure, layout, params, ws),
+            };
+            self.log_jacobian + value
         })
     }
 
@@ -255,15 +253,12 @@ impl MdLikelihood {
     /// factorization instead of N × N. `None` for the block form (its terms
     /// are exact) and without δ.
     pub fn screening_term(&self, params: &[f64], b: usize) -> Option<f64> {
-        (self.joint.is_some() && self.kernel.is_some())
+        (self.layout().is_some() && self.kernel.is_some())
             .then(|| self.with_workspace(|ws| self.block_log_likelihood(params, b, ws)))
     }
 
-    /// The joint form's Gaussian over all points (without the Jacobian).
-    fn joint_log_likelihood(&self, joint: &JointLayout, params: &[f64], ws: &mut Workspace) -> f64 {
-        if let Some(structure) = &self.structure {
-            return self.structured_log_likelihood(structure, joint, params, ws);
-        }
+    /// The dense form's Gaussian over all points (without the Jacobian).
+    fn dense_log_likelihood(&self, joint: &JointLayout, params: &[f64], ws: &mut Workspace) -> f64 {
         let mut chol = ws.joint_chol.take().expect("a joint likelihood's workspace has its factor");
         let mut resid = std::mem::take(&mut ws.joint_resid);
         self.fill_joint(joint, params, true, ws, &mut chol.factor, &mut resid);
@@ -296,18 +291,16 @@ impl MdLikelihood {
         let Workspace { chol, eta, xr, corr, joint_resid: resid, structured: scratch, .. } = ws;
         let scratch = scratch.as_mut().expect("a structured likelihood's workspace has its scratch");
         self.fill_residuals(joint, theta, eta, resid);
-        if let Some(fixed) = &structure.fixed {
-            return finite_or_neg_inf(structure.fixed_log_pdf(fixed, resid, scratch));
-        }
         let fill = |b: usize, lower: &mut [f64]| self.fill_own(params, b, lower, xr, corr);
-        let evaluated = match &structure.model {
-            Some(model) => {
+        let evaluated = match &structure.moving {
+            Moving::Nothing(fixed) => return finite_or_neg_inf(structure.fixed_log_pdf(fixed, resid, scratch)),
+            Moving::Blocks => structure.log_pdf(resid, scratch, chol, fill),
+            Moving::BlocksAndModel(model) => {
                 let ms = scratch.model.as_mut().expect("a structure with a model term has its scratch");
                 let (points, inv_scales) = (&joint.points, &joint.inv_scales);
                 self.simulator.joint_model_factors(points, inv_scales, theta, &mut ms.g, &mut ms.theta_weights);
                 structure.log_pdf_with_model(model, resid, scratch, chol, fill)
             }
-            None => structure.log_pdf(resid, scratch, chol, fill),
         };
         let total = match evaluated {
             Some((value, jitter)) => {
@@ -339,7 +332,7 @@ impl MdLikelihood {
             None => lower.iter_mut().for_each(|v| *v = 0.0),
         }
         // A model covariance across observables is the structure's own term.
-        if self.model_covariance && !self.joint.as_ref().is_some_and(|j| j.model_spans) {
+        if self.model_covariance && !self.layout().is_some_and(|j| j.model_spans) {
             let inv2 = 1.0 / (block.scale * block.scale);
             self.simulator.add_model_covariance(block.model_index, &block.x, &params[..self.n_theta], inv2, lower);
         }
@@ -347,20 +340,20 @@ impl MdLikelihood {
 
     /// The structured joint covariance factorized at `params` and the residuals,
     /// for summaries (allocates); `None` for the other forms or a failed factor.
-    pub fn structured_system(&self, params: &[f64]) -> Option<(structured::Factored, Vec<f64>)> {
-        let (structure, joint) = (self.structure.as_ref()?, self.joint.as_ref()?);
+    pub fn structured_system(&self, params: &[f64]) -> Option<(super::factored::Factored, Vec<f64>)> {
+        let Form::Structured(joint, structure) = &self.form else { return None };
         let nmax = self.blocks.iter().map(|b| b.len()).max().unwrap_or(0);
         let (mut eta, mut resid) = (vec![0.0; nmax], vec![0.0; joint.len()]);
         self.fill_residuals(joint, &params[..self.n_theta], &mut eta, &mut resid);
         let mut xr = vec![0.0; nmax];
         let mut corr = vec![0.0; self.blocks.iter().map(|b| b.gram.n_unique()).max().unwrap_or(0)];
         let (mut g, mut theta_weights) = (vec![0.0; joint.len()], Vec::new());
-        if let Some(model) = &structure.model {
+        if let Some(model) = structure.model() {
             theta_weights.resize(model.weighted.len(), 0.0);
             let theta = &params[..self.n_theta];
             self.simulator.joint_model_factors(&joint.points, &joint.inv_scales, theta, &mut g, &mut theta_weights);
         }
-        let factors = structure.model.as_ref().map(|_| (g.as_slice(), theta_weights.as_slice()));
+        let factors = structure.model().map(|_| (g.as_slice(), theta_weights.as_slice()));
         let factored = structure.factor_at(factors, |b, lower| self.fill_own(params, b, lower, &mut xr, &mut corr))?;
         Some((factored, resid))
     }
@@ -459,7 +452,7 @@ impl MdLikelihood {
     }
 
     fn joint_system_with(&self, params: &[f64], with_delta: bool) -> Option<(Vec<f64>, Vec<f64>)> {
-        let joint = self.joint.as_ref()?;
+        let joint = self.layout()?;
         let n = joint.len();
         let (mut lower, mut resid) = (vec![0.0; n * n], vec![0.0; n]);
         self.with_workspace(|ws| self.fill_joint(joint, params, with_delta, ws, &mut lower, &mut resid));
@@ -478,10 +471,14 @@ impl MdLikelihood {
             resid[i] = (block.y[i] - eta[i]) * inv_scale;
         }
         let mut total = 0.0;
-        if let Some(chol) = &self.fixed_blocks[b] {
+        let own_form = match &self.form {
+            Form::Blocks(forms) => &forms[b],
+            // A joint form's block marginal (its screen): δ moves.
+            _ => &BlockForm::Moving,
+        };
+        if let BlockForm::Fixed(chol) = own_form {
             total = gaussian_logpdf_factored(chol, resid);
-        } else if self.kernel.is_none() && !self.model_covariance && block.diagonal_data() {
-            // Diagonal covariance: no factorization needed.
+        } else if let BlockForm::Diagonal = own_form {
             for i in 0..n {
                 let s = block.error[i] * inv_scale;
                 let z = resid[i] / s;

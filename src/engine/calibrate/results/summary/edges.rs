@@ -6,7 +6,7 @@
 //! and fit again.
 
 use super::Chains;
-use crate::engine::calibrate::prior::UniformPrior;
+use crate::engine::calibrate::sampler::uniform_prior::UniformPrior;
 
 /// The strip along a bound, as a share of the parameter's range.
 const STRIP: f64 = 0.02;

@@ -12,9 +12,11 @@
 //! another seed. The fit's provenance keeps the seed and command it was made with.
 
 use super::summary::{PredictionRow, Summary};
-use super::{checkpoint_key, Calibration, Chains, Problem};
+use super::Calibration;
 use crate::base::artifacts;
 use crate::base::columns::{f64_column, str_column};
+use crate::engine::calibrate::problem::{checkpoint_key, Problem};
+use crate::engine::calibrate::sampler::chains::Chains;
 use crate::engine::model::Simulator;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};

@@ -4,7 +4,7 @@
 //! (`posterior_predictive.parquet`, its `posterior_predictive` group).
 
 use super::*;
-use crate::engine::calibrate::block::ObservableBlock;
+use crate::engine::calibrate::likelihood::block::ObservableBlock;
 
 /// Columns added to `posterior.parquet` beside the draws, row for row:
 /// `log_likelihood` and `log_prior` (the sampler's target is their sum), and
@@ -13,7 +13,7 @@ use crate::engine::calibrate::block::ObservableBlock;
 pub fn log_density_columns(problem: &Problem, chains: &Chains) -> Vec<(String, Vec<f64>)> {
     let lik = &problem.likelihood;
     // The block form's terms are independent; a joint likelihood has one.
-    let separable = lik.joint.is_none();
+    let separable = lik.layout().is_none();
     let n_terms = if separable { lik.blocks.len() } else { 0 };
     let rows: Vec<&[f64]> = chains.rows().collect();
     let per_row: Vec<(f64, f64, Vec<f64>)> = rows

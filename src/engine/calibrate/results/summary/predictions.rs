@@ -139,7 +139,7 @@ fn conditional_moments(
         |x: f64, out: &mut [f64]| discrepancy_cross_cov(kernel, hyper, &block.kernel_x, &[block.input.apply(x)], out);
     if let Some((factored, mut alpha)) = lik.structured_system(params) {
         factored.solve_in_place(&mut alpha);
-        let rows = lik.joint.as_ref()?.rows(b);
+        let rows = lik.layout()?.rows(b);
         let mut k = vec![0.0; block.len()];
         return Some(
             xq.iter()
@@ -153,7 +153,7 @@ fn conditional_moments(
     }
     // The covariance of the standardized residuals, and where block b sits in it.
     let (lower, mut alpha, rows) = match lik.joint_system(params) {
-        Some((lower, resid)) => (lower, resid, lik.joint.as_ref().map(|j| j.rows(b)).unwrap_or_default()),
+        Some((lower, resid)) => (lower, resid, lik.layout().map(|j| j.rows(b)).unwrap_or_default()),
         None => {
             let n = block.len();
             let theta = &params[..lik.n_theta];

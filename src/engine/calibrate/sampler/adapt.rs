@@ -13,10 +13,10 @@
 //! (`<checkpoint>/adapt_<k>`) under its own key, so an interrupted run
 //! resumes where it was.
 
+use super::chains::Chains;
 use super::checkpoint::Checkpointing;
 use super::diagnostics::{self, ESS_MIN, RHAT_MAX};
 use super::smc::SmcSettings;
-use super::Chains;
 
 /// Runs after the first, at most.
 pub const MAX_RERUNS: usize = 2;
