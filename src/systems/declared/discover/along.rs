@@ -5,6 +5,7 @@
 //! an expression model, each observable as measured, its symbol the input.
 
 use super::super::declaration::{Declared, Variables, MAX_NAMES};
+use super::grammar::kinematic_identity;
 use crate::engine::discover::along::{Along, AlongModel, Place};
 use crate::engine::discover::library::{Scale, Symbol};
 use crate::engine::discover::smooth::{smooth, Smoothed};
@@ -45,19 +46,13 @@ impl Observed {
             known.insert(*k, (t.clone(), s.value.clone(), s.rate.clone(), s.rate_sd.clone()));
         }
         for (k, state) in d.states.iter().enumerate() {
-            if let (Some((t, s)), Some(v)) = (series.get(&k), identity(d, &state.rate.text)) {
-                known.entry(v).or_insert_with(|| (t.clone(), s.rate.clone(), s.second.clone(), s.second_sd.clone()));
+            if let (Some((t, s)), Some((v, sign))) = (series.get(&k), kinematic_identity(d, &state.rate.text)) {
+                // v = sign·dx/dt: its values are x's rate, its rate x's second derivative.
+                let signed = |values: &[f64]| values.iter().map(|r| sign * r).collect::<Vec<f64>>();
+                known.entry(v).or_insert_with(|| (t.clone(), signed(&s.rate), signed(&s.second), s.second_sd.clone()));
             }
         }
         Observed { known }
-    }
-}
-
-/// The state a rate is, when it is a kinematic identity (`dh/dt = v`).
-fn identity(d: &Declared, rate: &str) -> Option<usize> {
-    match parse(rate) {
-        Ok(Expr::Name(n)) => d.states.iter().position(|s| s.name == n),
-        _ => None,
     }
 }
 
@@ -80,7 +75,7 @@ pub fn ode(
     let mut times: Vec<f64> = Vec::new();
     for (k, state) in d.states.iter().enumerate() {
         let Some((t, _, rate, rate_sd)) = known.get(&k) else { continue };
-        if identity(d, &state.rate.text).is_some() {
+        if kinematic_identity(d, &state.rate.text).is_some() {
             continue;
         }
         let values: Vec<Vec<f64>> = d
@@ -157,6 +152,21 @@ fn observed_series(d: &Declared, data: &ScreeningData) -> BTreeMap<usize, (Vec<f
         }
         if let Some(s) = smooth(b.x, b.y, b.error) {
             out.insert(k, (b.x.to_vec(), s));
+        }
+    }
+    // A rate measured as itself (`acceleration = "d_v"`) is the law's value
+    // at its times, with its own errors: better than the derivative of a
+    // smoothed state, whose error over a few points can hide the effect.
+    for b in &data.blocks {
+        let Some((_, formula)) = d.observables.get(b.model_index) else { continue };
+        let Ok(Expr::Name(name)) = parse(&formula.text) else { continue };
+        let Some(k) = name.strip_prefix("d_").and_then(|n| d.states.iter().position(|s| s.name == n)) else {
+            continue;
+        };
+        if let Some((t, s)) = out.get_mut(&k).filter(|(t, _)| t.as_slice() == b.x) {
+            debug_assert_eq!(t.len(), b.y.len());
+            s.rate = b.y.to_vec();
+            s.rate_sd = b.error.to_vec();
         }
     }
     out

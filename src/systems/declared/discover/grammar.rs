@@ -280,13 +280,27 @@ fn observables(d: &Declared) -> Vec<(String, String)> {
 /// The states whose rate is a law, with the rate: not a kinematic identity
 /// (`dh/dt = v`), which is a definition and exact.
 pub fn laws(d: &Declared) -> Vec<(String, String)> {
+    d.states
+        .iter()
+        .filter(|s| kinematic_identity(d, &s.rate.text).is_none())
+        .map(|s| (s.name.clone(), s.rate.text.clone()))
+        .collect()
+}
+
+/// The state a rate is, and its sign, when the rate is a kinematic identity:
+/// `dx/dt = v` (+1), or `dh/dt = -v` for a height that falls as the
+/// downward speed v grows (−1). Such a rate is a definition: no term joins it.
+pub fn kinematic_identity(d: &Declared, rate: &str) -> Option<(usize, f64)> {
     use crate::engine::formula::notation::{parse, Expr};
-    let identity = |text: &str| match parse(text) {
-        Ok(Expr::Name(n)) => d.states.iter().any(|s| s.name == n),
-        Ok(Expr::Neg(a)) => matches!(*a, Expr::Name(ref n) if d.states.iter().any(|s| &s.name == n)),
-        _ => false,
-    };
-    d.states.iter().filter(|s| !identity(&s.rate.text)).map(|s| (s.name.clone(), s.rate.text.clone())).collect()
+    let state = |n: &str| d.states.iter().position(|s| s.name == n);
+    match parse(rate).ok()? {
+        Expr::Name(n) => Some((state(&n)?, 1.0)),
+        Expr::Neg(a) => match *a {
+            Expr::Name(n) => Some((state(&n)?, -1.0)),
+            _ => None,
+        },
+        _ => None,
+    }
 }
 
 /// The parameters some rate or observable uses: those that can vary.
