@@ -114,6 +114,27 @@ fn quadratic_drag_is_discovered_when_no_candidate_is_declared() {
     assert!(drag.prior_log_odds < -1.0, "{}", drag.prior_log_odds);
 }
 
+/// First tier: a periodic force (3 m/s², period 0.4 s) on the ball drop,
+/// drawn by the ball drop's own integrator, with the library taken away.
+/// The force acts on v's law, which the acceleration measures directly:
+/// the sine is named in dv/dt with ω's interval covering 2π/0.4, and no
+/// term joins dh/dt = −v, a definition. (The campaign below measures the
+/// rate over seeded sets.)
+#[test]
+fn a_periodic_force_is_discovered_in_the_law_not_in_the_definition() {
+    let analysis = without_candidates("pipeline/ball_drop.toml");
+    let dir = tmp("ball-periodic");
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+    let forces = ExtraForces { oscillation_amplitude: 3.0, oscillation_period: 0.4, ..ExtraForces::NONE };
+    let (path, size) = ball_drop_set(&dir, 0, forces, &mut rng);
+    assert!(size > 5.0, "{size}");
+    let d = diagnose_file(&analysis, &path, 21, Discover::WhenUnexplained);
+    assert!(periodic_found(&d, "v", 2.0 * std::f64::consts::PI / 0.4), "{}", d.verdict.statement);
+    let report = d.discovery.as_ref().expect("discovery ran: nothing was declared");
+    assert!(report.screened.iter().all(|t| !t.formula.contains("in dh/dt")), "{:?}", report.screened);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The campaigns' rates, printed with their 95% Clopper–Pearson intervals.
 fn rate(what: &str, k: usize, n: usize) -> (f64, f64) {
     let (lo, hi) = clopper_pearson(k, n);
