@@ -96,6 +96,7 @@ fn read_csv_rows(path: &Path, columns: [&str; 5]) -> Result<Vec<CovarianceEntry>
             x_b: num(3)?,
             covariance: num(4)?,
             line,
+            rounding: printed_rounding(field(4)),
         });
     }
     Ok(out)
@@ -115,8 +116,24 @@ fn read_parquet_rows(path: &Path) -> Result<Vec<CovarianceEntry>> {
             x_b: xb[i],
             covariance: c[i],
             line: i + 1,
+            // A Parquet double holds no digits of its own: its shortest
+            // decimal form is what the writer rounded it to.
+            rounding: printed_rounding(&format!("{:e}", c[i])),
         })
         .collect())
+}
+
+/// Half a unit in the last digit of a number as printed (`"2.50e-3"` →
+/// 5e-6, `"1200"` → 0.5): how far the written value may be from the one
+/// meant. A double printed in full has a rounding below its own precision.
+pub fn printed_rounding(text: &str) -> f64 {
+    let text = text.trim().trim_start_matches(['+', '-']);
+    let (mantissa, exponent) = match text.find(['e', 'E']) {
+        Some(at) => (&text[..at], text[at + 1..].parse::<i32>().unwrap_or(0)),
+        None => (text, 0),
+    };
+    let decimals = mantissa.find('.').map_or(0, |dot| mantissa.len() - dot - 1) as i32;
+    0.5 * 10f64.powi(exponent - decimals)
 }
 
 /// Entries as CSV text, header first.
@@ -135,4 +152,19 @@ fn pairs_csv(entries: &[CovarianceEntry], columns: [&str; 5]) -> String {
 /// Writes entries as CSV (temporary file, then renamed).
 pub fn write_covariance_csv(path: &Path, entries: &[CovarianceEntry]) -> Result<()> {
     super::artifacts::write_text_atomic(path, &covariance_csv(entries))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::printed_rounding;
+
+    #[test]
+    fn a_printed_number_knows_its_last_digit() {
+        for (text, half_unit) in
+            [("2.50e-3", 5e-6), ("1200", 0.5), ("-0.00120", 5e-6), ("1.2345678E+02", 5e-6), ("3", 0.5)]
+        {
+            let got = printed_rounding(text);
+            assert!((got / half_unit - 1.0).abs() < 1e-12, "{text}: {got} vs {half_unit}");
+        }
+    }
 }

@@ -103,6 +103,7 @@ impl Record {
                         x_b: b.x,
                         covariance: c,
                         line: 0,
+                        rounding: 0.0,
                     });
                 }
             }

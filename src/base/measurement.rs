@@ -71,6 +71,10 @@ pub struct CovarianceEntry {
     pub covariance: f64,
     /// CSV line or Parquet row (1-based), for messages.
     pub line: usize,
+    /// Half a unit in the last digit `covariance` was written with (a file
+    /// printed to 8 significant digits, HEPData's 2 or 3), 0 for a value
+    /// computed here: how far the value meant may be from the one read.
+    pub rounding: f64,
 }
 
 impl CovarianceEntry {

@@ -173,6 +173,7 @@ fn joint_likelihood_matches_closed_form_with_covariance_between_observables() {
                 x_b: x[j],
                 covariance: norm,
                 line: 0,
+                rounding: 0.0,
             });
         }
     }

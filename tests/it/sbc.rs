@@ -120,6 +120,7 @@ fn linked_line(truth: &[f64], x: &[f64], err: f64, norm: f64, rng: &mut Xoshiro2
                 x_b: rows[j].x,
                 covariance: norm * norm,
                 line: 0,
+                rounding: 0.0,
             });
         }
     }

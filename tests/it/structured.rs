@@ -19,6 +19,7 @@ use mdpipe::model::Simulator;
 use proptest::prelude::*;
 use proptest::test_runner::{Config as RunnerConfig, RngSeed, TestCaseError, TestRunner};
 use rand::{Rng, SeedableRng};
+use std::path::Path;
 use std::sync::Arc;
 
 /// η(x, θ) = θ₀ + θ₁ sin(x + b) for observable b, with (optionally) a
@@ -146,7 +147,14 @@ fn problem(seed: u64) -> Problem {
                 for i in 0..sizes[ba] {
                     let c = cov[(offsets[ba] + i) + (offsets[bb] + j) * total];
                     if c != 0.0 {
-                        across.push(CrossEntry { block_a: ba, index_a: i, block_b: bb, index_b: j, covariance: c });
+                        across.push(CrossEntry {
+                            block_a: ba,
+                            index_a: i,
+                            block_b: bb,
+                            index_b: j,
+                            covariance: c,
+                            rounding: 0.0,
+                        });
                     }
                 }
             }
@@ -353,4 +361,88 @@ fn one_blocks_statistics_updated_alone_give_the_whole_evaluation() {
     result.unwrap();
     println!("{} single-block updates checked against whole evaluations", checked.get());
     assert!(checked.get() >= 100, "too few structured problems with δ: {}", checked.get());
+}
+
+/// A systematic shared by every point of four observables (a
+/// normalization), written to a covariance file as users write it: at full
+/// precision, to 8 significant digits and to 3. The structure is found in
+/// each, to the file's own digits (at 17, the double's rounding), and at 8
+/// and 3 digits with what the split leaves between blocks (the rounding) kept
+/// in the diagonal. The log-likelihood then differs from the dense one of
+/// the numbers as written by at most the first-order bound of that change,
+/// (N + r'Σ⁻¹r) ρ / σ²_min, ρ the diagonal added.
+#[test]
+fn a_covariance_written_to_few_digits_keeps_its_structure() {
+    use mdpipe::base::covariance::{read_covariance, CovarianceEntry};
+    use mdpipe::calibrate::likelihood::{data_covariance, Form};
+    use mdpipe::config::BetweenObservables;
+    let (observables, per) = (4usize, 25usize);
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(31);
+    let mut measurements = Vec::new();
+    for o in 0..observables {
+        for i in 0..per {
+            let x = i as f64 * 0.2;
+            let y = 1.0 + 0.5 * (x + o as f64).sin() + 0.05 * rng.sample::<f64, _>(rand_distr::StandardNormal);
+            measurements.push(Measurement::new(&format!("o{o}"), x, y, 0.05));
+        }
+    }
+    // A 3% normalization on values near 1: a covariance of 0.03² y_i y_j.
+    let mut lines = vec!["observable_a,x_a,observable_b,x_b,covariance".to_string()];
+    let dir = std::env::temp_dir().join(format!("mdpipe-rounded-cov-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let simulator = Arc::new(Wave { observables, own_covariance: false });
+    let mut seen = Vec::new();
+    for digits in [17usize, 8, 3] {
+        lines.truncate(1);
+        for a in &measurements {
+            for b in &measurements {
+                let c = 0.03 * 0.03 * a.value * b.value;
+                lines.push(format!("{},{},{},{},{:.*e}", a.observable, a.x, b.observable, b.x, digits - 1, c));
+            }
+        }
+        let path = dir.join(format!("cov{digits}.csv"));
+        std::fs::write(&path, lines.join("\n")).unwrap();
+        let entries: Vec<CovarianceEntry> = read_covariance(&path).unwrap();
+        let mut blocks: Vec<ObservableBlock> = (0..observables)
+            .map(|o| {
+                let rows: Vec<&Measurement> = measurements.iter().filter(|m| m.observable == format!("o{o}")).collect();
+                ObservableBlock::new(&format!("o{o}"), o, &rows).unwrap()
+            })
+            .collect();
+        let across =
+            data_covariance::attach(&mut blocks, &entries, &measurements, &path, Path::new("data.csv")).unwrap();
+        let lik = MdLikelihood::linked(simulator.clone(), blocks, None, BetweenObservables::Auto, &across);
+        let Form::Structured(_, structure) = &lik.form else {
+            panic!("{digits} digits: no structure ({})", lik.form.label())
+        };
+        let rho = structure.rounding_kept;
+        let smallest = lik.blocks.iter().map(|b| (0.05 / b.scale).powi(2)).fold(f64::INFINITY, f64::min);
+        assert!(rho <= 0.1 * smallest, "{digits} digits: {rho} added against errors² {smallest}");
+        let theta = [1.0, 0.5];
+        let structured = lik.log_likelihood(&theta);
+        let (lower, resid) = lik.joint_model_system(&theta).unwrap();
+        let dense =
+            MdLikelihood::linked(simulator.clone(), lik.blocks.clone(), None, BetweenObservables::Joint, &across)
+                .dense();
+        let reference = dense.log_likelihood(&theta);
+        // r'Σ⁻¹r with the covariance as written (standardized).
+        let n = resid.len();
+        let mut chol = mdpipe::gp::CholeskyWorkspace::new(n);
+        chol.factor.copy_from_slice(&lower);
+        assert!(chol.factorize_exact());
+        let mut z = resid.clone();
+        chol.solve_lower_in_place(&mut z);
+        let quad: f64 = z.iter().map(|v| v * v).sum();
+        let bound = (n as f64 + quad) * rho / smallest + 1e-9 * reference.abs();
+        assert!(
+            (structured - reference).abs() <= bound,
+            "{digits} digits: {structured} vs {reference} (bound {bound})"
+        );
+        seen.push((digits, structure.rank, rho / smallest));
+    }
+    // 17 digits are a printed file too: what stays is the double's rounding.
+    assert!(seen[0].2 < 1e-9, "full precision is split to rounding: {seen:?}");
+    assert!(seen.iter().all(|s| s.1 == 1), "one normalization, one column: {seen:?}");
+    assert!(seen[2].2 > seen[1].2, "fewer digits, more kept: {seen:?}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -89,7 +89,14 @@ fn data(model: &EmulatedModel) -> (Vec<ObservableBlock>, Vec<CrossEntry>) {
             for j in 0..BINS {
                 for i in 0..BINS {
                     let covariance = 0.03 * blocks[a].1[i] * 0.03 * blocks[b].1[j];
-                    across.push(CrossEntry { block_a: a, index_a: i, block_b: b, index_b: j, covariance });
+                    across.push(CrossEntry {
+                        block_a: a,
+                        index_a: i,
+                        block_b: b,
+                        index_b: j,
+                        covariance,
+                        rounding: 0.0,
+                    });
                 }
             }
         }

@@ -190,6 +190,7 @@ impl TrainingTable {
                         x_b: ob.x,
                         covariance: r[a * m + b],
                         line: 0,
+                        rounding: 0.0,
                     });
                 }
             }

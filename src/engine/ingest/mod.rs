@@ -294,6 +294,7 @@ pub fn analyse_events_with_covariance(
                     x_b: rows[j].x,
                     covariance: c,
                     line: 0,
+                    rounding: 0.0,
                 });
             }
         }
@@ -554,6 +555,7 @@ pub fn pooled_noise_correlation(ingested: &Ingested) -> Option<Vec<crate::base::
             x_b: f64::from_bits(xb),
             covariance: (sum / count as f64).clamp(-1.0, 1.0),
             line: 0,
+            rounding: 0.0,
         })
         .collect();
     Some(entries)

@@ -34,18 +34,21 @@ const PROJECTION_ROUNDS: usize = 300;
 /// one); `None` when the entries between blocks are not of rank ≤
 /// `max_rank` or no split is accepted (`accept` sees V and k, and checks
 /// what stays inside the blocks). `s`: full symmetric column-major N × N;
-/// block b holds points `offsets[b]..offsets[b + 1]`.
+/// block b holds points `offsets[b]..offsets[b + 1]`. `allowed`: how far
+/// an entry between blocks may be from `V Vᵀ`'s, the rounding of the
+/// digits it was written with (0: to double rounding).
 pub fn low_rank_across<T>(
     s: &[f64],
     offsets: &[usize],
     max_rank: usize,
+    allowed: f64,
     accept: impl Fn(&[f64], usize) -> Option<T>,
 ) -> Option<(Vec<f64>, usize, T)> {
     let n = *offsets.last()?;
     let blocks: Vec<std::ops::Range<usize>> = offsets.windows(2).map(|w| w[0]..w[1]).collect();
     let block_of: Vec<usize> = blocks.iter().enumerate().flat_map(|(b, r)| r.clone().map(move |_| b)).collect();
     let scale = s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let tol = 1e-12 * scale.max(f64::MIN_POSITIVE);
+    let tol = (1e-12 * scale.max(f64::MIN_POSITIVE)).max(allowed);
     let mut largest_across = 0.0f64;
     for j in 0..n {
         for i in (0..n).filter(|&i| block_of[i] != block_of[j]) {
@@ -56,7 +59,7 @@ pub fn low_rank_across<T>(
         let kept = accept(&[], 0)?;
         return Some((Vec::new(), 0, kept));
     }
-    let bases: Vec<Basis> = blocks.iter().map(|rows| Basis::of_panel(s, n, rows.clone(), &block_of)).collect();
+    let bases: Vec<Basis> = blocks.iter().map(|rows| Basis::of_panel(s, n, rows.clone(), &block_of, allowed)).collect();
     let r: usize = bases.iter().map(|q| q.rank).sum();
     if r == 0 || r > max_rank {
         return None;
@@ -93,7 +96,8 @@ pub fn low_rank_across<T>(
     // so what is taken back out of a block stays within it.
     let w: Vec<f64> = (0..r).map(|p| if d0[p + p * r] > 0.0 { 1.0 / d0[p + p * r].sqrt() } else { 1.0 }).collect();
     let scaled: Vec<f64> = (0..r * r).map(|e| c[e] * w[e % r] * w[e / r]).collect();
-    let scaled_tol = 1e-12 * scaled.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let widest = w.iter().fold(0.0f64, |m, v| m.max(*v));
+    let scaled_tol = (1e-12 * scaled.iter().fold(0.0f64, |m, v| m.max(v.abs()))).max(2.0 * allowed * widest * widest);
     let mut rounds = PROJECTION_ROUNDS;
     let smallest = (1..=SMALLEST_RANKS.min(r).min(max_rank))
         .find_map(|k| smallest_rank_factor(&scaled, r, k, &in_block, scaled_tol, &mut rounds))
@@ -127,6 +131,28 @@ pub fn low_rank_across<T>(
     smallest.and_then(to_points).or_else(|| projected().and_then(to_points))
 }
 
+/// The spectral norm of `s − V Vᵀ` over the entries between blocks (the
+/// entries within a block are the blocks' own, exactly): what a split to
+/// printed digits leaves. Adding it to the diagonal makes the covariance
+/// used at least the one written, in the Loewner order.
+pub fn residual_norm(s: &[f64], offsets: &[usize], v: &[f64], k: usize) -> f64 {
+    let n = *offsets.last().unwrap_or(&0);
+    let block_of: Vec<usize> =
+        offsets.windows(2).enumerate().flat_map(|(b, w)| std::iter::repeat_n(b, w[1] - w[0])).collect();
+    let mut e = vec![0.0; n * n];
+    for j in 0..n {
+        for i in (0..n).filter(|&i| block_of[i] != block_of[j]) {
+            let vv: f64 = (0..k).map(|col| v[i + col * n] * v[j + col * n]).sum();
+            e[i + j * n] = s[i + j * n] - vv;
+        }
+    }
+    let Ok(eigen) = MatRef::from_column_major_slice(&e, n, n).self_adjoint_eigen(Side::Lower) else {
+        return f64::INFINITY;
+    };
+    let values = eigen.S().column_vector();
+    (0..n).map(|i| values[i].abs()).fold(0.0, f64::max)
+}
+
 /// An orthonormal basis of the directions a block's entries towards the
 /// other blocks take among its own points.
 struct Basis {
@@ -138,8 +164,11 @@ struct Basis {
 
 impl Basis {
     /// From the singular vectors of the panel (the block's rows, the other
-    /// blocks' columns) whose singular values are above rounding.
-    fn of_panel(s: &[f64], n: usize, rows: std::ops::Range<usize>, block_of: &[usize]) -> Basis {
+    /// blocks' columns) whose singular values are above rounding: the
+    /// double's, or that of entries written to fewer digits (`allowed`
+    /// each, whose largest singular value over an n × m panel is about
+    /// `allowed (√n + √m) / √3`).
+    fn of_panel(s: &[f64], n: usize, rows: std::ops::Range<usize>, block_of: &[usize], allowed: f64) -> Basis {
         let nb = rows.len();
         let own = block_of[rows.start];
         let others: Vec<usize> = (0..n).filter(|&j| block_of[j] != own).collect();
@@ -150,7 +179,9 @@ impl Basis {
         let (u, sigma) = (svd.U(), svd.S().column_vector());
         let count = sigma.nrows();
         let largest = (0..count).map(|i| sigma[i]).fold(0.0f64, f64::max);
-        let kept: Vec<usize> = (0..count).filter(|&i| largest > 0.0 && sigma[i] > 1e-13 * largest).collect();
+        let noise = 1.5 * allowed * ((nb as f64).sqrt() + (others.len() as f64).sqrt());
+        let floor = (1e-13 * largest).max(noise);
+        let kept: Vec<usize> = (0..count).filter(|&i| largest > 0.0 && sigma[i] > floor).collect();
         let vectors = kept.iter().flat_map(|&e| (0..nb).map(move |i| u[(i, e)])).collect();
         Basis { rows: nb, rank: kept.len(), vectors }
     }
@@ -247,7 +278,7 @@ mod tests {
                 s[i + j * n] = own + 0.02 * value(i) * 0.02 * value(j);
             }
         }
-        let (v, k, ()) = low_rank_across(&s, &offsets, 64, |_, _| Some(())).unwrap();
+        let (v, k, ()) = low_rank_across(&s, &offsets, 64, 0.0, |_, _| Some(())).unwrap();
         assert_eq!(k, 1);
         let tol = 1e-11 * s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         for j in 0..n {

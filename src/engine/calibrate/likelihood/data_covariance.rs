@@ -91,7 +91,14 @@ pub fn attach(
         let at = |b: usize, x: f64| position_of(&xs[b], x).expect("checked against the measurements");
         let (i, j) = (at(ba, e.x_a), at(bb, e.x_b));
         if ba != bb {
-            let cross = CrossEntry { block_a: ba, index_a: i, block_b: bb, index_b: j, covariance: e.covariance };
+            let cross = CrossEntry {
+                block_a: ba,
+                index_a: i,
+                block_b: bb,
+                index_b: j,
+                covariance: e.covariance,
+                rounding: e.rounding,
+            };
             let key = if (ba, i) <= (bb, j) { (ba, i, bb, j) } else { (bb, j, ba, i) };
             match across.get(&key) {
                 Some((c, _)) if !same_x(c.covariance, e.covariance) => {
@@ -175,7 +182,15 @@ pub(crate) mod test_support {
     }
 
     pub fn entry(oa: &str, xa: f64, ob: &str, xb: f64, c: f64, line: usize) -> CovarianceEntry {
-        CovarianceEntry { observable_a: oa.into(), x_a: xa, observable_b: ob.into(), x_b: xb, covariance: c, line }
+        CovarianceEntry {
+            observable_a: oa.into(),
+            x_a: xa,
+            observable_b: ob.into(),
+            x_b: xb,
+            covariance: c,
+            line,
+            rounding: 0.0,
+        }
     }
 
     pub fn blocks(m: &[Measurement]) -> Vec<ObservableBlock> {
@@ -269,7 +284,11 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let entries = vec![entry("a", 0.0, "a", 1.0, 0.012, 2), entry("b", 2.0, "a", 0.0, -3.5e-4, 3)];
         crate::base::covariance::write_covariance_csv(&dir.join("c.csv"), &entries).unwrap();
-        assert_eq!(read(&dir.join("c.csv")).unwrap(), entries);
+        let mut back = read(&dir.join("c.csv")).unwrap();
+        // Read back, each entry knows the digits it was written with.
+        assert_eq!(back.iter().map(|e| e.rounding).collect::<Vec<_>>(), [0.5e-3, 0.5e-5]);
+        back.iter_mut().for_each(|e| e.rounding = 0.0);
+        assert_eq!(back, entries);
         std::fs::write(dir.join("bad.csv"), "observable_a,x_a,observable_b,x_b,covariance\na,0,a,one,0.1\n").unwrap();
         let msg = format!("{:#}", read(&dir.join("bad.csv")).unwrap_err());
         assert!(msg.contains("bad.csv: line 2, field 'x_b': cannot parse \"one\""), "{msg}");

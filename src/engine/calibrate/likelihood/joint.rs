@@ -23,6 +23,8 @@ pub struct CrossEntry {
     pub index_b: usize,
     /// In the measurements' units squared.
     pub covariance: f64,
+    /// Half a unit in its last printed digit (`CovarianceEntry::rounding`).
+    pub rounding: f64,
 }
 
 /// Where each block's points sit in the joint covariance, and the data's part of it.
@@ -42,6 +44,9 @@ pub struct JointLayout {
     pub cross_entries: usize,
     /// Whether the model's own covariance links the observables (added per evaluation).
     pub model_spans: bool,
+    /// The largest rounding of an entry between blocks, standardized: the
+    /// structure across blocks need match the data only to it.
+    pub rounding_across: f64,
 }
 
 impl JointLayout {
@@ -60,12 +65,14 @@ impl JointLayout {
             block.add_data_covariance(1.0 / (block.scale * block.scale), &mut own);
             add_lower_block(&own, nb, offsets[b], &mut data, n);
         }
+        let mut rounding_across = 0.0f64;
         for e in across {
             let (i, j) = (offsets[e.block_a] + e.index_a, offsets[e.block_b] + e.index_b);
             let (row, col) = if i >= j { (i, j) } else { (j, i) };
             data[row + col * n] += e.covariance * inv_scales[i] * inv_scales[j];
+            rounding_across = rounding_across.max(e.rounding * inv_scales[i] * inv_scales[j]);
         }
-        JointLayout { offsets, points, inv_scales, data, cross_entries: across.len(), model_spans }
+        JointLayout { offsets, points, inv_scales, data, cross_entries: across.len(), model_spans, rounding_across }
     }
 
     /// N, the number of points.

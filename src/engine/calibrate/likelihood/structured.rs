@@ -27,7 +27,7 @@
 //! observables (an emulator's). The dense path is the reference: the two
 //! agree to rounding (`tests/it/structured.rs`).
 
-use super::across::low_rank_across;
+use super::across::{low_rank_across, residual_norm};
 use super::block::ObservableBlock;
 use super::factored::{Capacitance, Factored};
 use super::joint::JointLayout;
@@ -52,7 +52,17 @@ pub struct Structure {
     pub block_data: Vec<Vec<f64>>,
     /// What of the covariance moves with the parameters.
     pub moving: Moving,
+    /// Added to every diagonal entry (standardized): the largest eigenvalue
+    /// of what the split leaves between blocks when the file's entries were
+    /// matched only to their printed digits, so that the covariance used
+    /// is never below the one written. 0 for a split to double rounding.
+    pub rounding_kept: f64,
 }
+
+/// The most a split to printed digits may add to the diagonal, as a share
+/// of the smallest error²; beyond it the dense factorization of the
+/// numbers as written is kept.
+const ROUNDING_SHARE: f64 = 0.1;
 
 /// What of a structured covariance moves with the parameters.
 #[derive(Clone)]
@@ -116,7 +126,22 @@ impl Structure {
         }
         mirror_lower(&mut beyond, n);
         let remainders = |v: &[f64], rank: usize| block_remainders(&beyond, joint, blocks, v, rank);
-        let (v, rank, block_data) = low_rank_across(&beyond, &joint.offsets, MAX_RANK, remainders)?;
+        let allowed = joint.rounding_across;
+        let (v, rank, mut block_data) = low_rank_across(&beyond, &joint.offsets, MAX_RANK, allowed, remainders)?;
+        let rounding_kept = if allowed > 0.0 { residual_norm(&beyond, &joint.offsets, &v, rank) } else { 0.0 };
+        if rounding_kept > 0.0 {
+            let smallest = blocks
+                .iter()
+                .flat_map(|b| b.error.iter().map(move |e| e * e / (b.scale * b.scale)))
+                .fold(f64::INFINITY, f64::min);
+            if rounding_kept > ROUNDING_SHARE * smallest {
+                return None;
+            }
+            for own in block_data.iter_mut() {
+                let nb = (own.len() as f64).sqrt().round() as usize;
+                (0..nb).for_each(|i| own[i + i * nb] += rounding_kept);
+            }
+        }
         let v_rows = (0..blocks.len())
             .map(|b| {
                 let rows = joint.rows(b);
@@ -128,7 +153,7 @@ impl Structure {
             Some(m) => Moving::BlocksAndModel(ModelTerm::new(m, &joint.offsets)),
             None => Moving::Blocks,
         };
-        let mut structure = Structure { v_rows, rank, sizes, block_data, moving };
+        let mut structure = Structure { v_rows, rank, sizes, block_data, moving, rounding_kept };
         if fixed {
             structure.moving = Moving::Nothing(structure.factorize_fixed()?);
         }

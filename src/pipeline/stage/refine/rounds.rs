@@ -301,6 +301,7 @@ fn pool_noise_correlations(tables: &[PathBuf], points: &[usize], out: &Path) -> 
             x_b: f64::from_bits(xb),
             covariance: sum / weight,
             line: 0,
+            rounding: 0.0,
         })
         .collect();
     artifacts::write_text_atomic(&noise_correlation_path(out), &noise_correlation_csv(&entries))
