@@ -91,6 +91,17 @@ fn report(what: &str, first: &[Outcome], followed: &[Outcome]) {
     assert!(right * 5 >= n * 4, "{what}: right in {right} of {n} after the proposed measurements");
 }
 
+/// The number a discovered form divides a symbol by, read from the formula
+/// it was screened with (`(I - 0)/2.800000e0)^2`, `abs(T/2.500000e1)^p`):
+/// the data's span or largest value when the form was built, which grows
+/// when a proposed measurement lies beyond the data.
+fn divisor(d: &Diagnosis, name: &str, before: &str, after: &str) -> Option<f64> {
+    let formula = &d.discovery.as_ref()?.screened.iter().find(|t| t.name == name)?.formula;
+    let head = &formula[..formula.rfind(after)?];
+    let start = head.rfind(before)? + before.len();
+    head[start..].trim().parse().ok()
+}
+
 /// One drawn data set: its rows, the effect's noise-free size in σ, the
 /// truth in words and as a function (observable, x) for new measurements,
 /// and how to judge a diagnosis of it.
@@ -213,8 +224,8 @@ fn filament_set(h: f64, e: f64, rng: &mut Xoshiro256PlusPlus) -> (Vec<(&'static 
 /// declared as conduction alone, 20 data sets at ≥ 5σ with e from 1e-6 to
 /// 10^-4.5 W per (100 K)⁴ (log-uniform) and h from 0.5 to 2 W per 100 K.
 /// Right: c*abs(T/T_max)^p with p covering 4 and c covering e T_max⁴
-/// (T_max = 25, the largest temperature, the scale the library's free power
-/// takes); the constant −e Ta⁴, under 0.1% of the radiated power over the
+/// (T_max the largest temperature, 25 until a proposed measurement lies
+/// beyond: the scale the library's free power takes, read from its formula); the constant −e Ta⁴, under 0.1% of the radiated power over the
 /// data, is absorbed by h, so e T⁴ is the law on these data.
 #[test]
 #[ignore = "second tier: 20 diagnoses with discovery; cargo test --release -- --ignored"]
@@ -226,7 +237,8 @@ fn a_fourth_power_is_discovered_in_a_power_balance() {
             let right = |name: &str| name == "power_T_on_power";
             let covered = |d: &Diagnosis| {
                 let c = discovered(d).unwrap();
-                c.parameters["c"].covers(e * 25f64.powi(4)) && c.parameters["p"].covers(4.0)
+                let Some(largest) = divisor(d, &c.name, "abs(T/", ")^") else { return false };
+                c.parameters["c"].covers(e * largest.powi(4)) && c.parameters["p"].covers(4.0)
             };
             outcome(d, right, covered)
         };
@@ -264,8 +276,9 @@ fn resistor_set(r0: f64, a: f64, rng: &mut Xoshiro256PlusPlus) -> (Vec<(&'static
 /// Second tier: a resistance that grows with current (Joule heating),
 /// R0 from 5 to 15 Ω and a from 0.002 to 0.03 per A², 20 data sets at ≥ 5σ.
 /// Right: R replaced by R*(1 + c*(I/I_span)^2) in both observables, c
-/// covering a I_span² (I_span = 2.8 A, the data's span of currents, by
-/// which the grammar scales a varying parameter's symbol).
+/// covering a I_span² (I_span the data's span of currents, 2.8 A until a
+/// proposed measurement lies beyond: the grammar's scale, read from the
+/// form's formula).
 #[test]
 #[ignore = "second tier: 20 diagnoses with discovery; cargo test --release -- --ignored"]
 fn a_parameter_varying_with_the_input_is_discovered_in_both_observables() {
@@ -273,7 +286,11 @@ fn a_parameter_varying_with_the_input_is_discovered_in_both_observables() {
         let (r0, a) = (5.0 + 10.0 * rng.random::<f64>(), 0.002 + 0.028 * rng.random::<f64>());
         let (rows, size) = resistor_set(r0, a, rng);
         let judge = move |d: &Diagnosis| {
-            let covered = |d: &Diagnosis| discovered(d).unwrap().parameters["c"].covers(a * 2.8 * 2.8);
+            let covered = |d: &Diagnosis| {
+                let c = discovered(d).unwrap();
+                let Some(span) = divisor(d, &c.name, "/", ")^2") else { return false };
+                c.parameters["c"].covers(a * span * span)
+            };
             outcome(d, |name| name == "quadratic_I_of_R", covered)
         };
         let truth = Box::new(move |o: &str, i: f64| r0 * (1.0 + a * i * i) * if o == "voltage" { i } else { i * i });
