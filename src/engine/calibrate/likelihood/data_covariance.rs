@@ -202,17 +202,11 @@ pub(crate) mod test_support {
             })
             .collect()
     }
-}
 
-#[cfg(test)]
-mod tests {
-    use super::test_support::*;
-    use super::*;
-    use crate::engine::calibrate::likelihood::MdLikelihood;
-    use std::sync::Arc;
-
-    #[test]
-    fn the_likelihood_is_the_gaussian_density_with_the_whole_covariance() {
+    /// The line with a covariance within block a (its 2 × 2 Σ is
+    /// [[0.015, 0.012], [0.012, 0.04]]) and an a–b entry that the
+    /// independent blocks leave out; block b keeps its errors alone.
+    pub fn line_with_a_covariance() -> crate::engine::calibrate::likelihood::MdLikelihood {
         let m = data();
         let mut b = blocks(&m);
         let entries = [
@@ -221,7 +215,18 @@ mod tests {
             entry("a", 0.0, "b", 0.0, 0.003, 4),
         ];
         attach(&mut b, &entries, &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
-        let lik = MdLikelihood::new(Arc::new(Line), b, None);
+        crate::engine::calibrate::likelihood::MdLikelihood::new(std::sync::Arc::new(Line), b, None)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::test_support::*;
+    use super::*;
+
+    #[test]
+    fn the_likelihood_is_the_gaussian_density_with_the_whole_covariance() {
+        let lik = line_with_a_covariance();
         let theta = [1.0, 0.95];
         // Closed form: block a is 2×2, Σ = [[0.01 + 0.005, 0.012], [0.012, 0.04]];
         // block b keeps its diagonal errors (the a–b entry is not used).

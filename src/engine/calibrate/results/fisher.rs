@@ -107,23 +107,13 @@ fn whiten(lower: Vec<f64>, n: usize, mut jac: Vec<f64>, d: usize) -> Option<Vec<
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::calibrate::likelihood::data_covariance::{attach, test_support::*};
-    use std::path::Path;
-    use std::sync::Arc;
+    use crate::engine::calibrate::likelihood::data_covariance::test_support::*;
 
     /// The line's Fisher information is Jᵀ Σ⁻¹ J in closed form, with a
     /// covariance within block a and block b's errors alone.
     #[test]
     fn the_fisher_information_is_the_closed_form_with_a_covariance() {
-        let m = data();
-        let mut b = blocks(&m);
-        let entries = [
-            entry("a", 0.0, "a", 1.0, 0.012, 2),
-            entry("a", 0.0, "a", 0.0, 0.005, 3),
-            entry("a", 0.0, "b", 0.0, 0.003, 4),
-        ];
-        attach(&mut b, &entries, &m, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
-        let lik = MdLikelihood::new(Arc::new(Line), b, None);
+        let lik = line_with_a_covariance();
         let theta = [1.0, 0.95];
         let (s11, s12, s22): (f64, f64, f64) = (0.015, 0.012, 0.04);
         let det = s11 * s22 - s12 * s12;
