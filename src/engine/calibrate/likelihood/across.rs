@@ -146,12 +146,23 @@ pub fn residual_norm(s: &[f64], offsets: &[usize], v: &[f64], k: usize) -> f64 {
             e[i + j * n] = s[i + j * n] - vv;
         }
     }
+    // Above a thousand points the eigendecomposition (O(N³), once per
+    // likelihood built) would cost more than it saves: the Frobenius norm
+    // bounds the spectral one from above, so the covariance used still
+    // stays above the one written, and a split it makes too costly keeps
+    // the dense path.
+    if n > EIGEN_POINTS {
+        return e.iter().map(|v| v * v).sum::<f64>().sqrt();
+    }
     let Ok(eigen) = MatRef::from_column_major_slice(&e, n, n).self_adjoint_eigen(Side::Lower) else {
         return f64::INFINITY;
     };
     let values = eigen.S().column_vector();
     (0..n).map(|i| values[i].abs()).fold(0.0, f64::max)
 }
+
+/// The most points for which `residual_norm` takes the exact spectral norm.
+const EIGEN_POINTS: usize = 1000;
 
 /// An orthonormal basis of the directions a block's entries towards the
 /// other blocks take among its own points.
