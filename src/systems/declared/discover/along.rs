@@ -46,7 +46,9 @@ impl Observed {
             known.insert(*k, (t.clone(), s.value.clone(), s.rate.clone(), s.rate_sd.clone()));
         }
         for (k, state) in d.states.iter().enumerate() {
-            if let (Some((t, s)), Some((v, sign))) = (series.get(&k), kinematic_identity(d, &state.rate.text)) {
+            if let (Some((t, s)), Some((v, sign))) =
+                (series.get(&k), kinematic_identity(d, &state.name, &state.rate.text))
+            {
                 // v = sign·dx/dt: its values are x's rate, its rate x's second derivative.
                 let signed = |values: &[f64]| values.iter().map(|r| sign * r).collect::<Vec<f64>>();
                 known.entry(v).or_insert_with(|| (t.clone(), signed(&s.rate), signed(&s.second), s.second_sd.clone()));
@@ -75,7 +77,7 @@ pub fn ode(
     let mut times: Vec<f64> = Vec::new();
     for (k, state) in d.states.iter().enumerate() {
         let Some((t, _, rate, rate_sd)) = known.get(&k) else { continue };
-        if kinematic_identity(d, &state.rate.text).is_some() {
+        if kinematic_identity(d, &state.name, &state.rate.text).is_some() {
             continue;
         }
         let values: Vec<Vec<f64>> = d

@@ -282,7 +282,7 @@ fn observables(d: &Declared) -> Vec<(String, String)> {
 pub fn laws(d: &Declared) -> Vec<(String, String)> {
     d.states
         .iter()
-        .filter(|s| kinematic_identity(d, &s.rate.text).is_none())
+        .filter(|s| kinematic_identity(d, &s.name, &s.rate.text).is_none())
         .map(|s| (s.name.clone(), s.rate.text.clone()))
         .collect()
 }
@@ -290,9 +290,10 @@ pub fn laws(d: &Declared) -> Vec<(String, String)> {
 /// The state a rate is, and its sign, when the rate is a kinematic identity:
 /// `dx/dt = v` (+1), or `dh/dt = -v` for a height that falls as the
 /// downward speed v grows (−1). Such a rate is a definition: no term joins it.
-pub fn kinematic_identity(d: &Declared, rate: &str) -> Option<(usize, f64)> {
+/// A rate that is ± its own state (`dx/dt = -x`, a decay) is a law.
+pub fn kinematic_identity(d: &Declared, own: &str, rate: &str) -> Option<(usize, f64)> {
     use crate::engine::formula::notation::{parse, Expr};
-    let state = |n: &str| d.states.iter().position(|s| s.name == n);
+    let state = |n: &str| d.states.iter().position(|s| s.name == n && s.name != own);
     match parse(rate).ok()? {
         Expr::Name(n) => Some((state(&n)?, 1.0)),
         Expr::Neg(a) => match *a {
@@ -365,5 +366,38 @@ mod tests {
         let s: Vec<String> = vec!["h".into(), "v".into()];
         assert_eq!(combinations(&s, 2), [["h", "h"], ["h", "v"], ["v", "v"]]);
         assert_eq!(combinations(&s, 3).len(), 4);
+    }
+}
+
+#[cfg(test)]
+mod identity_tests {
+    use super::super::super::declaration::{Declared, ModelTable};
+    use super::kinematic_identity;
+    use crate::base::config::Config;
+
+    /// dh/dt = -v is a definition (h falls as the downward speed grows);
+    /// dv/dt = g is a law; dc/dt = -c, a decay, is a law, not an identity.
+    #[test]
+    fn a_rate_that_is_another_state_is_a_definition_and_its_own_is_a_law() {
+        let dir = std::env::temp_dir().join(format!("mdpipe-identity-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.toml");
+        let text =
+            "name = \"m\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\nh = \"1\"\nv = \"0\"\nc = \"1\"\n\
+            [model.rates]\nh = \"-v\"\nv = \"g\"\nc = \"-c\"\n[model.observables]\nheight = \"h\"\n\
+            [data]\nmeasurements = \"d.csv\"\n[parameters.g]\nmin = 0.0\nmax = 20.0\n";
+        std::fs::write(&path, text).unwrap();
+        let config = Config::load(&path).unwrap();
+        let table: ModelTable = config.decode_family_table(&config.model, "model").unwrap();
+        let d = Declared::base(&config, &table, true).unwrap();
+        let rate = |name: &str| d.states.iter().find(|s| s.name == name).unwrap().rate.text.clone();
+        let v = d.states.iter().position(|s| s.name == "v").unwrap();
+        assert_eq!(kinematic_identity(&d, "h", &rate("h")), Some((v, -1.0)));
+        assert_eq!(kinematic_identity(&d, "v", &rate("v")), None);
+        assert_eq!(kinematic_identity(&d, "c", &rate("c")), None);
+        let mut laws: Vec<String> = super::laws(&d).into_iter().map(|(s, _)| s).collect();
+        laws.sort();
+        assert_eq!(laws, ["c", "v"]);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
