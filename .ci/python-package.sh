@@ -10,8 +10,9 @@ export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/mdpipe-target}"
 venv="$(mktemp -d)/venv"
 python3 -m venv "$venv"
 "$venv/bin/pip" install -q --upgrade pip
-"$venv/bin/pip" install -q .
-"$venv/bin/pip" install -q pytest nbclient ipykernel matplotlib pyyaml
+"$venv/bin/pip" install -q ".[test]"
+# One typing style, checked: the annotations must agree with the code.
+"$venv/bin/python" -m mypy python/mdpipe
 
 # The notebook runs the decay-counter study into outputs/decay_counter; the
 # tests then find it up to date and only load it.

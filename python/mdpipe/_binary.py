@@ -7,8 +7,12 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
+from typing import Union
+
+#: A path as a user passes one: a string or any path-like object.
+StrPath = Union[str, "os.PathLike[str]"]
 
 
 class MdpipeError(RuntimeError):
@@ -34,7 +38,7 @@ def binary() -> str:
     )
 
 
-def call(args: Sequence[str], cwd: str | os.PathLike | None = None, quiet: bool = False) -> None:
+def call(args: Sequence[str], cwd: StrPath | None = None, quiet: bool = False) -> None:
     """Runs `mdpipe ARGS`. Its output (progress bars included) goes to this
     process's terminal as it comes; with `quiet`, it is kept and shown only
     when the command fails."""
@@ -43,7 +47,7 @@ def call(args: Sequence[str], cwd: str | os.PathLike | None = None, quiet: bool 
         done = subprocess.run(command, cwd=cwd, capture_output=True, text=True)
         output = done.stdout + done.stderr
     else:
-        done = subprocess.run(command, cwd=cwd)
+        done = subprocess.run(command, cwd=cwd, text=True)
         output = ""
     if done.returncode != 0:
         tail = "\n".join(output.strip().splitlines()[-20:])

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Iterable, Optional, Sequence
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
 
-from ._binary import call
+from ._binary import StrPath, call
 from .loading import Diagnosis, Study, load, load_diagnosis, load_study
+
+if TYPE_CHECKING:
+    from arviz import InferenceData
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -15,8 +19,8 @@ else:  # pragma: no cover - Python < 3.11
     import tomli as tomllib
 
 
-def _options(**options) -> list:
-    args = []
+def _options(**options: object) -> list[str]:
+    args: list[str] = []
     for key, value in options.items():
         if value is None or value is False:
             continue
@@ -30,7 +34,7 @@ def _options(**options) -> list:
     return args
 
 
-def study_out(config, cwd: Optional[Path] = None) -> Path:
+def study_out(config: StrPath, cwd: StrPath | None = None) -> Path:
     """Where `mdpipe run CONFIG` writes without `--out`: `[run] out`
     (relative to the config), else `outputs/<name>` in the working folder."""
     config = Path(config)
@@ -42,14 +46,14 @@ def study_out(config, cwd: Optional[Path] = None) -> Path:
 
 
 def run(
-    config,
-    out=None,
+    config: StrPath,
+    out: StrPath | None = None,
     *,
-    seed: Optional[int] = None,
-    executor: Optional[str] = None,
-    stage: Optional[str] = None,
+    seed: int | None = None,
+    executor: str | None = None,
+    stage: str | None = None,
     force: bool = False,
-    cwd=None,
+    cwd: StrPath | None = None,
     quiet: bool = False,
 ) -> Study:
     """`mdpipe run CONFIG`: the whole study; returns `load_study` of its folder."""
@@ -61,31 +65,38 @@ def run(
 
 
 def calibrate(
-    config,
-    out,
+    config: StrPath,
+    out: StrPath,
     *,
-    seed: Optional[int] = None,
-    kernel: Optional[str] = None,
-    observables: Optional[Sequence[str]] = None,
-    sampler: Optional[str] = None,
-    cwd=None,
+    seed: int | None = None,
+    kernel: str | None = None,
+    observables: Sequence[str] | None = None,
+    sampler: str | None = None,
+    data: StrPath | None = None,
+    time_limit: float | None = None,
+    cwd: StrPath | None = None,
     quiet: bool = False,
-):
-    """`mdpipe calibrate CONFIG --out OUT`; returns `load(OUT)` (InferenceData)."""
+) -> InferenceData:
+    """`mdpipe calibrate CONFIG --out OUT`; returns `load(OUT)` (InferenceData).
+    `data` replaces the config's measurements (`--data`); `time_limit`
+    (seconds, `--time-limit`) stops the sampler cleanly with its state saved
+    in OUT/.checkpoint, and the same call resumes it."""
     args = ["calibrate", str(config), "--out", str(out)]
-    args += _options(seed=seed, kernel=kernel, observables=observables, sampler=sampler)
+    args += _options(
+        seed=seed, kernel=kernel, observables=observables, sampler=sampler, data=data, time_limit=time_limit
+    )
     call(args, cwd=cwd, quiet=quiet)
     return load(out)
 
 
 def diagnose(
-    config,
-    out,
+    config: StrPath,
+    out: StrPath,
     *,
-    seed: Optional[int] = None,
-    data=None,
-    discover: Optional[bool] = None,
-    cwd=None,
+    seed: int | None = None,
+    data: StrPath | None = None,
+    discover: bool | None = None,
+    cwd: StrPath | None = None,
     quiet: bool = False,
     extra: Iterable[str] = (),
 ) -> Diagnosis:

@@ -8,14 +8,16 @@ import os
 import shutil
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
+from ._binary import StrPath
 from .loading import load
 
 FORMATS = {"netcdf": ".nc", "zarr": ".zarr"}
 
 
-def export(run_dir, path=None, format: str = "netcdf") -> Path:
+def export(run_dir: StrPath, path: StrPath | None = None, format: str = "netcdf") -> Path:
     """Writes the InferenceData of `run_dir` to `path` (default: beside the
     folder's files, `posterior.nc` or `posterior.zarr`), through a temporary
     file renamed into place, and returns the path."""
@@ -39,7 +41,7 @@ def export(run_dir, path=None, format: str = "netcdf") -> Path:
     return path
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mdpipe export", description=__doc__)
     parser.add_argument("run_dir")
     parser.add_argument("--format", choices=sorted(FORMATS), default="netcdf")

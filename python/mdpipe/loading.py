@@ -11,11 +11,16 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 import xarray as xr
+
+from ._binary import StrPath
+
+if TYPE_CHECKING:  # ArviZ is imported where it is used: it is slow to import
+    from arviz import InferenceData
 
 _STAT_COLUMNS = ("chain", "log_likelihood", "log_prior")
 _TERM_PREFIX = "log_likelihood."
@@ -45,7 +50,7 @@ def _chain_draw(frame: pd.DataFrame, column: str) -> np.ndarray:
 def _attrs(summary: dict) -> dict:
     """Provenance and the run's identity, as flat attributes (NetCDF and
     Zarr keep strings and numbers only)."""
-    attrs = {"created_by": "mdpipe", "inference_library": "mdpipe"}
+    attrs: dict[str, str | int | float] = {"created_by": "mdpipe", "inference_library": "mdpipe"}
     for key, value in summary.get("provenance", {}).items():
         attrs[key] = value
     for key in ("name", "kernel", "log_evidence", "log_evidence_err"):
@@ -62,7 +67,7 @@ def _attrs(summary: dict) -> dict:
 def _parameter_attrs(name: str, summary: dict) -> dict:
     units = summary.get("units", {}).get("parameters", {})
     bounds = summary.get("prior_bounds", {}).get(name)
-    attrs = {}
+    attrs: dict[str, str | float] = {}
     if "." in name:
         observable, hyper = name.split(".", 1)
         attrs.update(role="discrepancy hyperparameter", observable=observable, hyperparameter=hyper)
@@ -93,7 +98,7 @@ def _sample_stats(frame: pd.DataFrame, summary: dict) -> xr.Dataset | None:
     if "log_likelihood" not in frame:
         return None
     loglik = _chain_draw(frame, "log_likelihood")
-    variables = {
+    variables: dict[str, tuple[tuple[str, ...], np.ndarray]] = {
         "log_likelihood": (("chain", "draw"), loglik),
         "lp": (("chain", "draw"), loglik + _chain_draw(frame, "log_prior")),
     }
@@ -149,16 +154,17 @@ def _posterior_predictive(path: Path) -> xr.Dataset | None:
     return ds.assign_coords(chain=np.arange(ds.sizes["chain"]), draw=ds["draw"].values.astype(np.int64))
 
 
-def _inference_data(groups: Dict[str, xr.Dataset]):
+def _inference_data(groups: dict[str, xr.Dataset | None]) -> InferenceData:
     import arviz as az
 
-    groups = {k: v for k, v in groups.items() if v is not None}
+    present: dict[str, xr.Dataset] = {k: v for k, v in groups.items() if v is not None}
     if hasattr(az, "InferenceData"):
-        return az.InferenceData(**groups)
-    return xr.DataTree.from_dict(groups)  # ArviZ 1.x works on DataTree
+        return az.InferenceData(**present)  # type: ignore[arg-type]  # its stubs know its keywords only
+    # ArviZ 1.x, beyond the pinned range, works on DataTree.
+    return xr.DataTree.from_dict(present)  # type: ignore[return-value]
 
 
-def load(run_dir) -> "arviz.InferenceData":
+def load(run_dir: StrPath) -> InferenceData:
     """One calibration's folder (`mdpipe calibrate --out DIR`, or a case of a
     study or a fit of a diagnosis) as ArviZ InferenceData: `posterior` (θ and
     the discrepancy's hyperparameters, with units and priors as attributes),
@@ -186,7 +192,7 @@ def load(run_dir) -> "arviz.InferenceData":
     return _inference_data(groups)
 
 
-def load_bands(run_dir) -> pd.DataFrame:
+def load_bands(run_dir: StrPath) -> pd.DataFrame:
     """The posterior-predictive bands of `predictions.parquet` (η, η + δ and
     δ at the 2.5, 16, 50, 84 and 97.5 percentiles, on a grid and at the data)."""
     return pd.read_parquet(Path(run_dir) / "predictions.parquet")
@@ -206,17 +212,17 @@ class Study:
     emulator_vs_data: pd.DataFrame
     truth: dict = field(default_factory=dict)
 
-    def calibration(self, case: str):
+    def calibration(self, case: str) -> InferenceData:
         """The InferenceData of one case (a row of `cases`, by its `case`)."""
         return load(self.out / "calibrate" / case)
 
     @property
-    def diagnosis(self) -> "Diagnosis | None":
+    def diagnosis(self) -> Diagnosis | None:
         folder = self.out / "diagnose"
         return load_diagnosis(folder) if (folder / "diagnosis.json").is_file() else None
 
 
-def _case_rows(cases: List[dict]) -> pd.DataFrame:
+def _case_rows(cases: list[dict]) -> pd.DataFrame:
     rows = []
     for case in cases:
         row = {k: case[k] for k in ("case", "kernel", "log_evidence", "converged", "seconds") if k in case}
@@ -228,7 +234,7 @@ def _case_rows(cases: List[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def load_study(out_dir) -> Study:
+def load_study(out_dir: StrPath) -> Study:
     """`mdpipe run`'s output folder: its cases (`calibrate/cases.json`) as a
     table, one row per case, and, for a system that assesses its own cases
     (the heavy-ion stand-in's `study.json`), those checks as tables."""
@@ -264,14 +270,14 @@ class Diagnosis:
         return self.verdict.get("best", "")
 
     @property
-    def fits(self) -> List[str]:
+    def fits(self) -> list[str]:
         return sorted(p.name for p in self.folder.iterdir() if (p / "summary.json").is_file())
 
-    def fit(self, name: str):
+    def fit(self, name: str) -> InferenceData:
         return load(self.folder / name)
 
 
-def load_diagnosis(folder) -> Diagnosis:
+def load_diagnosis(folder: StrPath) -> Diagnosis:
     """`mdpipe diagnose --out DIR` (or a study's `diagnose/` folder)."""
     folder = Path(folder)
     raw = _read_json(folder / "diagnosis.json")

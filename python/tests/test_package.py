@@ -138,6 +138,25 @@ def test_calibrate_from_python(tmp_path):
     assert (tmp_path / "fit" / "summary.json").is_file()
 
 
+def test_calibrate_takes_the_command_lines_data_and_time_limit(tmp_path):
+    # Half of the heights, given as `--data`; the limit is far beyond the
+    # run's length, so the sampler ends as usual.
+    rows = (ROOT / "pipeline" / "ball_drop_data.csv").read_text().splitlines()
+    header = [r for r in rows if r.startswith(("#", "observable,"))]
+    heights = [r for r in rows if r.startswith("height,")][::2]
+    (tmp_path / "half.csv").write_text("\n".join([*header, *heights]) + "\n")
+    idata = mdpipe.calibrate(
+        ROOT / "pipeline" / "ball_drop.toml",
+        tmp_path / "fit",
+        kernel="none",
+        observables=["height"],
+        data=tmp_path / "half.csv",
+        time_limit=3600,
+        quiet=True,
+    )
+    assert idata.observed_data["height"].size == len(heights)
+
+
 def test_errors_name_what_is_wrong(tmp_path):
     with pytest.raises(FileNotFoundError, match="summary.json"):
         mdpipe.load(tmp_path)

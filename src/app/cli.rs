@@ -170,9 +170,10 @@ pub enum Command {
     Run {
         /// Analysis config with a [run] table, e.g. examples/decay_counter/study.toml
         config: PathBuf,
-        /// Run only this stage
+        /// Run only this stage: design, simulate, ingest, emulator, refine, calibrate, report,
+        /// candidates, diagnose, or a system's own (the stand-in's mock)
         #[arg(long)]
-        stage: Option<crate::pipeline::StageId>,
+        stage: Option<String>,
         /// Run the selected stages even if their inputs are unchanged
         #[arg(long)]
         force: bool,
@@ -271,9 +272,15 @@ impl Command {
             Command::Run { config, stage, force, seed, out, executor, case } => {
                 commands::run_study(&config, stage, force, seed, out, executor, case)
             }
-            Command::Refine { config, seed, out, executor } => {
-                commands::run_study(&config, Some(crate::pipeline::StageId::Refine), false, seed, out, executor, None)
-            }
+            Command::Refine { config, seed, out, executor } => commands::run_study(
+                &config,
+                Some(crate::pipeline::StageId::REFINE.name().to_string()),
+                false,
+                seed,
+                out,
+                executor,
+                None,
+            ),
             Command::Demo { seed, full, out } => demo::run(seed, full, &out),
             Command::Bench(args) => bench::command(args),
             Command::Ingest { runs, pt_bins, design, min_events, format, out } => {

@@ -177,7 +177,7 @@ pub fn report(dirs: &[PathBuf], out: &Path, png: Option<&Path>) -> Result<()> {
 
 pub fn run_study(
     config: &Path,
-    stage: Option<crate::pipeline::StageId>,
+    stage: Option<String>,
     force: bool,
     seed: u64,
     out: Option<PathBuf>,

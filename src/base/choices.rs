@@ -2,8 +2,8 @@
 //! in one place: an enum whose variants and aliases (clap's `ValueEnum`)
 //! serve the command line, `FromStr` and serde alike, so a config's
 //! `kernel = "II"`, `--kernel II` and a study's `kernels = ["II"]` meet the
-//! same code and the same message. `StageId` names the stages of
-//! `mdpipe run` (`--stage`, its stamps), in the order a study runs them.
+//! same code and the same message. (The stages of `mdpipe run` are named by
+//! `pipeline::StageId`: a system adds its own, so they are not a closed list.)
 
 use clap::ValueEnum;
 
@@ -31,66 +31,6 @@ pub enum Executor {
     /// One Slurm array job per design.
     #[value(name = "slurm")]
     Slurm,
-}
-
-/// Every stage a study may have, in the order a study runs them (the
-/// variants' order is the run order).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, ValueEnum)]
-pub enum StageId {
-    /// Designs over θ for the training and validation runs.
-    #[value(name = "design")]
-    Design,
-    /// The simulator at every design point, locally or as a Slurm array.
-    #[value(name = "simulate")]
-    Simulate,
-    /// The runs read into training and validation tables.
-    #[value(name = "ingest")]
-    Ingest,
-    /// The emulator trained and validated.
-    #[value(name = "emulator")]
-    Emulator,
-    /// Mock data a system makes with its truth known (a system's stage).
-    #[value(name = "mock")]
-    Mock,
-    /// Adaptive design (with `[run.refine]`).
-    #[value(name = "refine")]
-    Refine,
-    /// Every observable set × kernel calibrated.
-    #[value(name = "calibrate")]
-    Calibrate,
-    /// report.html.
-    #[value(name = "report")]
-    Report,
-    /// Each declared candidate's variant emulator.
-    #[value(name = "candidates")]
-    Candidates,
-    /// `diagnose` with the candidates' variants.
-    #[value(name = "diagnose")]
-    Diagnose,
-    /// A stage of the tests only (`pipeline::stage::probe`).
-    #[cfg(test)]
-    #[value(name = "probe")]
-    Probe,
-}
-
-impl StageId {
-    /// Its `--stage` name and the name of its stamp.
-    pub fn name(self) -> &'static str {
-        match self {
-            StageId::Design => "design",
-            StageId::Simulate => "simulate",
-            StageId::Ingest => "ingest",
-            StageId::Emulator => "emulator",
-            StageId::Mock => "mock",
-            StageId::Refine => "refine",
-            StageId::Calibrate => "calibrate",
-            StageId::Report => "report",
-            StageId::Candidates => "candidates",
-            StageId::Diagnose => "diagnose",
-            #[cfg(test)]
-            StageId::Probe => "probe",
-        }
-    }
 }
 
 /// A choice written as none of its names.
@@ -157,7 +97,6 @@ pub(crate) use choice_by_name;
 
 choice_by_name!(Kernel, "kernel");
 choice_by_name!(Executor, "executor");
-choice_by_name!(StageId, "stage");
 
 #[cfg(test)]
 mod tests {

@@ -2,8 +2,8 @@
 //! builds (its emulator, its candidates' variant emulators) is what
 //! `calibrate`, `diagnose` and `compare` use when the config leaves it out.
 
-use super::rounds::Rounds;
 use super::run_config::RunConfig;
+use super::stage::refine::report::Rounds;
 use super::study::{absolute, RunPaths};
 use super::system::Systems;
 use crate::base::config::Config;

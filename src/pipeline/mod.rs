@@ -25,8 +25,9 @@
 //! (`variants`), or the stand-in's library names in `[run.stand_in] candidates`.
 //! Each stage is one module of `stage/` (a type implementing `stage::Stage`:
 //! its `StageId`, upstream stages, outputs, typed settings and body), and a
-//! system adds its own through `system::System::stages` (the stand-in's mock
-//! stage); `stage::StageLoop` owns the keys and stamps:
+//! system adds its own, with ids of its own, through `system::System::stages`
+//! (the stand-in's mock stage: where it runs and which stages read it);
+//! `stage::StageLoop` owns the keys and stamps:
 //! a stage whose stamp (`OUT/stages/<stage>.json`) holds the key of its
 //! settings and upstream keys, and whose outputs exist, is skipped. Within
 //! the calibrate stage each case is stamped too
@@ -38,10 +39,10 @@ mod complete;
 mod free_fall;
 mod plan;
 mod points;
-mod rounds;
 mod run_config;
 mod setup;
 mod stage;
+mod stage_id;
 mod stand_in;
 mod study;
 mod system;
@@ -53,8 +54,8 @@ use crate::engine::emulator::EmulatorSettings;
 use crate::engine::execute::{self};
 use anyhow::{anyhow, bail, Context, Result};
 pub use complete::{fill_in_from_study, load, study_out};
-pub use rounds::Rounds;
 pub use run_config::{RefineConfig, RunConfig};
+pub use stage::refine::report::Rounds;
 use stage::StageLoop;
 pub use stage::{StageId, StageOutcome};
 pub(crate) use stand_in::StandIn;
@@ -64,7 +65,7 @@ pub use system::Systems;
 
 /// Every stage a study with these systems may have, in order (`--stage` takes these names).
 pub fn stages(systems: &Systems) -> Vec<&'static str> {
-    plan::stages(systems).iter().map(|s| s.id().name()).collect()
+    plan::stages(systems).iter().map(|p| p.stage.id().name()).collect()
 }
 
 /// The error for a config without `[run]`, pointing at a generic example.
@@ -82,7 +83,7 @@ pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<
     let run: &RunConfig = &RunConfig::of(config, table)?;
     let spec = crate::engine::design::DesignSpec::load(&config.resolve(&run.design))?;
     let design_parameters: Vec<String> = spec.parameters.iter().map(|p| p.name.clone()).collect();
-    if opts.case.is_some() && opts.stage != Some(StageId::Calibrate) {
+    if opts.case.is_some() && opts.stage.as_deref() != Some(StageId::CALIBRATE.name()) {
         bail!("--case needs --stage calibrate");
     }
     execute::spec::seconds_of(&run.calibration_time_limit).context("[run] calibration_time_limit")?;
@@ -100,10 +101,10 @@ pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<
     let queries = systems.queries();
     let study = Study { config, run, emulator, paths, opts, systems: &queries };
     // Every candidate's declaration is checked before anything runs.
-    study.variants()?;
+    stage::candidates::variants(&study)?;
     let planned = plan::plan(&study, systems)?;
     let mut stages = StageLoop::new(&planned);
-    for stage in planned {
+    for stage in &planned {
         stages.run(&study, stage)?;
     }
     Ok(stages.outcomes)

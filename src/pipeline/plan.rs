@@ -1,13 +1,11 @@
 //! The stages a study has, in the order it runs them: the generic stages
 //! (one module each under `stage/`) and those its systems add.
 
-#[cfg(test)]
-use super::stage::probe;
 use super::stage::{calibrate, candidates, design, diagnose, emulator, ingest, refine, report, simulate};
-use super::stage::{AnyStage, Presence};
+use super::stage::{AnyStage, Planned, Presence, StageId};
 use super::study::Study;
 use super::system::Systems;
-use anyhow::{bail, Result};
+use anyhow::{anyhow, bail, Result};
 
 /// The stages every study may have (a system adds its own).
 fn generic() -> Vec<&'static dyn AnyStage> {
@@ -21,29 +19,49 @@ fn generic() -> Vec<&'static dyn AnyStage> {
         &report::Report,
         &candidates::Candidates,
         &diagnose::Diagnose,
-        #[cfg(test)]
-        &probe::Probe,
     ]
 }
 
-/// Every stage, the generic ones and those the systems add, in the order a study runs them.
-pub(super) fn stages(systems: &Systems) -> Vec<&'static dyn AnyStage> {
-    let mut stages = generic();
-    for system in systems.iter() {
-        stages.extend(system.stages());
+/// Every stage, the generic ones and those the systems add, in the order a
+/// study runs them, each with the stages it reads. A system's stage runs
+/// right after the stage it names (after the others placed there before it).
+pub(super) fn stages(systems: &Systems) -> Vec<Planned> {
+    let mut stages: Vec<Planned> =
+        generic().into_iter().map(|stage| Planned { stage, upstream: stage.upstream().to_vec() }).collect();
+    let mut placed_after: Vec<StageId> = Vec::new();
+    for added in systems.iter().flat_map(|system| system.stages()) {
+        let anchor = stages.iter().position(|p| p.stage.id() == added.after);
+        let anchor = anchor
+            .unwrap_or_else(|| panic!("stage {} runs after {}, which no stage is", added.stage.id(), added.after));
+        let mut at = anchor + 1;
+        while at < stages.len() && placed_after.contains(&stages[at].stage.id()) {
+            at += 1;
+        }
+        placed_after.push(added.stage.id());
+        for reader in stages.iter_mut().filter(|p| added.read_by.contains(&p.stage.id())) {
+            reader.upstream.push(added.stage.id());
+        }
+        stages.insert(at, Planned { stage: added.stage, upstream: added.stage.upstream().to_vec() });
     }
-    stages.sort_by_key(|s| s.id());
     stages
 }
 
-/// The stages this study has, in order; `--stage` naming one it has not is refused.
-pub(super) fn plan(study: &Study<'_>, systems: &Systems) -> Result<Vec<&'static dyn AnyStage>> {
+/// The stages this study has, in order; `--stage` naming one it has not,
+/// or no stage at all, is refused with the names there are.
+pub(super) fn plan(study: &Study<'_>, systems: &Systems) -> Result<Vec<Planned>> {
+    let all = stages(systems);
+    if let Some(only) = study.opts.stage.as_deref() {
+        if !all.iter().any(|p| p.stage.id().name() == only) {
+            let names: Vec<&str> = all.iter().map(|p| p.stage.id().name()).collect();
+            return Err(anyhow!("unknown stage {only:?} (use {})", names.join(", ")));
+        }
+    }
     let mut planned = Vec::new();
-    for stage in stages(systems) {
-        match stage.present(study)? {
-            Presence::Runs => planned.push(stage),
-            Presence::Absent(why) if study.opts.stage == Some(stage.id()) => {
-                bail!("--stage {}: {why}", stage.id())
+    for p in all {
+        match p.stage.present(study)? {
+            Presence::Runs => planned.push(p),
+            Presence::Absent(why) if study.opts.stage.as_deref() == Some(p.stage.id().name()) => {
+                bail!("--stage {}: {why}", p.stage.id())
             }
             Presence::Absent(_) => {}
         }
@@ -54,24 +72,44 @@ pub(super) fn plan(study: &Study<'_>, systems: &Systems) -> Result<Vec<&'static 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::base::choices::StageId;
+    use crate::pipeline::system::System;
 
     /// With the systems' stages, each stage has an id of its own and reads
-    /// only stages that run before it; every id is some stage's.
+    /// only stages that run before it; a system's stage sits where it says
+    /// and its readers read it.
     #[test]
     fn every_stage_reads_only_earlier_stages() {
-        let stages = stages(&Systems::new(vec![&crate::pipeline::stand_in::StandIn]));
-        for (i, stage) in stages.iter().enumerate() {
-            assert!(stages[..i].iter().all(|s| s.id() < stage.id()), "{}", stage.id());
-            for u in stage.upstream() {
-                assert!(stages[..i].iter().any(|s| s.id() == *u), "{} reads {u}, which is not before it", stage.id());
+        let free_fall: &'static dyn System = &crate::pipeline::free_fall::FreeFall;
+        for systems in
+            [vec![], vec![&crate::pipeline::StandIn as &dyn System], vec![&crate::pipeline::StandIn, free_fall]]
+        {
+            let stages = stages(&Systems::new(systems));
+            for (i, p) in stages.iter().enumerate() {
+                let id = p.stage.id();
+                assert!(stages[..i].iter().all(|s| s.stage.id() != id), "{id} twice");
+                for u in &p.upstream {
+                    assert!(stages[..i].iter().any(|s| s.stage.id() == *u), "{id} reads {u}, which is not before it");
+                }
             }
         }
-        let ids: Vec<StageId> = stages.iter().map(|s| s.id()).collect();
-        assert_eq!(ids, <StageId as clap::ValueEnum>::value_variants());
-        for id in ids {
-            assert_eq!(id.name(), id.to_string());
-            assert_eq!(id.name().parse::<StageId>().unwrap(), id);
-        }
+        let with_mock = stages(&Systems::new(vec![&crate::pipeline::StandIn]));
+        let names: Vec<&str> = with_mock.iter().map(|p| p.stage.id().name()).collect();
+        assert_eq!(
+            names,
+            [
+                "design",
+                "simulate",
+                "ingest",
+                "emulator",
+                "mock",
+                "refine",
+                "calibrate",
+                "report",
+                "candidates",
+                "diagnose"
+            ]
+        );
+        let calibrate = with_mock.iter().find(|p| p.stage.id() == StageId::CALIBRATE).unwrap();
+        assert!(calibrate.upstream.contains(&StageId::new("mock")));
     }
 }

@@ -1,18 +1,15 @@
 //! The study as its systems complete it (`study::StudySystem`): what its
-//! simulate stage runs, what they add to its stages' keys, its candidates, the data and the
+//! simulate stage runs, what they add to its stages' keys, the data and the
 //! analysis its calibrations use. The systems are the run's
 //! (`Study::systems`, the list `app::systems()` passes in).
 
-use super::run_config::{with_config_dir, RunConfig};
-use super::stage::{Presence, StageId};
+use super::run_config::RunConfig;
+use super::stage::StageId;
 use super::study::{absolute, Study, StudySystem};
 use super::system::Systems;
-use super::variants::{check_declaration, design_parameter, Variant};
 use crate::base::artifacts;
 use crate::base::config::Config;
 use crate::engine::calibrate::Analysis;
-use crate::engine::design::DesignSpec;
-use crate::engine::emulator::family::CandidateDeclaration;
 use crate::engine::emulator::EmulatorFamily;
 use crate::engine::execute::SimulatorSpec;
 use crate::engine::model::Registry;
@@ -52,7 +49,7 @@ pub(super) fn check_system_tables(run: &RunConfig, systems: &Systems) -> Result<
 }
 
 /// Systems' tables as a config writes them: `[run.stand_in]`.
-fn tables(names: &[&str]) -> String {
+pub(super) fn tables(names: &[&str]) -> String {
     names.iter().map(|n| format!("[run.{n}]")).collect::<Vec<_>>().join(", ")
 }
 
@@ -63,36 +60,6 @@ pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::
         settings.extend(system.key_settings(study, stage));
     }
     settings
-}
-
-/// The candidates stage's presence: a variant to build for some candidate.
-pub(super) fn with_variants(study: &Study<'_>) -> Result<Presence> {
-    Ok(if study.variants()?.is_empty() {
-        Presence::Absent(format!(
-            "{} declares no candidates that run the simulator ([[candidates]], or a system's library: {})",
-            study.config.path.display(),
-            tables(&study.systems.iter().filter_map(|s| s.run_table()).collect::<Vec<_>>())
-        ))
-    } else {
-        Presence::Runs
-    })
-}
-
-/// The diagnose stage's presence: it ends every run, weighing the
-/// candidates (variants or corrections of the emulator's output) and
-/// searching when none explains a mismatch, unless the study declares none
-/// and turns the search off (`[run] discover = false`).
-pub(super) fn with_diagnosis(study: &Study<'_>) -> Result<Presence> {
-    let corrections = study.config.candidates.iter().any(|t| t.contains_key("correction"));
-    if corrections || study.run.discover != Some(false) {
-        return Ok(Presence::Runs);
-    }
-    Ok(match with_variants(study)? {
-        Presence::Absent(why) => {
-            Presence::Absent(format!("{why}, no corrections, and the search is off ([run] discover = false)"))
-        }
-        runs => runs,
-    })
 }
 
 impl Study<'_> {
@@ -115,7 +82,7 @@ impl Study<'_> {
     /// The analysis config pointed at the study's emulator (refined, with
     /// `[run.refine]`) and mock data.
     pub(super) fn study_config(&self) -> Result<Config> {
-        Ok(self.study_config_with(&super::rounds::emulator_in_use(self)?))
+        Ok(self.study_config_with(&super::stage::refine::report::emulator_in_use(self)?))
     }
 
     /// The analysis config pointed at `emulator` and this run's mock data.
@@ -159,47 +126,5 @@ impl Study<'_> {
         Ok(artifacts::sha256_hex(
             &std::fs::read(&path).with_context(|| format!("reading the measurements {}", path.display()))?,
         ))
-    }
-
-    /// Every candidate of the study that is a variant of the simulator: the
-    /// systems' library names, then the declared `[[candidates]]` (not the
-    /// corrections of the emulated output, which need no runs).
-    pub(super) fn variants(&self) -> Result<Vec<Variant>> {
-        let mut variants = Vec::new();
-        for system in self.systems {
-            variants.extend(system.library_variants(self)?);
-        }
-        if self.config.candidates.is_empty() {
-            return Ok(variants);
-        }
-        let library = variants.len();
-        let spec = DesignSpec::load(&self.config.resolve(&self.run.design))?;
-        let base = self.simulator(false)?;
-        for (k, table) in self.config.candidates.iter().enumerate() {
-            let mut c: CandidateDeclaration = self.config.decode(table, "[candidates]")?;
-            if c.is_correction() {
-                // A correction of the emulated output: nothing to run.
-                continue;
-            }
-            c.command = c.command.map(|command| with_config_dir(&command, self.config));
-            let where_ = format!("{}: [[candidates]] {}", self.config.path.display(), c.name);
-            let simulator = check_declaration(&c, &spec, &base).context(where_.clone())?;
-            if variants.iter().any(|v| v.name == c.name) {
-                bail!("{where_}: a second candidate of that name");
-            }
-            let mut declaration = table.clone();
-            let emulator = absolute(&self.paths.candidate(&c.name).join("emulator"));
-            declaration.insert("emulator".into(), emulator.display().to_string().into());
-            variants.push(Variant {
-                name: c.name.clone(),
-                declaration,
-                parameters: c.parameters.iter().map(|(n, p)| design_parameter(n, p)).collect(),
-                parameter_file: c.parameter_file.clone(),
-                simulator,
-                // After the systems' library variants' seeds (1_000 apart each).
-                design_seed: self.opts.seed.wrapping_add(1_000 * (library + k + 1) as u64),
-            });
-        }
-        Ok(variants)
     }
 }

@@ -4,8 +4,8 @@
 //! the other.
 
 use super::run_config::RunConfig;
+use super::stage_id::StageId;
 use super::variants::Variant;
-use crate::base::choices::StageId;
 
 use crate::base::artifacts;
 use crate::base::config::Config;
@@ -22,8 +22,8 @@ use std::sync::Arc;
 pub struct RunOptions {
     pub out: PathBuf,
     pub seed: u64,
-    /// Run only this stage (its inputs must exist).
-    pub stage: Option<StageId>,
+    /// Run only the stage of this name (its inputs must exist).
+    pub stage: Option<String>,
     /// Run stages even when their stamps match.
     pub force: bool,
     pub show_progress: bool,

@@ -4,15 +4,24 @@
 //! `pipeline::run`; the heavy-ion stand-in (`stand_in/`) is the one built in.
 //! A new system is its own folder and one line in that list.
 
-use super::stage::AnyStage;
+use super::stage::{AnyStage, StageId};
 use super::study::StudySystem;
 
 /// A system as `mdpipe run` takes it: its queries and its own stages.
 pub(crate) trait System: StudySystem {
-    /// The stages it adds to the generic ones (each `StageId` is placed in the run order).
-    fn stages(&self) -> &'static [&'static dyn AnyStage] {
+    /// The stages it adds to the generic ones, each with an id of its own.
+    fn stages(&self) -> &'static [SystemStage] {
         &[]
     }
+}
+
+/// A stage a system adds: where it runs and which later stages read what
+/// it leaves (their keys then hold its key, so they rerun when it does).
+pub(crate) struct SystemStage {
+    pub(crate) stage: &'static dyn AnyStage,
+    /// The stage it runs right after (a generic one or one of its system's).
+    pub(crate) after: StageId,
+    pub(crate) read_by: &'static [StageId],
 }
 
 /// The systems a run may use, in the order they are asked (the first

@@ -200,7 +200,7 @@ fn opts(out: &Path, stage: Option<&str>, force: bool) -> RunOptions {
     RunOptions {
         out: out.to_path_buf(),
         seed: 3,
-        stage: stage.map(|s| s.parse().unwrap()),
+        stage: stage.map(String::from),
         force,
         show_progress: false,
         executor: mdpipe::execute::Executor::Local,
@@ -353,9 +353,10 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     let err = run(&config, &opts(&dir.join("fresh"), Some("ingest"), false)).unwrap_err();
     let msg = format!("{err:#}");
     assert!(msg.contains("needs the outputs of stage simulate"), "{msg}");
-    // An unknown stage is refused where it is parsed, naming the stages there are.
-    let err = "fit".parse::<mdpipe::pipeline::StageId>().unwrap_err().to_string();
-    assert!(err.contains("unknown stage \"fit\" (use design, simulate,"), "{err}");
+    // An unknown stage is refused before anything runs, naming the stages there are.
+    let err = format!("{:#}", run(&config, &opts(&dir.join("unknown"), Some("fit"), false)).unwrap_err());
+    assert!(err.contains("unknown stage \"fit\" (use design, simulate,") && err.contains("mock"), "{err}");
+    assert!(!dir.join("unknown").join("stages").exists(), "nothing runs for an unknown stage");
     // A bad [run] table is refused before any stage runs, naming the file and field.
     let text = std::fs::read_to_string(dir.join("study.toml"))
         .unwrap()

@@ -5,13 +5,14 @@
 //! (`app::systems()` for the command line; the test below makes its own).
 //! It uses every kind of hook: its own `[run.free_fall]` table, decoded and
 //! checked here; its simulator; what it adds to the design's and simulate's
-//! keys; a stage of its own (mock data, `StageId::Mock`); the study's data;
-//! and its units.
+//! keys; stages of its own, with ids of its own (mock data before the
+//! stages that read the data, and a probe after the calibrations); the
+//! study's data; and its units.
 
 use super::run_config::RunConfig;
-use super::stage::{AnyStage, Keys, Presence, Stage, StageId};
+use super::stage::{Keys, Presence, Stage, StageId};
 use super::study::{Study, StudyData, StudySystem};
-use super::system::System;
+use super::system::{System, SystemStage};
 use crate::base::artifacts;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
 use crate::engine::model::Units;
@@ -63,7 +64,7 @@ impl StudySystem for FreeFall {
     }
     fn key_settings(&self, study: &Study<'_>, stage: StageId) -> serde_json::Map<String, serde_json::Value> {
         let mut settings = serde_json::Map::new();
-        if let (Ok(Some(fall)), StageId::Design | StageId::Simulate) = (FreeFallRun::of(study.run), stage) {
+        if let (Ok(Some(fall)), StageId::DESIGN | StageId::SIMULATE) = (FreeFallRun::of(study.run), stage) {
             settings.insert("free_fall_times".into(), fall.times().into());
         }
         settings
@@ -96,8 +97,15 @@ impl StudySystem for FreeFall {
 }
 
 impl System for FreeFall {
-    fn stages(&self) -> &'static [&'static dyn AnyStage] {
-        &[&MockFall]
+    fn stages(&self) -> &'static [SystemStage] {
+        &[
+            SystemStage {
+                stage: &MockFall,
+                after: StageId::EMULATOR,
+                read_by: &[StageId::REFINE, StageId::CALIBRATE, StageId::DIAGNOSE],
+            },
+            SystemStage { stage: &Probe, after: StageId::CALIBRATE, read_by: &[] },
+        ]
     }
 }
 
@@ -114,7 +122,7 @@ struct MockFall;
 
 impl Stage for MockFall {
     type Settings = (FreeFallRun, f64, u64);
-    const ID: StageId = StageId::Mock;
+    const ID: StageId = StageId::new("fall_mock");
     const UPSTREAM: &'static [StageId] = &[];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         Ok(if mock_study(study) { Presence::Runs } else { Presence::Absent("no mock_error".into()) })
@@ -139,6 +147,26 @@ impl Stage for MockFall {
             csv.push_str(&format!("v,{t},{},{error}\n", v + noise.sample(&mut rng)));
         }
         artifacts::write_text_atomic(&mock_file(study), &csv)
+    }
+}
+
+/// A stage after the calibrations that it reads: it writes how many cases
+/// ran (OUT/probe.json); the loop keys, skips and stamps it like any other.
+struct Probe;
+
+impl Stage for Probe {
+    type Settings = Vec<Vec<String>>;
+    const ID: StageId = StageId::new("fall_probe");
+    const UPSTREAM: &'static [StageId] = &[StageId::CALIBRATE];
+    fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
+        Ok(vec![study.paths.out.join("probe.json")])
+    }
+    fn settings(&self, study: &Study<'_>) -> Result<Self::Settings> {
+        Ok(study.run.observable_sets.clone())
+    }
+    fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
+        let cases = study.stored_fits(&study.paths.calibrate()).len();
+        artifacts::write_json_atomic(&study.paths.out.join("probe.json"), &serde_json::json!({ "cases": cases }))
     }
 }
 

@@ -1,8 +1,8 @@
 //! A study of the second system end to end, with the systems list the test
 //! gives: its table is refused by the command line's list (which does not
 //! hold it), claimed by a list with it; its simulator, stage, data and keys
-//! are used by the generic stages; and the stage of the tests
-//! (`stage::probe`, a folder and one line in the stage list) runs with them.
+//! are used by the generic stages; its own stages, with their own ids, run
+//! where it placed them.
 
 use super::FreeFall;
 use crate::base::choices::Executor;
@@ -86,7 +86,8 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     let systems = Systems::new(vec![&StandIn, &FreeFall]);
     let first = run(&config, &options(out.clone()), &systems).unwrap();
     // The diagnose stage ends a study with no candidates too (its search on).
-    let all = ["design", "simulate", "ingest", "emulator", "mock", "calibrate", "report", "diagnose", "probe"];
+    let all =
+        ["design", "simulate", "ingest", "emulator", "fall_mock", "calibrate", "fall_probe", "report", "diagnose"];
     assert_eq!(ran(&first), all);
     let diagnosis: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/diagnosis.json")).unwrap()).unwrap();
@@ -99,7 +100,7 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     assert!(lo < 9.81 && 9.81 < hi && hi - lo < 0.2, "g in [{lo}, {hi}]");
     assert_eq!(summary["units"]["parameters"]["g"], "m/s²", "the system's units reach the fit");
     assert!(std::fs::read_to_string(out.join("mock/measurements.csv")).unwrap().lines().count() == 11);
-    // The stage of the tests (`stage::probe`) ran after the calibrations it reads.
+    // Its probe ran after the calibrations it reads.
     let probe: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("probe.json")).unwrap()).unwrap();
     assert_eq!(probe["cases"], 1);

@@ -26,7 +26,7 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Design {
     type Settings = Settings;
-    const ID: StageId = StageId::Design;
+    const ID: StageId = StageId::DESIGN;
     const UPSTREAM: &'static [StageId] = &[];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.design().join("design.parquet"), study.paths.validation_design().join("design.parquet")])
@@ -37,7 +37,7 @@ impl Stage for Design {
             points: study.run.points,
             validation_points: study.run.validation_points,
             seed: study.opts.seed,
-            system: setup::system_settings(study, StageId::Design),
+            system: setup::system_settings(study, StageId::DESIGN),
         })
     }
     fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {

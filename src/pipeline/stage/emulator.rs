@@ -17,8 +17,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Emulator {
     type Settings = Settings;
-    const ID: StageId = StageId::Emulator;
-    const UPSTREAM: &'static [StageId] = &[StageId::Ingest];
+    const ID: StageId = StageId::EMULATOR;
+    const UPSTREAM: &'static [StageId] = &[StageId::INGEST];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.emulator().join("emulator.json"), study.paths.emulator().join("validation.json")])
     }

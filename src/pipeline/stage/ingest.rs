@@ -19,8 +19,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Ingest {
     type Settings = Settings;
-    const ID: StageId = StageId::Ingest;
-    const UPSTREAM: &'static [StageId] = &[StageId::Simulate];
+    const ID: StageId = StageId::INGEST;
+    const UPSTREAM: &'static [StageId] = &[StageId::SIMULATE];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.training(), study.paths.validation()])
     }

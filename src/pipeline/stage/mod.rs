@@ -6,8 +6,9 @@
 //! module here holding all of its own code (a folder when it has several
 //! files); what two stages share (a design run through the executor and
 //! ingested) is the service module `pipeline::points`. The generic stages
-//! are listed in `pipeline::plan`; a system adds its own through
-//! `system::System::stages`. The loop owns the keys: a stage's key
+//! are listed in `pipeline::plan`; a system adds its own, with an id of its
+//! own, through `system::System::stages`, which also says where it runs and
+//! which later stages read it. The loop owns the keys: a stage's key
 //! hashes its settings and its upstream stages' keys; a stage whose stamp
 //! (`OUT/stages/<stage>.json`) holds the same key, and whose outputs exist,
 //! is skipped.
@@ -18,18 +19,17 @@ pub(super) mod design;
 pub(super) mod diagnose;
 pub(super) mod emulator;
 pub(super) mod ingest;
-#[cfg(test)]
-pub(super) mod probe;
 pub(super) mod refine;
 pub(super) mod report;
 pub(super) mod simulate;
 
 use super::study::Study;
 use crate::base::artifacts::{self, Provenance};
-pub use crate::base::choices::StageId;
 use anyhow::{anyhow, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+pub use super::stage_id::StageId;
 
 /// Whether a study has a stage, and if not, why (for `--stage`).
 pub(crate) enum Presence {
@@ -84,10 +84,11 @@ impl<S: Stage> AnyStage for S {
     }
 }
 
-/// What a stage body may know of the loop: the keys of the stages before it
+/// What a stage body may know of the loop: the keys of the stages it reads
 /// (what their outputs were) and its own key.
 pub(crate) struct Keys<'k> {
-    pub(in crate::pipeline) upstream: &'k BTreeMap<String, String>,
+    /// Stage name → key, for each stage it reads that the study has.
+    pub(in crate::pipeline) reads: &'k BTreeMap<&'static str, String>,
     pub(in crate::pipeline) this: &'k str,
 }
 
@@ -116,6 +117,13 @@ impl Stamp {
     }
 }
 
+/// A stage as a study runs it: the stages it reads are its own upstream
+/// and the systems' stages that say they feed it.
+pub(in crate::pipeline) struct Planned {
+    pub(in crate::pipeline) stage: &'static dyn AnyStage,
+    pub(in crate::pipeline) upstream: Vec<StageId>,
+}
+
 /// What happened to each stage.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct StageOutcome {
@@ -134,20 +142,26 @@ pub(in crate::pipeline) struct StageLoop {
 }
 
 impl StageLoop {
-    pub(in crate::pipeline) fn new(planned: &[&dyn AnyStage]) -> StageLoop {
-        StageLoop { planned: planned.iter().map(|s| s.id()).collect(), keys: BTreeMap::new(), outcomes: Vec::new() }
+    pub(in crate::pipeline) fn new(planned: &[Planned]) -> StageLoop {
+        StageLoop {
+            planned: planned.iter().map(|p| p.stage.id()).collect(),
+            keys: BTreeMap::new(),
+            outcomes: Vec::new(),
+        }
     }
 
-    pub(in crate::pipeline) fn run(&mut self, study: &Study<'_>, stage: &dyn AnyStage) -> Result<()> {
-        let (name, paths, opts) = (stage.id().name(), &study.paths, study.opts);
-        if opts.stage.is_some_and(|s| s != stage.id()) {
+    pub(in crate::pipeline) fn run(&mut self, study: &Study<'_>, planned: &Planned) -> Result<()> {
+        let (stage, paths, opts) = (planned.stage, &study.paths, study.opts);
+        let name = stage.id().name();
+        if opts.stage.as_deref().is_some_and(|s| s != name) {
             // Not this stage: later stages key on what it left on disk.
             if let Some(s) = read_stamp(&paths.stamp(name)) {
                 self.keys.insert(name.into(), s.downstream_key());
             }
             return Ok(());
         }
-        let key = self.key_of(study, stage)?;
+        let reads = self.reads(study, planned)?;
+        let key = self.key_of(study, stage, &reads)?;
         let outputs = stage.outputs(study)?;
         let done = read_stamp(&paths.stamp(name)).filter(|s| s.key == key && outputs.iter().all(|p| p.exists()));
         if let Some(done) = done.filter(|_| !opts.force) {
@@ -159,7 +173,7 @@ impl StageLoop {
         crate::base::messages::say!("[{name}] running");
         let start = std::time::Instant::now();
         stage
-            .run(study, &Keys { upstream: &self.keys, this: &key })
+            .run(study, &Keys { reads: &reads, this: &key })
             .with_context(|| format!("{}: stage {name}", study.config.path.display()))?;
         if opts.case.is_some() {
             return Ok(());
@@ -187,14 +201,27 @@ impl StageLoop {
         Ok(())
     }
 
-    /// The stage's key: its settings and its upstream stages' keys.
-    fn key_of(&self, study: &Study<'_>, stage: &dyn AnyStage) -> Result<String> {
-        let name = stage.id().name();
-        let mut material = serde_json::json!({"stage": name, "version": env!("CARGO_PKG_VERSION"), "settings": stage.settings_value(study)?});
-        // An upstream stage the study does not have is left out.
-        for u in stage.upstream().iter().filter(|u| self.planned.contains(u)) {
+    /// The keys of the stages it reads; one the study does not have is left out.
+    fn reads(&self, study: &Study<'_>, planned: &Planned) -> Result<BTreeMap<&'static str, String>> {
+        let name = planned.stage.id();
+        let mut reads = BTreeMap::new();
+        for u in planned.upstream.iter().filter(|u| self.planned.contains(u)) {
             let key = self.keys.get(u.name()).cloned().ok_or_else(|| anyhow!("stage {name} needs the outputs of stage {u}, which has not run in {}; run `mdpipe run CONFIG --stage {u}` (or without --stage) first", study.paths.out.display()))?;
-            material[format!("upstream_{u}")] = serde_json::Value::String(key);
+            reads.insert(u.name(), key);
+        }
+        Ok(reads)
+    }
+
+    /// The stage's key: its settings and the keys of the stages it reads.
+    fn key_of(
+        &self,
+        study: &Study<'_>,
+        stage: &dyn AnyStage,
+        reads: &BTreeMap<&'static str, String>,
+    ) -> Result<String> {
+        let mut material = serde_json::json!({"stage": stage.id().name(), "version": env!("CARGO_PKG_VERSION"), "settings": stage.settings_value(study)?});
+        for (u, key) in reads {
+            material[format!("upstream_{u}")] = serde_json::Value::String(key.clone());
         }
         Ok(artifacts::sha256_hex(material.to_string().as_bytes()))
     }

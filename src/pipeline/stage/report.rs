@@ -17,8 +17,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Report {
     type Settings = Settings;
-    const ID: StageId = StageId::Report;
-    const UPSTREAM: &'static [StageId] = &[StageId::Calibrate];
+    const ID: StageId = StageId::REPORT;
+    const UPSTREAM: &'static [StageId] = &[StageId::CALIBRATE];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.out.join("report.html")])
     }
@@ -26,7 +26,7 @@ impl Stage for Report {
         Ok(Settings { config: study.analysis_hash()? })
     }
     fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
-        let dirs = [study.paths.calibrate(), crate::pipeline::rounds::emulator_in_use(study)?];
+        let dirs = [study.paths.calibrate(), super::refine::report::emulator_in_use(study)?];
         // A system that assessed the study adds its section and its figures.
         let mut figures = Vec::new();
         let mut sections = String::new();

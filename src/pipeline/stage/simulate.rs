@@ -21,8 +21,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Simulate {
     type Settings = Settings;
-    const ID: StageId = StageId::Simulate;
-    const UPSTREAM: &'static [StageId] = &[StageId::Design];
+    const ID: StageId = StageId::SIMULATE;
+    const UPSTREAM: &'static [StageId] = &[StageId::DESIGN];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.design().join("runs"), study.paths.validation_design().join("runs")])
     }
@@ -30,7 +30,7 @@ impl Stage for Simulate {
         Ok(Settings {
             simulator: study.run.simulator.clone(),
             seed: study.opts.seed,
-            system: setup::system_settings(study, StageId::Simulate),
+            system: setup::system_settings(study, StageId::SIMULATE),
         })
     }
     fn run(&self, study: &Study<'_>, keys: &Keys<'_>) -> Result<()> {

@@ -12,6 +12,9 @@ use std::path::PathBuf;
 
 pub(super) struct Mock;
 
+/// The mock stage's id: `--stage mock`, `OUT/stages/mock.json`.
+pub(super) const MOCK: StageId = StageId::new("mock");
+
 #[derive(serde::Serialize)]
 pub(super) struct Settings {
     truth: Vec<(String, f64)>,
@@ -24,7 +27,7 @@ pub(super) struct Settings {
 
 impl Stage for Mock {
     type Settings = Settings;
-    const ID: StageId = StageId::Mock;
+    const ID: StageId = MOCK;
     const UPSTREAM: &'static [StageId] = &[];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         Ok(if super::mock_study(study) {

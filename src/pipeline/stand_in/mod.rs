@@ -8,9 +8,9 @@ mod mock;
 mod settings;
 
 use super::run_config::RunConfig;
-use super::stage::{AnyStage, StageId};
+use super::stage::StageId;
 use super::study::*;
-use super::system::System;
+use super::system::{System, SystemStage};
 use super::variants::Variant;
 use crate::base::artifacts;
 use crate::base::config::Config;
@@ -57,7 +57,7 @@ impl StudySystem for StandIn {
     fn key_settings(&self, study: &Study<'_>, stage: StageId) -> serde_json::Map<String, serde_json::Value> {
         let mut settings = serde_json::Map::new();
         let Ok(Some(stand_in)) = StandInRun::of(study.run) else { return settings };
-        if matches!(stage, StageId::Design | StageId::Simulate | StageId::Refine | StageId::Candidates) {
+        if matches!(stage, StageId::DESIGN | StageId::SIMULATE | StageId::REFINE | StageId::CANDIDATES) {
             settings.insert("events".into(), stand_in.events.into());
             settings.insert("oversample".into(), stand_in.oversample.into());
             settings.insert("delta_f".into(), stand_in.model_delta_f.into());
@@ -105,13 +105,13 @@ impl StudySystem for StandIn {
             config,
             dirs,
             &truth_curve,
-            &super::rounds::emulator_in_use(study)?,
+            &super::stage::refine::report::emulator_in_use(study)?,
             &study.paths.validation(),
             &mock::measurements(study),
         )?;
         artifacts::write_json_atomic(&study.paths.out.join("study.json"), &assessed)?;
         let mut md = assessed.markdown();
-        if let Some(rounds) = super::rounds::rounds(study)? {
+        if let Some(rounds) = super::stage::refine::report::rounds(study)? {
             md.push_str(&rounds.study_section());
         }
         artifacts::write_text_atomic(&study.paths.out.join("study.md"), &md)?;
@@ -132,8 +132,14 @@ impl StudySystem for StandIn {
 }
 
 impl System for StandIn {
-    fn stages(&self) -> &'static [&'static dyn AnyStage] {
-        &[&mock::Mock]
+    /// Its mock data, made before the first stage that reads the data, and
+    /// read by every stage that does.
+    fn stages(&self) -> &'static [SystemStage] {
+        &[SystemStage {
+            stage: &mock::Mock,
+            after: StageId::EMULATOR,
+            read_by: &[StageId::REFINE, StageId::CALIBRATE, StageId::DIAGNOSE],
+        }]
     }
 }
 

@@ -8,7 +8,7 @@ use crate::engine::calibrate::{self, Analysis, Overrides, Problem};
 use crate::engine::compare;
 use crate::engine::execute::{self, Executor, OutputKind, SimulatorSpec};
 use crate::engine::gp::DiscrepancyKernel;
-use crate::pipeline::stage::{read_stamp, Keys, StageId, Stamp};
+use crate::pipeline::stage::{read_stamp, Keys, Stamp};
 use crate::pipeline::study::{absolute, Study};
 use anyhow::Result;
 use std::collections::BTreeMap;
@@ -34,7 +34,7 @@ pub(super) fn cases(study: &Study<'_>, keys: &Keys) -> Result<Vec<Case>> {
             let kernel = DiscrepancyKernel::of(*k);
             let name = compare::case_dir_name(set, kernel);
             let seed = study.opts.seed.wrapping_add((i * 3 + j) as u64 * 1_000_003);
-            let material = serde_json::json!({"config": study.analysis_hash()?, "data": study.data_hash()?, "set": set, "kernel": k, "seed": seed, "emulator": keys.upstream.get(StageId::Emulator.name()), "mock": keys.upstream.get(StageId::Mock.name()), "refine": keys.upstream.get(StageId::Refine.name())});
+            let material = serde_json::json!({"config": study.analysis_hash()?, "data": study.data_hash()?, "set": set, "kernel": k, "seed": seed, "reads": keys.reads});
             let key = artifacts::sha256_hex(material.to_string().as_bytes());
             cases.push(Case {
                 index: cases.len(),
@@ -71,7 +71,7 @@ pub(super) fn calibrate_case(study: &Study<'_>, analysis: &Analysis, c: &Case) -
     );
     // The last refinement round fitted the same problem with the same emulator.
     let (cal, whence) = match calibrate::results::stored::find(
-        &study.stored_fits(&crate::pipeline::rounds::refine_dir(study)),
+        &study.stored_fits(&crate::pipeline::stage::refine::report::refine_dir(study)),
         &problem,
     ) {
         Some((dir, cal)) => {

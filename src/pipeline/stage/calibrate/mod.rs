@@ -28,8 +28,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Calibrate {
     type Settings = Settings;
-    const ID: StageId = StageId::Calibrate;
-    const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock, StageId::Refine];
+    const ID: StageId = StageId::CALIBRATE;
+    const UPSTREAM: &'static [StageId] = &[StageId::EMULATOR, StageId::REFINE];
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         let assessment = study.systems.iter().find_map(|s| s.assessment(study));
         Ok(vec![assessment.unwrap_or_else(|| study.paths.calibrate().join("cases.json"))])

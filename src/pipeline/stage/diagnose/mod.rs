@@ -9,7 +9,6 @@ use super::{Keys, Presence, Stage, StageId};
 use crate::base::artifacts;
 use crate::base::progress::observer;
 use crate::engine::calibrate::Overrides;
-use crate::pipeline::setup;
 use crate::pipeline::study::Study;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -29,10 +28,10 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Diagnose {
     type Settings = Settings;
-    const ID: StageId = StageId::Diagnose;
-    const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock, StageId::Refine, StageId::Candidates];
+    const ID: StageId = StageId::DIAGNOSE;
+    const UPSTREAM: &'static [StageId] = &[StageId::EMULATOR, StageId::REFINE, StageId::CANDIDATES];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
-        setup::with_diagnosis(study)
+        presence(study)
     }
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Ok(vec![study.paths.diagnose().join("diagnosis.json"), study.paths.diagnose().join("report.html")])
@@ -64,7 +63,8 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
     let mut config = study.study_config()?;
     let corrections: Vec<toml::Table> =
         config.candidates.iter().filter(|t| t.contains_key("correction")).cloned().collect();
-    config.candidates = study.variants()?.into_iter().map(|v| v.declaration).chain(corrections).collect();
+    config.candidates =
+        super::candidates::variants(study)?.into_iter().map(|v| v.declaration).chain(corrections).collect();
     let out = study.paths.diagnose();
     // A previous run's refined variants are of other settings (its runs would mix with new ones).
     crate::engine::execute::attempt::remove_after_attempts(&out.join("refine"))
@@ -79,7 +79,7 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
     let seed = study.opts.seed.wrapping_add(77);
     // The base fits are two of the calibrate stage's cases; the diagnosis
     // after refinement takes the fits whose problems did not change.
-    let stored = [study.paths.calibrate(), crate::pipeline::rounds::refine_dir(study)]
+    let stored = [study.paths.calibrate(), super::refine::report::refine_dir(study)]
         .iter()
         .flat_map(|d| study.stored_fits(d))
         .collect();
@@ -112,4 +112,21 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
     )?;
     crate::base::messages::say!("  {}", out.join("report.html").display());
     Ok(())
+}
+
+/// The diagnose stage's presence: it ends every run, weighing the
+/// candidates (variants or corrections of the emulator's output) and
+/// searching when none explains a mismatch, unless the study declares none
+/// and turns the search off (`[run] discover = false`).
+fn presence(study: &Study<'_>) -> Result<Presence> {
+    let corrections = study.config.candidates.iter().any(|t| t.contains_key("correction"));
+    if corrections || study.run.discover != Some(false) {
+        return Ok(Presence::Runs);
+    }
+    Ok(match super::candidates::presence(study)? {
+        Presence::Absent(why) => {
+            Presence::Absent(format!("{why}, no corrections, and the search is off ([run] discover = false)"))
+        }
+        runs => runs,
+    })
 }

@@ -71,7 +71,7 @@ pub(super) fn refine_variants(
         budget: settings.variant_budget,
         draws: settings.draws,
     };
-    let variants = study.variants()?;
+    let variants = crate::pipeline::stage::candidates::variants(study)?;
     for (k, name) in diagnosis.verdict.refine.iter().enumerate() {
         let declared = variants.iter().find(|v| &v.name == name);
         let variant = analysis

@@ -1,18 +1,19 @@
 //! The refine stage (only with `[run.refine]`): rounds of adaptive design
 //! (`rounds`) until the emulator's error where the posterior lives is below
 //! the data error; the stages after it use its emulator
-//! (`pipeline::rounds::emulator_in_use`, from its report `rounds.json`).
+//! (`report::emulator_in_use`, from its report `rounds.json`).
 
+pub(in crate::pipeline) mod report;
 mod rounds;
 
 use super::{Keys, Presence, Stage, StageId};
 use crate::base::choices::Kernel;
 use crate::engine::execute::SimulatorSpec;
-use crate::pipeline::rounds::refine_dir;
 use crate::pipeline::run_config::RefineConfig;
 use crate::pipeline::setup;
 use crate::pipeline::study::Study;
 use anyhow::Result;
+use report::refine_dir;
 use std::path::PathBuf;
 
 pub(in crate::pipeline) struct Refine;
@@ -32,8 +33,8 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Refine {
     type Settings = Settings;
-    const ID: StageId = StageId::Refine;
-    const UPSTREAM: &'static [StageId] = &[StageId::Emulator, StageId::Mock];
+    const ID: StageId = StageId::REFINE;
+    const UPSTREAM: &'static [StageId] = &[StageId::EMULATOR];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
         Ok(if study.run.refine.is_some() {
             Presence::Runs
@@ -54,7 +55,7 @@ impl Stage for Refine {
             set: study.diagnose_observables(),
             kernels: run.kernels.clone(),
             seed: study.opts.seed,
-            system: setup::system_settings(study, StageId::Refine),
+            system: setup::system_settings(study, StageId::REFINE),
         })
     }
     fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {

@@ -15,6 +15,7 @@
 //! emulator) and `OUT/refine/rounds.json` / `rounds.md`; `rounds.json` names
 //! the emulator the calibrations use.
 
+use super::report::{refine_dir, Round, Rounds};
 use crate::base::artifacts::{self, Provenance};
 use crate::base::progress::observer;
 use crate::engine::calibrate::{self, Overrides, Problem};
@@ -22,7 +23,6 @@ use crate::engine::design::DesignSpec;
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::refine::{self, ObservableRatio};
 use crate::pipeline::points;
-use crate::pipeline::rounds::{refine_dir, Round, Rounds};
 use crate::pipeline::study::{absolute, Study};
 use anyhow::{anyhow, Context, Result};
 use polars::prelude::*;

@@ -1,9 +1,9 @@
 //! What the refine stage reports (`rounds.json`, `rounds.md`, its section
 //! of study.md) and, from it, which emulator the stages after it use.
 
-use super::study::Study;
 use crate::base::artifacts::Provenance;
 use crate::engine::refine::ObservableRatio;
+use crate::pipeline::study::Study;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -86,12 +86,12 @@ impl Rounds {
 }
 
 /// Where the refine stage writes: `OUT/refine/`.
-pub(super) fn refine_dir(study: &Study<'_>) -> PathBuf {
+pub(in crate::pipeline) fn refine_dir(study: &Study<'_>) -> PathBuf {
     study.paths.out.join("refine")
 }
 
 /// The refine stage's report, when `[run.refine]` is set.
-pub(super) fn rounds(study: &Study<'_>) -> Result<Option<Rounds>> {
+pub(in crate::pipeline) fn rounds(study: &Study<'_>) -> Result<Option<Rounds>> {
     if study.run.refine.is_none() {
         return Ok(None);
     }
@@ -103,7 +103,7 @@ pub(super) fn rounds(study: &Study<'_>) -> Result<Option<Rounds>> {
 }
 
 /// The emulator the calibrations use: refine's last, when `[run.refine]` is set.
-pub(super) fn emulator_in_use(study: &Study<'_>) -> Result<PathBuf> {
+pub(in crate::pipeline) fn emulator_in_use(study: &Study<'_>) -> Result<PathBuf> {
     Ok(match rounds(study)? {
         Some(rounds) => refine_dir(study).join(rounds.emulator),
         None => study.paths.emulator(),

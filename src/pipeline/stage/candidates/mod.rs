@@ -4,6 +4,8 @@
 //! parameters, runs through the same executor with the same retries, ingest,
 //! an emulator and its cross-validation.
 
+mod variants;
+
 use super::{Keys, Presence, Stage, StageId};
 use crate::base::artifacts;
 use crate::engine::design::DesignSpec;
@@ -14,6 +16,7 @@ use crate::pipeline::study::Study;
 use crate::pipeline::variants::Variant;
 use anyhow::{anyhow, Context, Result};
 use std::path::{Path, PathBuf};
+pub(in crate::pipeline) use variants::{presence, variants};
 
 pub(in crate::pipeline) struct Candidates;
 
@@ -31,25 +34,25 @@ pub(in crate::pipeline) struct Settings {
 
 impl Stage for Candidates {
     type Settings = Settings;
-    const ID: StageId = StageId::Candidates;
-    const UPSTREAM: &'static [StageId] = &[StageId::Design];
+    const ID: StageId = StageId::CANDIDATES;
+    const UPSTREAM: &'static [StageId] = &[StageId::DESIGN];
     fn present(&self, study: &Study<'_>) -> Result<Presence> {
-        setup::with_variants(study)
+        presence(study)
     }
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
-        let variants = study.variants()?;
+        let variants = variants(study)?;
         Ok(variants.iter().map(|v| study.paths.candidate(&v.name).join("emulator").join("emulator.json")).collect())
     }
     fn settings(&self, study: &Study<'_>) -> Result<Settings> {
         let run = study.run;
         Ok(Settings {
             spec: study.design_spec_hash()?,
-            variants: study.variants()?,
+            variants: variants(study)?,
             points: run.candidate_points.unwrap_or(run.points),
             observables: study.all_observables(),
             emulator: study.emulator.clone(),
             seed: study.opts.seed,
-            system: setup::system_settings(study, StageId::Candidates),
+            system: setup::system_settings(study, StageId::CANDIDATES),
         })
     }
     fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {
@@ -58,7 +61,7 @@ impl Stage for Candidates {
             &std::fs::read(&spec_path).with_context(|| format!("reading {}", spec_path.display()))?,
         );
         let spec = DesignSpec::load(&spec_path)?;
-        for v in study.variants()? {
+        for v in variants(study)? {
             let dir = study.paths.candidate(&v.name);
             crate::engine::execute::attempt::remove_after_attempts(&dir)
                 .with_context(|| format!("removing the previous variant {}", dir.display()))?;
