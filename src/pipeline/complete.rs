@@ -33,7 +33,7 @@ pub fn load(path: &Path, systems: &Systems) -> Result<Analysis> {
 /// Fills in, for a config with a `[run]` table: `[model] artifact` (the
 /// study's emulator, refined when `[run.refine]` ran) and each
 /// `[[candidates]]` `emulator` (its variant), when not given; and the
-/// library candidates a system's table names (`[run.stand_in] candidates`).
+/// library candidates a system's table names (`[run.<system>]`).
 pub fn fill_in_from_study(config: &mut Config, systems: &Systems) -> Result<()> {
     let Some(table) = &config.run else { return Ok(()) };
     let run = RunConfig::decode(config, table)?;

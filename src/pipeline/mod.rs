@@ -1,11 +1,10 @@
 //! `mdpipe run`: a study end to end for any simulator, as a sequence of
 //! stages that each write their artifacts under one output folder and are
 //! skipped when their inputs have not changed. The simulate stage runs
-//! `[run.simulator]` (or, without it, a system's simulator: the heavy-ion
-//! stand-in's with `[run.stand_in]`) through `engine::execute`, locally or
-//! as a Slurm array. The calibrations use the config's measurements, or a
-//! system's mock data (the stand-in's `mock_delta_f`), whose truth is known
-//! and assessed in study.md.
+//! `[run.simulator]` (or, without it, the simulator of a system named by its
+//! own table, `[run.<system>]`) through `engine::execute`, locally or as a
+//! Slurm array. The calibrations use the config's measurements, or data a
+//! system's own stage made, whose truth is known and assessed in study.md.
 //!
 //! | stage       | writes (under OUT/)                                             |
 //! |-------------|-----------------------------------------------------------------|
@@ -13,7 +12,7 @@
 //! | simulate    | design/runs/, validation_design/runs/ (one folder per point, execution.json) |
 //! | ingest      | training.parquet, validation.parquet (+ .report.json)           |
 //! | emulator    | emulator/ (trained, then validated: validation.json)            |
-//! | mock        | mock/runs/, mock/measurements.parquet (the stand-in's mock data only) |
+//! | (a system's) | what its own stages write, placed where the system says (mock data with a known truth, before the stages that read the data) |
 //! | refine      | refine/round_<r>/ (pilots, design with runs, tables, emulator), refine/rounds.json, rounds.md (only with `[run.refine]`; the stages after it use its emulator) |
 //! | calibrate   | calibrate/<observables>__<kernel>/ per case, study.md, study.json (or calibrate/cases.md, cases.json) |
 //! | report      | report.html                                                     |
@@ -22,11 +21,11 @@
 //!
 //! The last two run when the study declares candidates: `[[candidates]]`
 //! tables that say how the simulator turns each piece of physics on
-//! (`variants`), or the stand-in's library names in `[run.stand_in] candidates`.
+//! (`variants`), or the library names a system's table gives.
 //! Each stage is one module of `stage/` (a type implementing `stage::Stage`:
 //! its `StageId`, upstream stages, outputs, typed settings and body), and a
 //! system adds its own, with ids of its own, through `system::System::stages`
-//! (the stand-in's mock stage: where it runs and which stages read it);
+//! (with where each runs and which stages read it);
 //! `stage::StageLoop` owns the keys and stamps:
 //! a stage whose stamp (`OUT/stages/<stage>.json`) holds the key of its
 //! settings and upstream keys, and whose outputs exist, is skipped. Within

@@ -72,18 +72,15 @@ pub(super) fn plan(study: &Study<'_>, systems: &Systems) -> Result<Vec<Planned>>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::system::System;
 
-    /// With the systems' stages, each stage has an id of its own and reads
-    /// only stages that run before it; a system's stage sits where it says
-    /// and its readers read it.
+    /// With the test system's stages, each stage has an id of its own and
+    /// reads only stages that run before it; a system's stage sits where it
+    /// says, and its readers read it.
     #[test]
     fn every_stage_reads_only_earlier_stages() {
-        let free_fall: &'static dyn System = &crate::pipeline::free_fall::FreeFall;
-        for systems in
-            [vec![], vec![&crate::pipeline::StandIn as &dyn System], vec![&crate::pipeline::StandIn, free_fall]]
-        {
-            let stages = stages(&Systems::new(systems));
+        let generic = stages(&Systems::new(vec![]));
+        let with_system = stages(&Systems::new(vec![&crate::pipeline::free_fall::FreeFall]));
+        for stages in [&generic, &with_system] {
             for (i, p) in stages.iter().enumerate() {
                 let id = p.stage.id();
                 assert!(stages[..i].iter().all(|s| s.stage.id() != id), "{id} twice");
@@ -92,24 +89,27 @@ mod tests {
                 }
             }
         }
-        let with_mock = stages(&Systems::new(vec![&crate::pipeline::StandIn]));
-        let names: Vec<&str> = with_mock.iter().map(|p| p.stage.id().name()).collect();
-        assert_eq!(
-            names,
-            [
-                "design",
-                "simulate",
-                "ingest",
-                "emulator",
-                "mock",
-                "refine",
-                "calibrate",
-                "report",
-                "candidates",
-                "diagnose"
-            ]
-        );
-        let calibrate = with_mock.iter().find(|p| p.stage.id() == StageId::CALIBRATE).unwrap();
-        assert!(calibrate.upstream.contains(&StageId::new("mock")));
+        let names = |stages: &[Planned]| stages.iter().map(|p| p.stage.id().name()).collect::<Vec<_>>();
+        let generic_names =
+            ["design", "simulate", "ingest", "emulator", "refine", "calibrate", "report", "candidates", "diagnose"];
+        assert_eq!(names(&generic), generic_names);
+        let placed = [
+            "design",
+            "simulate",
+            "ingest",
+            "emulator",
+            "fall_mock",
+            "refine",
+            "calibrate",
+            "fall_probe",
+            "report",
+            "candidates",
+            "diagnose",
+        ];
+        assert_eq!(names(&with_system), placed);
+        let calibrate = with_system.iter().find(|p| p.stage.id() == StageId::CALIBRATE).unwrap();
+        assert!(calibrate.upstream.contains(&StageId::new("fall_mock")), "a reader reads the system's stage");
+        let report = with_system.iter().find(|p| p.stage.id() == StageId::REPORT).unwrap();
+        assert!(!report.upstream.contains(&StageId::new("fall_mock")), "a stage that does not read it does not");
     }
 }

@@ -22,7 +22,7 @@ pub struct RunConfig {
     pub points: usize,
     pub validation_points: usize,
     /// The simulator run at each design point. Without it, a system's own
-    /// (the heavy-ion stand-in's, with `[run.stand_in]`).
+    /// (with its table, `[run.<system>]`).
     #[serde(default)]
     pub simulator: Option<SimulatorSpec>,
     /// Observable sets to calibrate on, in order (each should extend the last).
@@ -45,7 +45,7 @@ pub struct RunConfig {
     /// default, which searches when no candidate explains a mismatch.
     #[serde(default)]
     pub discover: Option<bool>,
-    /// The systems' own tables (`[run.stand_in]`), by name: each is decoded
+    /// The systems' own tables (`[run.<system>]`), by name: each is decoded
     /// and checked by its system, never here.
     #[serde(skip)]
     pub systems: BTreeMap<String, toml::Table>,

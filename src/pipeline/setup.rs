@@ -48,7 +48,7 @@ pub(super) fn check_system_tables(run: &RunConfig, systems: &Systems) -> Result<
     Ok(())
 }
 
-/// Systems' tables as a config writes them: `[run.stand_in]`.
+/// Systems' tables as a config writes them: `[run.<system>]`.
 pub(super) fn tables(names: &[&str]) -> String {
     names.iter().map(|n| format!("[run.{n}]")).collect::<Vec<_>>().join(", ")
 }

@@ -200,3 +200,21 @@ fn library_variants(study: &Study<'_>) -> Result<Vec<Variant>> {
 fn mock_study(study: &Study<'_>) -> bool {
     StandInRun::of(study.run).ok().flatten().is_some_and(|s| s.mock_study())
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::pipeline::stage::StageId;
+    use crate::pipeline::Systems;
+
+    /// Its mock stage runs before every stage that reads the data, and they read it.
+    #[test]
+    fn the_mock_stage_runs_before_the_stages_that_read_the_data() {
+        let stages = crate::pipeline::plan::stages(&Systems::new(vec![&super::StandIn]));
+        let at = |id: StageId| stages.iter().position(|p| p.stage.id() == id).unwrap();
+        let mock = at(super::mock::MOCK);
+        for reader in [StageId::REFINE, StageId::CALIBRATE, StageId::DIAGNOSE] {
+            assert!(mock < at(reader), "{reader}");
+            assert!(stages[at(reader)].upstream.contains(&super::mock::MOCK), "{reader}");
+        }
+    }
+}
