@@ -131,3 +131,87 @@ impl BlockForm {
         block.fixed_factor().map_or(BlockForm::Moving, BlockForm::Fixed)
     }
 }
+
+/// One test per form: what `Form::choose` picks, and why.
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::base::artifacts::Measurement;
+    use crate::engine::calibrate::likelihood::data_covariance::{attach, test_support::*};
+    use std::path::Path;
+
+    /// `a` and `b` at `m` points each, errors 0.1, and the covariance
+    /// `entries` gives (lines numbered from 2).
+    fn with_entries(
+        m: usize,
+        entries: &[(usize, usize, usize, usize, f64)],
+    ) -> (Vec<ObservableBlock>, Vec<CrossEntry>) {
+        let names = ["a", "b"];
+        let data: Vec<Measurement> =
+            names.iter().flat_map(|o| (0..m).map(move |i| Measurement::new(o, i as f64, 1.0, 0.1))).collect();
+        let rows: Vec<_> = entries
+            .iter()
+            .enumerate()
+            .map(|(k, &(oa, xa, ob, xb, c))| entry(names[oa], xa as f64, names[ob], xb as f64, c, k + 2))
+            .collect();
+        let mut b = blocks(&data);
+        let across = attach(&mut b, &rows, &data, Path::new("cov.csv"), Path::new("data.csv")).unwrap();
+        (b, across)
+    }
+
+    /// A systematic of sd 0.05 shared by every point of both observables.
+    fn shared_systematic(m: usize) -> Vec<(usize, usize, usize, usize, f64)> {
+        let points: Vec<(usize, usize)> = (0..2).flat_map(|o| (0..m).map(move |i| (o, i))).collect();
+        let mut entries = Vec::new();
+        for (k, &(oa, xa)) in points.iter().enumerate() {
+            for &(ob, xb) in &points[..=k] {
+                entries.push((oa, xa, ob, xb, 0.0025));
+            }
+        }
+        entries
+    }
+
+    #[test]
+    fn unlinked_observables_are_independent_blocks_each_in_its_cheapest_form() {
+        // A covariance within a, none within b, nothing between them.
+        let (blocks, across) = with_entries(2, &[(0, 0, 0, 1, 0.004)]);
+        assert!(across.is_empty());
+        let form = Form::choose(&blocks, &across, BetweenObservables::Auto, &Line, None);
+        let Form::Blocks(each) = &form else { panic!("{}", form.label()) };
+        assert!(matches!(each[..], [BlockForm::Fixed(_), BlockForm::Diagonal]));
+        // With δ the covariance moves with the parameters in every block.
+        let form = Form::choose(&blocks, &across, BetweenObservables::Auto, &Line, Some(DiscrepancyKernel::KernelII));
+        let Form::Blocks(each) = &form else { panic!("{}", form.label()) };
+        assert!(matches!(each[..], [BlockForm::Moving, BlockForm::Moving]));
+        // Asked to be joint, they are one Gaussian.
+        let form = Form::choose(&blocks, &across, BetweenObservables::Joint, &Line, None);
+        assert!(form.layout().is_some(), "{}", form.label());
+    }
+
+    #[test]
+    fn a_few_points_linked_across_observables_are_one_dense_gaussian() {
+        // Below eight points a structure saves nothing: the whole covariance is factorized.
+        let (blocks, across) = with_entries(2, &[(0, 0, 1, 0, 0.003)]);
+        assert_eq!(across.len(), 1);
+        let form = Form::choose(&blocks, &across, BetweenObservables::Auto, &Line, None);
+        assert!(matches!(form, Form::Dense(_)), "{}", form.label());
+        // Told to keep them independent, the entry between them is left out.
+        let form = Form::choose(&blocks, &across, BetweenObservables::Independent, &Line, None);
+        assert!(matches!(form, Form::Blocks(_)), "{}", form.label());
+    }
+
+    #[test]
+    fn a_systematic_shared_across_observables_is_structured_at_rank_one() {
+        let (blocks, across) = with_entries(6, &shared_systematic(6));
+        let form = Form::choose(&blocks, &across, BetweenObservables::Auto, &Line, None);
+        let Form::Structured(layout, structure) = &form else { panic!("{}", form.label()) };
+        assert_eq!((layout.len(), structure.rank), (12, 1));
+        // Nothing moves without δ: factorized once. With δ, the blocks move.
+        assert!(matches!(structure.moving, Moving::Nothing(_)));
+        let form = Form::choose(&blocks, &across, BetweenObservables::Auto, &Line, Some(DiscrepancyKernel::KernelI));
+        let Some(structure) = form.structure() else { panic!("{}", form.label()) };
+        assert!(matches!(structure.moving, Moving::Blocks));
+        // The dense form of the same likelihood is its reference.
+        assert!(matches!(form.dense(), Form::Dense(_)));
+    }
+}
