@@ -6,7 +6,7 @@
 //! 15-column heavy-ion tables (`.dat`, `base::paper_table`) are read as
 //! measurements too.
 
-use super::measurement::validate_row;
+use super::measurement::validate_row_with;
 pub use super::measurement::Measurement;
 use anyhow::{anyhow, bail, Context, Result};
 use polars::prelude::*;
@@ -237,14 +237,50 @@ pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
 
 /// Measurements from a CSV or Parquet long table, each row checked.
 fn read_measurements_table(path: &Path) -> Result<Vec<Measurement>> {
+    measurements_of(path, &super::table::RawTable::read(path)?)
+}
+
+/// Measurements and their systematic sources (`base::systematics`: a CSV or
+/// Parquet table's `sys:<name>` columns, each scoped as `scopes` says); no
+/// sources for the other formats.
+pub fn read_measurements_with_sources(
+    path: &Path,
+    scopes: &std::collections::BTreeMap<String, super::systematics::Scope>,
+) -> Result<(Vec<Measurement>, Vec<super::systematics::SourcedPoint>)> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if matches!(ext.as_str(), "dat" | "yaml" | "yml") {
+        if let Some(name) = scopes.keys().next() {
+            bail!(
+                "[data] systematics: {name:?}: {} has no sys:<name> columns (a .dat or HEPData file)",
+                path.display()
+            );
+        }
+        return Ok((read_measurements(path)?, Vec::new()));
+    }
     let raw = super::table::RawTable::read(path)?;
+    let rows = measurements_of(path, &raw)?;
+    if rows.is_empty() {
+        bail!("{}: no measurements in file", path.display());
+    }
+    let sources = super::systematics::read_sources(path, &raw, &rows, scopes)?;
+    Ok((rows, sources))
+}
+
+/// The rows of a long table: `observable, x, value` and the measurement's
+/// own error, as `error` or, where the systematics are columns of their
+/// own, `stat`.
+fn measurements_of(path: &Path, raw: &super::table::RawTable) -> Result<Vec<Measurement>> {
+    if raw.has("error") && raw.has("stat") {
+        bail!("{}: columns 'error' and 'stat' both: give the measurement's own error once ('stat' beside sys:<name> columns)", path.display());
+    }
+    let error_column = if raw.has("stat") { "stat" } else { "error" };
     let expected = |e: anyhow::Error| match e.downcast::<super::error::ColumnError>() {
         Ok(missing) => missing.expecting(&["observable", "x", "value", "error"]).into(),
         Err(other) => other,
     };
     let observables = raw.strings(path, "observable").map_err(expected)?;
     let num = |name: &str| raw.numbers(path, name).map_err(expected);
-    let (x, value, error) = (num("x")?, num("value")?, num("error")?);
+    let (x, value, error) = (num("x")?, num("value")?, num(error_column)?);
     let mut out = Vec::with_capacity(raw.height());
     for i in 0..raw.height() {
         let m = Measurement {
@@ -254,7 +290,7 @@ fn read_measurements_table(path: &Path) -> Result<Vec<Measurement>> {
             error: error[i],
             line: raw.line(i),
         };
-        validate_row(path, &raw.location(i), &m)?;
+        validate_row_with(path, &raw.location(i), &m, error_column)?;
         out.push(m);
     }
     Ok(out)

@@ -13,6 +13,13 @@ pub fn f64_column(df: &DataFrame, file: &Path, name: &str) -> Result<Vec<f64>> {
     (0..df.height()).map(|i| ca.get(i).ok_or_else(|| missing_value(file, i, name))).collect()
 }
 
+/// Column `name` as numbers, a null row as `None`.
+pub fn optional_f64_column(df: &DataFrame, file: &Path, name: &str) -> Result<Vec<Option<f64>>> {
+    let c = column(df, file, name)?.cast(&DataType::Float64).map_err(|_| wrong_type(file, name, "numeric"))?;
+    let ca = c.f64()?;
+    Ok((0..df.height()).map(|i| ca.get(i)).collect())
+}
+
 /// Column `name` as strings, every row present.
 pub fn str_column(df: &DataFrame, file: &Path, name: &str) -> Result<Vec<String>> {
     let c = column(df, file, name)?;

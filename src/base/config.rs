@@ -62,6 +62,11 @@ pub struct DataConfig {
     /// correlate, observable names (`base::hepdata`).
     #[serde(default)]
     pub hepdata: super::hepdata::HepdataOptions,
+    /// How far each systematic source is correlated, by name: a table's
+    /// `sys:<name>` column or a HEPData error label (`base::systematics`):
+    /// "table" (the default), "all", or a correlation length in x's units.
+    #[serde(default)]
+    pub systematics: BTreeMap<String, super::systematics::Scope>,
 }
 
 /// How the likelihood treats correlations between observables.

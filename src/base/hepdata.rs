@@ -16,11 +16,14 @@
 //! between bins and make the measurement's error; every other label is a
 //! systematic source, correlated across the bins of its dependent variable,
 //! fully by default or as `exp(−|x − x'| / correlation_length)`, and
-//! `correlation_length = 0` makes it independent too. An asymmetric error
+//! `correlation_length = 0` makes it independent too; `[data] systematics`
+//! gives one label a scope of its own (`"all"`: shared by every table, as
+//! a luminosity is; `base::systematics`). An asymmetric error
 //! enters with the mean of its two magnitudes. Bins whose value is `null`
 //! or `-` are skipped and counted (`Record::skipped`).
 
 use super::measurement::{CovarianceEntry, Measurement};
+use super::systematics::{self, Scope, SourcedPoint};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -75,40 +78,20 @@ impl Record {
         self.points.iter().map(|p| Measurement::new(&p.observable, p.x, p.value, p.stat)).collect()
     }
 
-    /// The systematics' covariance between every two bins of one observable
-    /// (both orders, in `base::covariance`'s format), per `options`.
-    pub fn covariance(&self, options: &HepdataOptions) -> Vec<CovarianceEntry> {
-        let mut out = Vec::new();
-        let length = options.correlation_length;
-        for a in &self.points {
-            for b in self.points.iter().filter(|b| b.observable == a.observable) {
-                let rho = match length {
-                    _ if a.x == b.x => 1.0,
-                    None => 1.0,
-                    Some(l) if l > 0.0 => (-(a.x - b.x).abs() / l).exp(),
-                    Some(_) => 0.0,
-                };
-                let c: f64 = a
-                    .systematics
-                    .iter()
-                    .filter_map(|(label, ea)| {
-                        b.systematics.iter().find(|(l, _)| l == label).map(|(_, eb)| rho * ea * eb)
-                    })
-                    .sum();
-                if c != 0.0 {
-                    out.push(CovarianceEntry {
-                        observable_a: a.observable.clone(),
-                        x_a: a.x,
-                        observable_b: b.observable.clone(),
-                        x_b: b.x,
-                        covariance: c,
-                        line: 0,
-                        rounding: 0.0,
-                    });
-                }
-            }
-        }
-        out
+    /// The systematics' covariance between every two bins (both orders, in
+    /// `base::covariance`'s format): each label over the scope `scopes`
+    /// gives it, else within its observable as `options` says.
+    pub fn covariance(&self, options: &HepdataOptions, scopes: &BTreeMap<String, Scope>) -> Vec<CovarianceEntry> {
+        let default = match options.correlation_length {
+            None => Scope::Table,
+            Some(l) => Scope::Length(l),
+        };
+        let points: Vec<SourcedPoint> = self
+            .points
+            .iter()
+            .map(|p| SourcedPoint { observable: p.observable.clone(), x: p.x, systematics: p.systematics.clone() })
+            .collect();
+        systematics::covariance(&points, |label| scopes.get(label).copied().unwrap_or(default))
     }
 }
 

@@ -46,17 +46,23 @@ fn at(path: &Path, line: usize) -> String {
 
 /// A row's fields: a named observable, finite numbers, a positive error.
 pub(super) fn validate_row(path: &Path, where_: &str, m: &Measurement) -> Result<()> {
+    validate_row_with(path, where_, m, "error")
+}
+
+/// The same, the error read from the column `error_field` (`stat` beside
+/// systematics as columns).
+pub(super) fn validate_row_with(path: &Path, where_: &str, m: &Measurement, error_field: &str) -> Result<()> {
     let bad = |field: &str, problem: String| Err(FieldError::new(path, where_, field, problem).into());
     if m.observable.trim().is_empty() {
         return bad("observable", "empty observable name".into());
     }
-    for (field, v) in [("x", m.x), ("value", m.value), ("error", m.error)] {
+    for (field, v) in [("x", m.x), ("value", m.value), (error_field, m.error)] {
         if !v.is_finite() {
             return bad(field, format!("value is {v}, must be a finite number"));
         }
     }
     if m.error <= 0.0 {
-        return bad("error", format!("{} is not a positive 1-sigma error", m.error));
+        return bad(error_field, format!("{} is not a positive 1-sigma error", m.error));
     }
     Ok(())
 }

@@ -12,4 +12,5 @@ pub mod measurement;
 pub mod messages;
 pub mod paper_table;
 pub mod progress;
+pub mod systematics;
 pub mod table;

@@ -105,6 +105,25 @@ impl RawTable {
         }
     }
 
+    /// A column whose cells may be empty (CSV) or null (Parquet): `None` there.
+    pub fn optional_numbers(&self, path: &Path, name: &str) -> Result<Vec<Option<f64>>> {
+        match self {
+            RawTable::Csv { headers, rows } => {
+                let k = headers.iter().position(|h| h == name).ok_or_else(|| self.missing(path, name))?;
+                rows.iter()
+                    .map(|(line, cells)| match cells.get(k).map(String::as_str).unwrap_or("") {
+                        "" => Ok(None),
+                        s => s.parse::<f64>().map(Some).map_err(|_| {
+                            let problem = format_args!("cannot parse {s:?} as a number");
+                            FieldError::new(path, format_args!("line {line}"), name, problem).into()
+                        }),
+                    })
+                    .collect()
+            }
+            RawTable::Parquet(df) => crate::base::columns::optional_f64_column(df, path, name),
+        }
+    }
+
     pub fn strings(&self, path: &Path, name: &str) -> Result<Vec<String>> {
         match self {
             RawTable::Csv { headers, rows } => {

@@ -95,7 +95,7 @@ fn the_covariance_is_the_systematics_correlated_within_each_class() {
     for length in [None, Some(0.5), Some(0.0)] {
         let options = HepdataOptions { correlation_length: length, ..Default::default() };
         let record = hepdata::read(&path, &options).unwrap();
-        let entries = record.covariance(&options);
+        let entries = record.covariance(&options, &Default::default());
         let mut expected = std::collections::HashMap::new();
         for a in &record.points {
             for b in &record.points {

@@ -33,4 +33,5 @@ mod report;
 mod sbc;
 mod structured;
 mod structured_emulator;
+mod systematics;
 mod your_simulator;

@@ -46,6 +46,8 @@ pub struct Analysis {
     pub between_observables: BetweenObservables,
     /// How HEPData measurements are read (`[data.hepdata]`).
     pub hepdata: crate::base::hepdata::HepdataOptions,
+    /// How far each systematic source is correlated (`[data] systematics`).
+    pub systematics: BTreeMap<String, crate::base::systematics::Scope>,
     /// Observables to calibrate on; all of the model's by default.
     pub observables: Option<Vec<String>>,
 }
@@ -96,6 +98,7 @@ impl Analysis {
             covariance: config.data.covariance.as_ref().map(|c| config.resolve(c)),
             between_observables: config.data.between_observables,
             hepdata: config.data.hepdata.clone(),
+            systematics: config.data.systematics.clone(),
             observables: config.data.observables.clone(),
         })
     }

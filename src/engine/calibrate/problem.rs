@@ -10,6 +10,7 @@ use super::sampler::uniform_prior::UniformPrior;
 use crate::base::artifacts::{self, Measurement, Provenance};
 use crate::base::choices::Kernel;
 use crate::base::config::KernelInput;
+use crate::base::systematics::Scope;
 use crate::engine::gp::DiscrepancyKernel;
 use crate::engine::model::Simulator;
 use anyhow::{anyhow, bail, Context, Result};
@@ -69,6 +70,10 @@ fn hepdata_record(analysis: &Analysis, data_path: &Path) -> Result<Option<crate:
     if record.points.is_empty() {
         bail!("{}: none of its dependent variables is an observable of the model", data_path.display());
     }
+    let labels: Vec<&str> = record.points.iter().flat_map(|p| p.systematics.iter().map(|(l, _)| l.as_str())).collect();
+    if let Some(unknown) = analysis.systematics.keys().find(|n| !labels.contains(&n.as_str())) {
+        bail!("[data] systematics: {unknown:?} is not an error label of {}", data_path.display());
+    }
     if !record.skipped.is_empty() {
         crate::base::messages::note!(
             "note: {}: {} bin(s) without a value (null or '-') skipped",
@@ -84,9 +89,9 @@ impl Problem {
         let simulator = analysis.simulator.clone();
         let data_path = overrides.data.clone().unwrap_or_else(|| analysis.data.clone());
         let hepdata = hepdata_record(analysis, &data_path)?;
-        let measurements = match &hepdata {
-            Some(record) => record.measurements(),
-            None => artifacts::read_measurements(&data_path)?,
+        let (measurements, sources) = match &hepdata {
+            Some(record) => (record.measurements(), Vec::new()),
+            None => artifacts::read_measurements_with_sources(&data_path, &analysis.systematics)?,
         };
         let kernel = overrides.kernel.map_or(analysis.kernel, DiscrepancyKernel::of);
         check_observables_known(analysis, &simulator, &measurements, &data_path)?;
@@ -106,9 +111,24 @@ impl Problem {
                 b.with_kernel_input(input)
             })
             .collect();
+        let with_sources = sources.iter().any(|p| !p.systematics.is_empty());
         let across = match (&analysis.covariance, &overrides.data) {
             _ if hepdata.is_some() => {
-                let entries = hepdata.as_ref().map(|r| r.covariance(&analysis.hepdata)).unwrap_or_default();
+                let entries = hepdata
+                    .as_ref()
+                    .map(|r| r.covariance(&analysis.hepdata, &analysis.systematics))
+                    .unwrap_or_default();
+                data_covariance::attach(&mut blocks, &entries, &measurements, &data_path, &data_path)?
+            }
+            (Some(path), None) if with_sources => bail!(
+                "{}: [data] covariance ({}) with systematics as columns of {}: give one or the other",
+                analysis.config_path.display(),
+                path.display(),
+                data_path.display()
+            ),
+            _ if with_sources => {
+                let scope = |name: &str| analysis.systematics.get(name).copied().unwrap_or(Scope::Table);
+                let entries = crate::base::systematics::covariance(&sources, scope);
                 data_covariance::attach(&mut blocks, &entries, &measurements, &data_path, &data_path)?
             }
             (Some(path), None) => {
