@@ -170,9 +170,8 @@ pub enum Command {
     Run {
         /// Analysis config with a [run] table, e.g. examples/decay_counter/study.toml
         config: PathBuf,
-        /// Run only this stage: design, simulate, ingest, emulator, refine, calibrate, report,
-        /// candidates, diagnose, or a system's own (the stand-in's mock)
-        #[arg(long)]
+        /// Run only this stage (a system may add its own, as the stand-in's mock)
+        #[arg(long, value_parser = stage_names())]
         stage: Option<String>,
         /// Run the selected stages even if their inputs are unchanged
         #[arg(long)]
@@ -292,4 +291,10 @@ impl Command {
             } => simulate::ball_drop(seed, &out, k, g, v0, h0, points, t_max, &sigma),
         }
     }
+}
+
+/// `--stage`'s values: every stage a study with the command line's systems
+/// may have, their own among them (an unknown name is a usage error).
+fn stage_names() -> clap::builder::PossibleValuesParser {
+    clap::builder::PossibleValuesParser::new(crate::pipeline::stages(&super::systems()))
 }

@@ -100,6 +100,19 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     assert!(lo < 9.81 && 9.81 < hi && hi - lo < 0.2, "g in [{lo}, {hi}]");
     assert_eq!(summary["units"]["parameters"]["g"], "m/s²", "the system's units reach the fit");
     assert!(std::fs::read_to_string(out.join("mock/measurements.csv")).unwrap().lines().count() == 11);
+    // The diagnosis's emulated fit, run through the simulator at its
+    // posterior median and four draws: v = g t, which eight runs emulate
+    // well, so the simulator agrees with the emulator there.
+    let verify: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/verify.json")).unwrap()).unwrap();
+    assert_eq!((verify["fit"].as_str(), verify["checked"].as_bool()), (Some("base_md"), Some(true)), "{verify}");
+    let checked = verify["points"].as_array().unwrap();
+    assert_eq!(checked.len(), 5, "{verify}");
+    for p in checked {
+        let (sim, emu) = (p["chi2_simulator"].as_f64().unwrap(), p["chi2_emulator"].as_f64().unwrap());
+        assert!(p["points"] == 10 && sim.is_finite() && emu.is_finite(), "{p}");
+    }
+    assert!(verify["outcome"].as_str().unwrap().starts_with("consistent"), "{verify}");
     // Its probe ran after the calibrations it reads.
     let probe: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("probe.json")).unwrap()).unwrap();

@@ -4,6 +4,7 @@
 //! search for a correction when none explains a mismatch.
 
 mod variant_refine;
+mod verify;
 
 use super::{Keys, Presence, Stage, StageId};
 use crate::base::artifacts;
@@ -34,7 +35,8 @@ impl Stage for Diagnose {
         presence(study)
     }
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
-        Ok(vec![study.paths.diagnose().join("diagnosis.json"), study.paths.diagnose().join("report.html")])
+        let dir = study.paths.diagnose();
+        Ok(vec![dir.join("diagnosis.json"), dir.join("report.html"), dir.join("verify.json")])
     }
     fn settings(&self, study: &Study<'_>) -> Result<Settings> {
         Ok(Settings {
@@ -95,15 +97,17 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
             &reuse,
         )
     };
-    let analysis = study.analysis(&config)?;
+    let mut analysis = study.analysis(&config)?;
     let mut d = diagnose(&analysis)?;
     if variant_refine::refine_variants(study, &mut config, &analysis, &overrides, &d.diagnosis)? {
         crate::engine::diagnose::print(&d.diagnosis);
         artifacts::write_json_atomic(&out.join("refine").join("diagnosis_before.json"), &d.diagnosis)?;
         crate::base::messages::say!("  refined the variant emulators the verdict listed; diagnosing again");
-        d = diagnose(&study.analysis(&config)?)?;
+        analysis = study.analysis(&config)?;
+        d = diagnose(&analysis)?;
     }
     crate::engine::diagnose::print(&d.diagnosis);
+    verify::against_simulator(study, &analysis, &d.diagnosis)?;
     crate::engine::report::write(
         std::slice::from_ref(&out),
         &out.join("report.html"),
