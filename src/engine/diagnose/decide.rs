@@ -132,6 +132,7 @@ pub(super) fn decide(
         refine: Vec::new(),
         statement,
         confidence,
+        explained_share: None,
     };
     let emulator_limited = |standing: Vec<&CandidateResult>| {
         let refine = to_refine(&standing);
@@ -142,6 +143,7 @@ pub(super) fn decide(
             standing: standing.iter().map(|s| s.name.clone()).collect(),
             suggestion: None,
             refine,
+            explained_share: None,
         }
     };
     if let (None, true, Some(standing)) = (named, significant, unnamed_on_emulator(candidates, settings)) {
@@ -159,6 +161,7 @@ pub(super) fn decide(
                 standing: standing.iter().map(|s| s.name.clone()).collect(),
                 suggestion,
                 refine: Vec::new(),
+                explained_share: None,
             }
         }
         Some(c) => {
@@ -184,18 +187,28 @@ pub(super) fn decide(
                     prob(z_md),
                     z_md - z_base
                 );
-                return verdict("unexplained", statement, prob(z_md));
+                let share = explained_share(c, base);
+                let statement = statement
+                    + &share_phrase(share, c, base, " Its fit", ": a partial explanation, the rest left to δ.");
+                return Verdict { explained_share: share, ..verdict("unexplained", statement, prob(z_md)) };
             }
             let mut statement = named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch);
             statement.push_str(&same_fit_phrase(c, candidates));
-            verdict(&c.name, statement, needed)
+            let share = explained_share(c, base);
+            statement.push_str(&share_phrase(share, c, base, " It", "."));
+            Verdict { explained_share: share, ..verdict(&c.name, statement, needed) }
         }
         None if significant => {
             let w = worst
                 .map(|w| format!("{} deviates by up to {:.1}σ (at x = {:.3}); ", w.observable, w.max_sigma, w.x_at_max))
                 .unwrap_or_default();
             let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
-            verdict("unexplained", format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.", z_md - z_base), prob(z_md))
+            let share = best.and_then(|c| explained_share(c, base));
+            let partial = best
+                .map(|c| share_phrase(share, c, base, " Its fit", ": a partial explanation, the rest left to δ."))
+                .unwrap_or_default();
+            let statement = format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.{partial}", z_md - z_base);
+            Verdict { explained_share: share, ..verdict("unexplained", statement, prob(z_md)) }
         }
         None => {
             let candidates = match best {
@@ -210,6 +223,38 @@ pub(super) fn decide(
             verdict("none", statement, prob(z_base))
         }
     }
+}
+
+/// The share of the model's excess χ² (χ² over its degrees of freedom, at
+/// the fit without MD) that `c`'s fit removes, in [0, 1]; `None` when the
+/// model has no excess. The candidate's χ² is read off its χ²/dof with its
+/// own degrees of freedom (the same data, its own parameters).
+pub(super) fn explained_share(c: &CandidateResult, base: &Summary) -> Option<f64> {
+    let model = (base.fit.chi2, base.fit.dof, base.parameters.len());
+    share_of_excess(model, (c.chi2_per_dof, c.parameters.len()))
+}
+
+/// `explained_share` from the model's (χ², dof, parameters) and the
+/// candidate's (χ²/dof, parameters) over the same points.
+fn share_of_excess((chi2, dof, p): (f64, usize, usize), (chi2_per_dof, own_p): (f64, usize)) -> Option<f64> {
+    let excess = chi2 - dof as f64;
+    if !(excess > 0.0 && chi2_per_dof.is_finite()) {
+        return None;
+    }
+    let own_dof = ((dof + p) as f64 - own_p as f64).max(1.0);
+    Some(((chi2 - chi2_per_dof * own_dof) / excess).clamp(0.0, 1.0))
+}
+
+/// " It removes 85% of the model's excess χ² (χ²/dof 33.10 → 10.20)." in words.
+fn share_phrase(share: Option<f64>, c: &CandidateResult, base: &Summary, subject: &str, end: &str) -> String {
+    share.map_or_else(String::new, |s| {
+        format!(
+            "{subject} removes {:.0}% of the model's excess χ² (χ²/dof {:.2} → {:.2}){end}",
+            100.0 * s,
+            base.fit.chi2_per_dof,
+            c.chi2_per_dof
+        )
+    })
 }
 
 /// No verdict names a candidate whose explanation (every model that
@@ -262,4 +307,23 @@ pub(super) fn unnamed_on_emulator<'c>(
 /// The standing candidates whose variant emulators must be refined.
 pub(super) fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
     standing.iter().filter(|s| s.own_emulator && rests_on_emulator(s)).map(|s| s.name.clone()).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::share_of_excess;
+
+    #[test]
+    fn the_share_of_the_excess_chi2_a_candidate_removes() {
+        // 52 points, 2 parameters: χ² 150 against 50 dof, an excess of 100.
+        // A candidate with one more parameter at χ²/dof 1.4 (χ² 49 × 1.4 = 68.6) removes 81.4%.
+        let share = share_of_excess((150.0, 50, 2), (1.4, 3)).unwrap();
+        assert!((share - (150.0 - 68.6) / 100.0).abs() < 1e-12, "{share}");
+        // As good as the data allow, or better by chance: all of it; worse than the model: none.
+        assert_eq!(share_of_excess((150.0, 50, 2), (0.9, 3)), Some(1.0));
+        assert_eq!(share_of_excess((150.0, 50, 2), (3.5, 3)), Some(0.0));
+        // No excess to explain, or no fit: no share.
+        assert_eq!(share_of_excess((45.0, 50, 2), (0.8, 3)), None);
+        assert_eq!(share_of_excess((150.0, 50, 2), (f64::NAN, 3)), None);
+    }
 }

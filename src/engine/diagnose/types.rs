@@ -147,6 +147,14 @@ pub struct Verdict {
     /// as declared cannot be computed: there is no MD fit to weigh.
     #[serde(deserialize_with = "nan_if_null")]
     pub confidence: f64,
+    /// For a named candidate, and for `unexplained` when some candidate was
+    /// weighed: the share of the model's excess χ² (over its degrees of
+    /// freedom) that the named, or best, candidate's fit removes, in [0, 1].
+    /// A real candidate is itself an approximation: 0.85 says it explains
+    /// most of the mismatch and leaves the rest to δ. Absent when the model
+    /// has no excess χ².
+    #[serde(default)]
+    pub explained_share: Option<f64>,
 }
 
 impl Verdict {
@@ -161,6 +169,7 @@ impl Verdict {
             refine: Vec::new(),
             statement: String::new(),
             confidence: f64::NAN,
+            explained_share: None,
         }
     }
 
