@@ -124,5 +124,10 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     let config = study(&dir, 12);
     let again = run(&config, &options(out.clone()), &systems).unwrap();
     assert_eq!(ran(&again), all);
+    // The check of the new diagnosis ran anew: no run of the old θ, with
+    // the old times, is kept under the same ids.
+    let verify: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/verify.json")).unwrap()).unwrap();
+    assert!(verify["points"].as_array().unwrap().iter().all(|p| p["points"] == 12), "{verify}");
     let _ = std::fs::remove_dir_all(&dir);
 }

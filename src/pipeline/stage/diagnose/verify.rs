@@ -143,6 +143,12 @@ fn check(study: &Study<'_>, c: &Checked, out: &Path) -> Result<Verification> {
     let names = c.emulator.parameter_names();
     let (labels, thetas) = posterior_points(&fit.join("posterior.parquet"), &names)?;
     let dir = out.join("verify");
+    // Runs of an earlier diagnosis are at other θ under the same ids: a
+    // point's run is kept when its folder holds one, so they must go.
+    if dir.exists() {
+        crate::engine::execute::attempt::remove_after_attempts(&dir)
+            .with_context(|| format!("removing the previous check {}", dir.display()))?;
+    }
     let ids: Vec<i64> = (0..thetas.len() as i64).collect();
     let prov = provenance(study)?;
     let chosen = ChosenPoints {
