@@ -157,15 +157,17 @@ pub(crate) trait StudySystem: Sync {
 }
 
 impl Study<'_> {
-    /// SHA-256 of the config without its `[run]` table: what the calibrations
-    /// depend on beyond their stage settings and upstream keys (so declaring a
-    /// diagnose candidate does not redo them).
+    /// SHA-256 of the config without its `[run]` table and its
+    /// `[[candidates]]`: what the calibrations depend on beyond their stage
+    /// settings and upstream keys (so declaring a diagnose candidate does not
+    /// redo them; the candidates and diagnose stages key on the candidates).
     pub(super) fn analysis_hash(&self) -> Result<String> {
         let text = std::fs::read_to_string(&self.config.path)
             .with_context(|| format!("reading {}", self.config.path.display()))?;
         let mut table: toml::Table =
             toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", self.config.path.display()))?;
         table.remove("run");
+        table.remove("candidates");
         table.insert("conventions".into(), crate::engine::calibrate::analysis::CONVENTIONS.into());
         Ok(artifacts::sha256_hex(serde_json::to_string(&table)?.as_bytes()))
     }

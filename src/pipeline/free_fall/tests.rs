@@ -121,6 +121,13 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     // Unchanged, nothing reruns; its own setting that shapes the runs
     // (what it adds to the design's key) reruns the design and what follows.
     assert!(ran(&run(&config, &options(out.clone()), &systems).unwrap()).is_empty());
+    // A candidate declared (a correction of the output: nothing to run)
+    // redoes the diagnosis, not the calibrations.
+    let mut text = std::fs::read_to_string(dir.join("study.toml")).unwrap();
+    text.push_str("[[candidates]]\nname = \"drag\"\ncorrection = { v = \"v*(1 - k*x)\" }\nparameters.k = { min = 0.0, max = 0.2 }\n");
+    std::fs::write(dir.join("study.toml"), text).unwrap();
+    let with_candidate = Config::load(&dir.join("study.toml")).unwrap();
+    assert_eq!(ran(&run(&with_candidate, &options(out.clone()), &systems).unwrap()), ["diagnose"]);
     let config = study(&dir, 12);
     let again = run(&config, &options(out.clone()), &systems).unwrap();
     assert_eq!(ran(&again), all);
