@@ -45,6 +45,7 @@ pub fn build(dirs: &[PathBuf], title: &str, systems: &[&dyn SystemFigures]) -> R
             let diag: Diagnosis = serde_json::from_str(&std::fs::read_to_string(&p)?)
                 .with_context(|| format!("parsing {}", p.display()))?;
             diagnosis_section(&mut html, &diag, &runs)?;
+            simulator_check_section(&mut html, &d.join("verify.json"))?;
         }
     }
     posterior_sections(&mut html, &runs, systems)?;
@@ -63,6 +64,43 @@ pub fn build(dirs: &[PathBuf], title: &str, systems: &[&dyn SystemFigures]) -> R
     html.push_str("<script>window.addEventListener('load',function(){var s=[];document.querySelectorAll('figure svg').forEach(function(e){var r=e.getBoundingClientRect();s.push(Math.round(r.width)+'x'+Math.round(r.height));});document.body.setAttribute('data-figure-sizes',s.join(','));});</script>\n");
     html.push_str("</body></html>\n");
     Ok(html)
+}
+
+/// The diagnosis's final fit run through the simulator (`verify.json`,
+/// written by `mdpipe run`'s diagnose stage), when there is one.
+fn simulator_check_section(html: &mut String, path: &Path) -> Result<()> {
+    if !path.exists() {
+        return Ok(());
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path)?).with_context(|| format!("parsing {}", path.display()))?;
+    let text = |k: &str| html_escape(v[k].as_str().unwrap_or(""));
+    html.push_str(&format!(
+        "<h3>Checked against the simulator</h3><p>{} ({}, {}).</p>\n",
+        text("outcome"),
+        text("fit"),
+        text("model")
+    ));
+    let points = v["points"].as_array().cloned().unwrap_or_default();
+    if !points.is_empty() {
+        html.push_str(
+            "<table><tr><th>θ</th><th>χ² from the simulator</th><th>χ² from the emulator</th><th>points</th></tr>\n",
+        );
+        for p in &points {
+            html.push_str(&format!(
+                "<tr><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>{}</td></tr>\n",
+                html_escape(p["label"].as_str().unwrap_or("")),
+                p["chi2_simulator"].as_f64().unwrap_or(f64::NAN),
+                p["chi2_emulator"].as_f64().unwrap_or(f64::NAN),
+                p["points"].as_u64().unwrap_or(0)
+            ));
+        }
+        html.push_str("</table>\n");
+    }
+    for advice in v["advice"].as_array().into_iter().flatten().filter_map(|a| a.as_str()) {
+        html.push_str(&format!("<p>{}</p>\n", html_escape(advice)));
+    }
+    Ok(())
 }
 
 /// The verdict, the mismatch map, the candidates and the repair's before/after.

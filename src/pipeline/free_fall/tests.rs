@@ -113,6 +113,8 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
         assert!(p["points"] == 10 && sim.is_finite() && emu.is_finite(), "{p}");
     }
     assert!(verify["outcome"].as_str().unwrap().starts_with("consistent"), "{verify}");
+    let report = std::fs::read_to_string(out.join("diagnose/report.html")).unwrap();
+    assert!(report.contains("Checked against the simulator") && report.contains("posterior median"));
     // Its probe ran after the calibrations it reads.
     let probe: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("probe.json")).unwrap()).unwrap();

@@ -107,6 +107,7 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
         d = diagnose(&analysis)?;
     }
     crate::engine::diagnose::print(&d.diagnosis);
+    // Before the report, which shows it.
     verify::against_simulator(study, &analysis, &d.diagnosis)?;
     crate::engine::report::write(
         std::slice::from_ref(&out),
