@@ -137,3 +137,44 @@ fn bad_systematic_columns_and_scopes_are_refused_naming_the_field() {
     assert!(msg.contains("field 'stat'") && msg.contains("not a positive 1-sigma error"), "{msg}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The same table as Parquet, a source absent from one point (a null): that
+/// point's covariance loses the source's terms, and the likelihood is the
+/// CSV's with an empty cell there.
+#[test]
+fn parquet_nulls_are_points_a_source_does_not_touch() {
+    use polars::prelude::*;
+    let dir = std::env::temp_dir().join(format!("mdpipe-sys-columns-pq-{}", std::process::id()));
+    let csv = table().replacen(",0.03\n", ",\n", 1);
+    let config = write_study(&dir, &csv, "systematics = { lumi = \"all\" }");
+    let from_csv = Problem::new(&mdpipe::systems::load(&config).unwrap(), &Default::default()).unwrap();
+    let rows: Vec<Vec<String>> = csv.lines().skip(1).map(|l| l.split(',').map(String::from).collect()).collect();
+    let number = |k: usize| rows.iter().map(|r| r[k].parse::<f64>().ok()).collect::<Vec<Option<f64>>>();
+    let mut df = DataFrame::new(
+        rows.len(),
+        vec![
+            Column::new("observable".into(), rows.iter().map(|r| r[0].clone()).collect::<Vec<_>>()),
+            Column::new("x".into(), number(1)),
+            Column::new("value".into(), number(2)),
+            Column::new("stat".into(), number(3)),
+            Column::new("sys:lumi".into(), number(4)),
+            Column::new("sys:tpc".into(), number(5)),
+        ],
+    )
+    .unwrap();
+    mdpipe::artifacts::write_parquet_atomic(&dir.join("data.parquet"), &mut df, None).unwrap();
+    let text = std::fs::read_to_string(&config).unwrap().replace("data.csv", "data.parquet");
+    std::fs::write(&config, text).unwrap();
+    let from_parquet = Problem::new(&mdpipe::systems::load(&config).unwrap(), &Default::default()).unwrap();
+    for theta in [[1.0, 0.5], [0.9, 0.55]] {
+        let (a, b) = (from_csv.likelihood.log_likelihood(&theta), from_parquet.likelihood.log_likelihood(&theta));
+        assert!((a - b).abs() < 1e-12 * a.abs().max(1.0), "{a} vs {b}");
+    }
+    // Without the source at that point the likelihood differs from the full table's.
+    let full = write_study(&dir, &table(), "systematics = { lumi = \"all\" }");
+    let whole = Problem::new(&mdpipe::systems::load(&full).unwrap(), &Default::default()).unwrap();
+    assert!(
+        (whole.likelihood.log_likelihood(&[1.0, 0.5]) - from_csv.likelihood.log_likelihood(&[1.0, 0.5])).abs() > 1e-6
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
