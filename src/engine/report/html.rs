@@ -84,12 +84,19 @@ fn simulator_check_section(html: &mut String, path: &Path) -> Result<()> {
     let points = v["points"].as_array().cloned().unwrap_or_default();
     if !points.is_empty() {
         html.push_str(
-            "<table><tr><th>θ</th><th>χ² from the simulator</th><th>χ² from the emulator</th><th>points</th></tr>\n",
+            "<table><tr><th>θ</th><th>values</th><th>χ² from the simulator</th><th>χ² from the emulator</th><th>points</th></tr>\n",
         );
         for p in &points {
+            let values: Vec<String> = p["theta"]
+                .as_object()
+                .into_iter()
+                .flatten()
+                .map(|(name, v)| format!("{name} = {:.4}", v.as_f64().unwrap_or(f64::NAN)))
+                .collect();
             html.push_str(&format!(
-                "<tr><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>{}</td></tr>\n",
+                "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.1}</td><td>{}</td></tr>\n",
                 html_escape(p["label"].as_str().unwrap_or("")),
+                html_escape(&values.join(", ")),
                 p["chi2_simulator"].as_f64().unwrap_or(f64::NAN),
                 p["chi2_emulator"].as_f64().unwrap_or(f64::NAN),
                 p["points"].as_u64().unwrap_or(0)

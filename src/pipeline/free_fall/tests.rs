@@ -115,6 +115,7 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     assert!(verify["outcome"].as_str().unwrap().starts_with("consistent"), "{verify}");
     let report = std::fs::read_to_string(out.join("diagnose/report.html")).unwrap();
     assert!(report.contains("Checked against the simulator") && report.contains("posterior median"));
+    assert!(report.contains("<td>g = "), "the θ each run was made at");
     // Its probe ran after the calibrations it reads.
     let probe: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("probe.json")).unwrap()).unwrap();
