@@ -240,6 +240,7 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
         "candidates/proton_annihilation/design/design.parquet",
         "diagnose/diagnosis.json",
         "diagnose/report.html",
+        "diagnose/verify.json",
     ] {
         assert!(out.join(p).exists(), "{p} missing");
     }
@@ -287,6 +288,16 @@ fn run_executes_every_stage_then_skips_what_is_unchanged() {
     assert_eq!(names.len(), 2);
     assert!(names.contains(&"grad_shear_delta_f") && names.contains(&"proton_annihilation"));
     check_variant_refinement(&out, &diagnosis);
+    // The diagnosis's final fit was run through the stand-in (its variant's
+    // command when a variant is named): five θ, each compared at every data point.
+    let verify: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/verify.json")).unwrap()).unwrap();
+    let points = verify["points"].as_array().unwrap();
+    assert!(verify["checked"] == true && points.len() == 5, "{verify}");
+    assert!(
+        points.iter().all(|p| p["chi2_simulator"].as_f64().unwrap().is_finite() && p["points"].as_u64() > Some(0)),
+        "{verify}"
+    );
     // A declared variant whose own parameter has no prior is refused, naming the config and the field.
     let mut declared = config.clone();
     declared.model = mdpipe::emulator::EmulatorFamily::model_table(&out.join("emulator"));
