@@ -10,6 +10,9 @@
 //!
 //! The simulator's χ² counts each run's own statistical error with the
 //! data's (σ² = σ_data² + σ_run²); the emulator mean's, the data's alone.
+//! Both are diagonal: a data covariance between points is not used here,
+//! so the check compares the two at the same θ, not either with the
+//! likelihood's own χ².
 //! The fit is contradicted when, at the median, the simulator's χ² exceeds
 //! the emulator's by more than three standard deviations of a χ² over
 //! those points, 3 √(2n).
@@ -110,7 +113,9 @@ fn what_to_check(
     let name = &diagnosis.verdict.best;
     let variants: Vec<Variant> = crate::pipeline::stage::candidates::variants(study)?;
     let Some(variant) = variants.into_iter().find(|v| &v.name == name) else {
-        return Ok(Err(format!("not run: {name} corrects the emulated output, which no simulator run includes")));
+        return Ok(Err(format!(
+            "not run: {name} is not one variant of the simulator (a correction of the emulated output, or a combination of candidates), which no simulator run includes"
+        )));
     };
     let candidate = analysis
         .candidates()?
@@ -282,7 +287,10 @@ fn chi2_of_emulator(data: &[Measurement], emulator: &dyn Simulator, observables:
 
 fn outcome(points: &[CheckedPoint]) -> String {
     let Some(median) = points.first() else { return "no run of the simulator succeeded".into() };
-    let n = median.points.max(1) as f64;
+    if median.points == 0 {
+        return "not compared: the runs have no output at the data's x".into();
+    }
+    let n = median.points as f64;
     let (sim, emu) = (median.chi2_simulator / n, median.chi2_emulator / n);
     let verdict = if median.chi2_simulator > median.chi2_emulator + 3.0 * (2.0 * n).sqrt() {
         "contradicted by the simulator"
@@ -333,6 +341,7 @@ mod tests {
         assert_eq!(piled.len(), 1);
         assert!(piled[0].contains("edge of the box in activity"));
         assert_eq!(outcome(&[]), "no run of the simulator succeeded");
+        assert!(outcome(&[at_median(0.0, 0.0, 0)]).starts_with("not compared"), "nothing compared is not consistent");
     }
 
     #[test]
