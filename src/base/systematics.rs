@@ -50,7 +50,9 @@ impl<'de> serde::Deserialize<'de> for Scope {
             Written::Name(n) => Err(serde::de::Error::custom(format!(
                 "unknown scope {n:?} (use \"table\", \"all\" or a correlation length ≥ 0)"
             ))),
-            Written::Length(l) => Err(serde::de::Error::custom(format!("correlation length {l} must be ≥ 0"))),
+            Written::Length(l) => {
+                Err(serde::de::Error::custom(format!("correlation length {l} must be a finite number ≥ 0")))
+            }
         }
     }
 }
@@ -214,6 +216,8 @@ mod tests {
         let err = toml::from_str::<T>("s = { lumi = \"everything\" }").err().unwrap().to_string();
         assert!(err.contains("unknown scope \"everything\""), "{err}");
         let err = toml::from_str::<T>("s = { lumi = -1.0 }").err().unwrap().to_string();
-        assert!(err.contains("must be ≥ 0"), "{err}");
+        assert!(err.contains("must be a finite number ≥ 0"), "{err}");
+        let err = toml::from_str::<T>("s = { lumi = inf }").err().unwrap().to_string();
+        assert!(err.contains("correlation length inf must be a finite number"), "{err}");
     }
 }
