@@ -45,6 +45,11 @@ pub struct RunConfig {
     /// default, which searches when no candidate explains a mismatch.
     #[serde(default)]
     pub discover: Option<bool>,
+    /// Whether the diagnose stage runs the final emulated fit's posterior
+    /// median and a few draws through the simulator (`diagnose/verify.json`).
+    /// Off for a simulator too costly for five more runs per study.
+    #[serde(default = "default_verify")]
+    pub verify: bool,
     /// The systems' own tables (`[run.<system>]`), by name: each is decoded
     /// and checked by its system, never here.
     #[serde(skip)]
@@ -56,6 +61,9 @@ const OWN_TABLES: [&str; 2] = ["simulator", "refine"];
 
 fn default_calibration_time_limit() -> String {
     "12h".into()
+}
+fn default_verify() -> bool {
+    true
 }
 fn default_kernels() -> Vec<Kernel> {
     vec![Kernel::None, Kernel::I, Kernel::II]

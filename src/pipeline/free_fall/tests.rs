@@ -139,5 +139,16 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     let verify: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/verify.json")).unwrap()).unwrap();
     assert!(verify["points"].as_array().unwrap().iter().all(|p| p["points"] == 12), "{verify}");
+    // The check switched off: the diagnosis is made again (its key holds
+    // the switch), and nothing is run through the simulator.
+    let text = std::fs::read_to_string(dir.join("study.toml")).unwrap().replace("[run]\n", "[run]\nverify = false\n");
+    std::fs::write(dir.join("study.toml"), text).unwrap();
+    let unchecked = Config::load(&dir.join("study.toml")).unwrap();
+    assert_eq!(ran(&run(&unchecked, &options(out.clone()), &systems).unwrap()), ["diagnose"]);
+    let verify: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/verify.json")).unwrap()).unwrap();
+    assert_eq!(verify["checked"], false, "{verify}");
+    assert_eq!(verify["outcome"], "not run: [run] verify = false", "{verify}");
+    assert!(verify["points"].as_array().unwrap().is_empty(), "{verify}");
     let _ = std::fs::remove_dir_all(&dir);
 }

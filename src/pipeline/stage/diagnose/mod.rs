@@ -25,6 +25,10 @@ pub(in crate::pipeline) struct Settings {
     seed: u64,
     /// When the search runs ("always", "never", "when unexplained").
     discover: &'static str,
+    /// Whether the fit is run through the simulator (`[run] verify`); left
+    /// out of the key when on, so studies run before the switch keep theirs.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    skip_verify: bool,
 }
 
 impl Stage for Diagnose {
@@ -50,6 +54,7 @@ impl Stage for Diagnose {
                 Some(false) => "never",
                 None => "when unexplained",
             },
+            skip_verify: !study.run.verify,
         })
     }
     fn run(&self, study: &Study<'_>, _keys: &Keys<'_>) -> Result<()> {

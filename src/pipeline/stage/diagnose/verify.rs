@@ -30,6 +30,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 
+/// The outcome when `[run] verify = false`.
+const SWITCHED_OFF: &str = "not run: [run] verify = false";
+
 /// Draws run beside the posterior median.
 const DRAWS: usize = 4;
 
@@ -78,7 +81,8 @@ pub(super) fn against_simulator(
     diagnosis: &Diagnosis,
 ) -> Result<()> {
     let out = study.paths.diagnose();
-    let report = match what_to_check(study, analysis, diagnosis)? {
+    let wanted = if study.run.verify { what_to_check(study, analysis, diagnosis)? } else { Err(SWITCHED_OFF.into()) };
+    let report = match wanted {
         Err(why) => unchecked(study, diagnosis, why)?,
         // The diagnosis stands without its check: a simulator that fails
         // at every point is reported, not a reason to redo the diagnosis.
