@@ -225,8 +225,15 @@ fn local_executor_reports_failed_points_and_trains_on_the_rest() {
 }
 
 /// Whether a Slurm cluster answers with a node that takes jobs: idle, or
-/// busy with another test's (mixed, allocated, completing).
+/// busy with another test's (mixed, allocated, completing). Asked once per
+/// test run: where `sinfo` is installed without a controller it waits about
+/// half a minute before it fails, and every Slurm test would wait again.
 pub(crate) fn slurm_answers() -> bool {
+    static ANSWER: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ANSWER.get_or_init(ask_sinfo)
+}
+
+fn ask_sinfo() -> bool {
     Command::new("sinfo")
         .args(["-h", "-o", "%T"])
         .output()

@@ -88,7 +88,9 @@ fn bundled_example_names_the_dead_time() {
     // no candidate declares, which the search names (every class, and the
     // full campaign, in the second tier).
     let mut pick = first_of_each_class(3.0);
-    let rows = decay_blind(&dir, &mut |label, size| {
+    // Half the study's particles: these three verdicts ask no more of the
+    // evidence (the campaign, in the second tier, samples as the study does).
+    let rows = decay_blind(&dir, Some(1000), &mut |label, size| {
         matches!(label, "none" | "background" | "periodic_gain_of_rate") && pick(label, size)
     });
     assert_eq!(rows.len(), 3, "{rows:?}");
@@ -264,10 +266,18 @@ fn measure(dir: &Path, k: usize, effect: Effect, activity: f64, half_life: f64) 
 }
 
 /// Diagnoses blind data sets made by the simulator's own runs with the
-/// study's emulators (the study in `dir` must have run); returns (hidden
-/// effect, verdict, noise-free size) for the data sets `pick` keeps.
-fn decay_blind(dir: &Path, pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str, String, f64)> {
-    let analysis = mdpipe::pipeline::load(&dir.join("study.toml"), &mdpipe::app::systems()).unwrap();
+/// study's emulators (the study in `dir` must have run), with `particles`
+/// per replicate (None: the study's); returns (hidden effect, verdict,
+/// noise-free size) for the data sets `pick` keeps.
+fn decay_blind(
+    dir: &Path,
+    particles: Option<usize>,
+    pick: &mut dyn FnMut(&str, f64) -> bool,
+) -> Vec<(&'static str, String, f64)> {
+    let mut analysis = mdpipe::pipeline::load(&dir.join("study.toml"), &mdpipe::app::systems()).unwrap();
+    if let Some(n) = particles {
+        analysis.sampler.smc.particles = n;
+    }
     let mut rows = Vec::new();
     for k in 0..BLIND_SETS {
         let (effect, activity, half_life) = blind_case(k);
@@ -301,7 +311,7 @@ fn decay_counter_blind_test_confusion_matrix() {
     for stage in ["simulate", "ingest", "emulator", "candidates"] {
         mdpipe_run(&dir, &["--stage", stage]);
     }
-    let rows = decay_blind(&dir, &mut |_, _| true);
+    let rows = decay_blind(&dir, None, &mut |_, _| true);
     let strong = rows.iter().filter(|r| !matches!(r.0, "none" | "unexplained") && r.2 >= 3.0).count();
     assert!(strong >= 20, "only {strong} in-library effects of 3σ or more");
     let labels = [
