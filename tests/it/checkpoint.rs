@@ -103,26 +103,6 @@ fn calibrate_ensemble_time_limit_stops_and_the_same_command_resumes() {
     time_limit_stops_and_resumes(&["--sampler", "ensemble"]);
 }
 
-/// The ball drop's config with a smaller sampler (a quarter of its SMC
-/// particles, a tenth of its ensemble's steps): what is checked is that a
-/// stopped run resumes to the same draws, which does not need the
-/// configured precision.
-fn small_ball_drop(dir: &Path) -> std::path::PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let data = root.join("pipeline/ball_drop_data.csv");
-    let text = std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap();
-    let small = text
-        .replace("measurements = \"ball_drop_data.csv\"", &format!("measurements = {:?}", data.display().to_string()))
-        .replace("particles = 2000", "particles = 500")
-        .replace("steps = 40000", "steps = 4000")
-        .replace("burn = 10000", "burn = 1000");
-    assert!(small.contains("particles = 500") && small.contains("steps = 4000") && small.contains("burn = 1000"));
-    std::fs::create_dir_all(dir).unwrap();
-    let path = dir.join("ball_drop.toml");
-    std::fs::write(&path, small).unwrap();
-    path
-}
-
 /// `mdpipe calibrate --time-limit 0` (with `sampler`'s options) stops after
 /// its first step with the state saved; the same command without the limit
 /// resumes and ends with the draws of a run never stopped.
@@ -130,7 +110,9 @@ fn time_limit_stops_and_resumes(sampler: &[&str]) {
     let tag = sampler.last().unwrap_or(&"smc").to_string();
     let out = std::env::temp_dir().join(format!("mdpipe-time-limit-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let config = small_ball_drop(&out.with_extension("config"));
+    let config_dir = out.with_extension("config");
+    std::fs::create_dir_all(&config_dir).unwrap();
+    let config = crate::common::small_ball_drop(&config_dir);
     let cmd = |extra: &[&str], dir: &Path| {
         let c = config.display().to_string();
         let mut args = vec!["calibrate", c.as_str(), "--kernel", "II", "--seed", "4", "--out"];

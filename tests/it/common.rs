@@ -172,3 +172,25 @@ extern "C" fn say_what_was_skipped() {
         }
     }
 }
+
+/// The ball drop's config in `dir`, its data found where they are, with a
+/// sampler small enough to run in seconds (300 SMC particles in 2
+/// replicates without adaptation, an ensemble of 4000 steps after 1000 of
+/// burn-in): for tests of what a run does, not of its precision.
+pub fn small_ball_drop(dir: &std::path::Path) -> std::path::PathBuf {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("pipeline/ball_drop.toml")).unwrap();
+    let small = text
+        .replace("\"ball_drop_data.csv\"", &format!("{:?}", root.join("pipeline/ball_drop_data.csv")))
+        .replace("particles = 2000", "particles = 300")
+        .replace("kind = \"smc\"", "kind = \"smc\"\nadapt = false")
+        .replace("replicates = 4", "replicates = 2")
+        .replace("steps = 40000", "steps = 4000")
+        .replace("burn = 10000", "burn = 1000");
+    for setting in ["particles = 300", "adapt = false", "replicates = 2", "steps = 4000", "burn = 1000"] {
+        assert!(small.contains(setting), "pipeline/ball_drop.toml no longer has the line this replaces for {setting}");
+    }
+    let path = dir.join("ball_drop_small.toml");
+    std::fs::write(&path, small).unwrap();
+    path
+}

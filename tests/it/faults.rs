@@ -258,20 +258,6 @@ fn run_killed_once_resumes_to_the_same_outputs() {
     assert_same_outputs(&reference, &out);
 }
 
-/// A ball-drop calibration small enough to run in seconds.
-fn small_calibration_config(dir: &Path) -> PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let text = std::fs::read_to_string(root.join("pipeline/ball_drop.toml"))
-        .unwrap()
-        .replace("\"ball_drop_data.csv\"", &format!("{:?}", root.join("pipeline/ball_drop_data.csv")))
-        .replace("particles = 2000", "particles = 300")
-        .replace("kind = \"smc\"", "kind = \"smc\"\nadapt = false")
-        .replace("replicates = 4", "replicates = 2");
-    let path = dir.join("ball_drop_small.toml");
-    std::fs::write(&path, text).unwrap();
-    path
-}
-
 /// Every file below `dir` by relative path, with its bytes.
 fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<PathBuf, Vec<u8>>) {
@@ -297,7 +283,7 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
 #[test]
 fn full_disk_and_read_only_output_folder_keep_previous_artifacts() {
     let dir = tmpdir("disk");
-    let config = small_calibration_config(&dir);
+    let config = crate::common::small_ball_drop(&dir);
     let mnt = dir.join("mnt");
     std::fs::create_dir_all(&mnt).unwrap();
     let bin = env!("CARGO_BIN_EXE_mdpipe");
