@@ -373,7 +373,7 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
         0.0
     };
     let (na, np) = (q.azimuth, q.momentum_azimuth);
-    // Momentum-azimuth tables: the inner loop then needs one exp per point.
+    // Momentum-azimuth tables: the inner loop then needs no trigonometry.
     let tau = 2.0 * std::f64::consts::PI;
     let trig: Vec<(f64, f64, f64, f64)> = (0..np)
         .map(|ip| {
@@ -382,6 +382,9 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
         })
         .collect();
     let (mut n0, mut c2, mut c3) = (0.0, 0.0, 0.0);
+    // exp(−E*/T) = exp(−mT cosh ρ cosh η_s / T) · exp(pT sinh ρ cos(φp − φb) / T):
+    // the second factor, per momentum azimuth, is shared by every η_s.
+    let mut transverse = vec![0.0; np];
     for &(u, wu) in &q.radial {
         let r = u * fo.radius;
         for ia in 0..na {
@@ -407,14 +410,23 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
             };
             let third = (theta_z + theta_r + theta_phi) / 3.0;
             let (sig_z, sig_r, sig_phi) = (theta_z - third, theta_r - third, theta_phi - third);
+            let b = pt * sh;
+            // Split only where the transverse factor cannot overflow (E* > 0 bounds the product).
+            let split = b / t_kin < 700.0;
+            if split {
+                for (g, &(cp, sp, _, _)) in transverse.iter_mut().zip(&trig) {
+                    *g = (b * (cp * cos_phi + sp * sin_phi) / t_kin).exp();
+                }
+            }
             for &(eta, we) in &q.rapidity {
                 let (che, she) = (eta.cosh(), eta.sinh());
                 let pz_star2 = (mt * she) * (mt * she);
-                let (a, b) = (mt * ch * che, pt * sh);
+                let a = mt * ch * che;
+                let longitudinal = (-a / t_kin).exp();
                 let w0 = wu * r * shape.radius * shape.radius * we * mt * che;
-                for &(cp, sp, c2p, c3p) in &trig {
+                for (&(cp, sp, c2p, c3p), &g) in trig.iter().zip(&transverse) {
                     let e_star = a - b * (cp * cos_phi + sp * sin_phi);
-                    let mut f = (-e_star / t_kin).exp();
+                    let mut f = if split { longitudinal * g } else { (-e_star / t_kin).exp() };
                     if df_coeff != 0.0 {
                         let p_r = pt * (cp * cos_phi + sp * sin_phi);
                         let p_phi = pt * (sp * cos_phi - cp * sin_phi);
