@@ -382,8 +382,11 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
         })
         .collect();
     let (mut n0, mut c2, mut c3) = (0.0, 0.0, 0.0);
-    // exp(−E*/T) = exp(−mT cosh ρ cosh η_s / T) · exp(pT sinh ρ cos(φp − φb) / T):
-    // the second factor, per momentum azimuth, is shared by every η_s.
+    // With a = mT cosh ρ cosh η_s, b = pT sinh ρ and c = cos(φp − φb),
+    // exp(−E*/T) = exp(−(a − b c)/T) = exp(−(a − b)/T) · exp(−b (1 − c)/T):
+    // the second factor, per momentum azimuth, is shared by every η_s. Both
+    // exponents are ≤ 0 (a ≥ mT cosh ρ ≥ b), so neither factor overflows,
+    // and one underflows only where the whole does.
     let mut transverse = vec![0.0; np];
     for &(u, wu) in &q.radial {
         let r = u * fo.radius;
@@ -411,22 +414,17 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
             let third = (theta_z + theta_r + theta_phi) / 3.0;
             let (sig_z, sig_r, sig_phi) = (theta_z - third, theta_r - third, theta_phi - third);
             let b = pt * sh;
-            // Split only where the transverse factor cannot overflow (E* > 0 bounds the product).
-            let split = b / t_kin < 700.0;
-            if split {
-                for (g, &(cp, sp, _, _)) in transverse.iter_mut().zip(&trig) {
-                    *g = (b * (cp * cos_phi + sp * sin_phi) / t_kin).exp();
-                }
+            for (g, &(cp, sp, _, _)) in transverse.iter_mut().zip(&trig) {
+                *g = (-b * (1.0 - (cp * cos_phi + sp * sin_phi)) / t_kin).exp();
             }
             for &(eta, we) in &q.rapidity {
                 let (che, she) = (eta.cosh(), eta.sinh());
                 let pz_star2 = (mt * she) * (mt * she);
                 let a = mt * ch * che;
-                let longitudinal = (-a / t_kin).exp();
+                let longitudinal = (-(a - b) / t_kin).exp();
                 let w0 = wu * r * shape.radius * shape.radius * we * mt * che;
                 for (&(cp, sp, c2p, c3p), &g) in trig.iter().zip(&transverse) {
-                    let e_star = a - b * (cp * cos_phi + sp * sin_phi);
-                    let mut f = if split { longitudinal * g } else { (-e_star / t_kin).exp() };
+                    let mut f = longitudinal * g;
                     if df_coeff != 0.0 {
                         let p_r = pt * (cp * cos_phi + sp * sin_phi);
                         let p_phi = pt * (sp * cos_phi - cp * sin_phi);
@@ -435,6 +433,7 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
                             1.0 + df_coeff * (sig_r * p_r_star * p_r_star + sig_phi * p_phi * p_phi + sig_z * pz_star2);
                     }
                     if bulk_coeff != 0.0 {
+                        let e_star = a - b * (cp * cos_phi + sp * sin_phi);
                         // Floored at 0 like every regulated δf (only reached where f0 is negligible).
                         f *= (1.0 + bulk_coeff * ((e_star * e_star - m * m) / (3.0 * e_star) - SOUND_SPEED2 * e_star))
                             .max(0.0);
