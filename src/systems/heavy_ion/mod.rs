@@ -383,10 +383,11 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
         .collect();
     let (mut n0, mut c2, mut c3) = (0.0, 0.0, 0.0);
     // With a = mT cosh ρ cosh η_s, b = pT sinh ρ and c = cos(φp − φb),
-    // exp(−E*/T) = exp(−(a − b c)/T) = exp(−(a − b)/T) · exp(−b (1 − c)/T):
+    // exp(−E*/T) = exp(−(a − b c)/T) = exp(−(a − |b|)/T) · exp(−(|b| − b c)/T):
     // the second factor, per momentum azimuth, is shared by every η_s. Both
-    // exponents are ≤ 0 (a ≥ mT cosh ρ ≥ b), so neither factor overflows,
-    // and one underflows only where the whole does.
+    // exponents are ≤ 0 (a ≥ mT cosh ρ ≥ |b|, and |c| ≤ 1), whatever the
+    // sign of ρ (a short τ_f makes ρ_max negative), so neither factor
+    // overflows, and one underflows only where the whole does.
     let mut transverse = vec![0.0; np];
     for &(u, wu) in &q.radial {
         let r = u * fo.radius;
@@ -415,13 +416,13 @@ pub fn yield_and_flow(fo: &FreezeOut, species: &Species, pt: f64, delta_f: Delta
             let (sig_z, sig_r, sig_phi) = (theta_z - third, theta_r - third, theta_phi - third);
             let b = pt * sh;
             for (g, &(cp, sp, _, _)) in transverse.iter_mut().zip(&trig) {
-                *g = (-b * (1.0 - (cp * cos_phi + sp * sin_phi)) / t_kin).exp();
+                *g = (-(b.abs() - b * (cp * cos_phi + sp * sin_phi)) / t_kin).exp();
             }
             for &(eta, we) in &q.rapidity {
                 let (che, she) = (eta.cosh(), eta.sinh());
                 let pz_star2 = (mt * she) * (mt * she);
                 let a = mt * ch * che;
-                let longitudinal = (-(a - b) / t_kin).exp();
+                let longitudinal = (-(a - b.abs()) / t_kin).exp();
                 let w0 = wu * r * shape.radius * shape.radius * we * mt * che;
                 for (&(cp, sp, c2p, c3p), &g) in trig.iter().zip(&transverse) {
                     let mut f = longitudinal * g;
