@@ -42,6 +42,13 @@ pub struct Config {
     /// SHA-256 of the file's bytes, for provenance.
     #[serde(skip)]
     pub hash: String,
+    /// SHA-256 of what a fit can depend on: the file less `[run]` (how a
+    /// study is run; the observables, kernels and data it picks enter a
+    /// fit's key by themselves) and `[[candidates]]` (each candidate's
+    /// fits key on its own model and prior). A candidate added, or
+    /// `[run] verify` switched, leaves the other fits' keys as they were.
+    #[serde(skip)]
+    pub fit_hash: String,
 }
 
 #[derive(Clone, Debug, serde::Deserialize)]
@@ -191,6 +198,14 @@ impl Default for PredictionConfig {
     }
 }
 
+/// The hash of `text` as a table, without the tables that cannot change a fit.
+fn fit_hash(text: &str) -> std::result::Result<String, toml::de::Error> {
+    let mut table: toml::Table = toml::from_str(text)?;
+    table.remove("run");
+    table.remove("candidates");
+    Ok(crate::base::artifacts::sha256_hex(table.to_string().as_bytes()))
+}
+
 impl Config {
     pub fn load(path: &Path) -> Result<Config> {
         let bytes = std::fs::read(path).with_context(|| format!("reading config {}", path.display()))?;
@@ -198,6 +213,7 @@ impl Config {
         let mut cfg: Config = toml::from_str(&text).map_err(|e| ConfigError::new(path, "", e))?;
         cfg.path = path.to_path_buf();
         cfg.hash = crate::base::artifacts::sha256_hex(&bytes);
+        cfg.fit_hash = fit_hash(&text).map_err(|e| ConfigError::new(path, "", e))?;
         cfg.validate()?;
         Ok(cfg)
     }

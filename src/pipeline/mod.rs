@@ -31,11 +31,13 @@
 //! settings and upstream keys, and whose outputs exist, is skipped. Within
 //! the calibrate stage each case is stamped too
 //! (`OUT/stages/calibrate/<case>.json`), so an interrupted stage resumes
-//! with the cases it had not finished.
+//! with the cases it had not finished. One run writes a folder at a time
+//! (`lock`): a second run into it stops and names the first.
 
 mod complete;
 #[cfg(test)]
 mod free_fall;
+mod lock;
 mod plan;
 mod points;
 mod run_config;
@@ -91,6 +93,8 @@ pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<
     variants::check_priors_inside_design(config, &spec).with_context(|| format!("{}", config.path.display()))?;
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
+    // Held to the end of the run; a calibrate array task is covered by the run that submitted it.
+    let _lock = opts.case.is_none().then(|| lock::take(&opts.out)).transpose()?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
     // Absolute from here on: declarations written for later stages (a variant's
     // emulator folder) are resolved against the config's folder, not the cwd.

@@ -66,6 +66,10 @@ impl RunPaths {
     pub fn diagnose(&self) -> PathBuf {
         self.out.join("diagnose")
     }
+    /// Results of earlier settings, kept when a stage ran again (`<stage>-<key>/`).
+    pub fn previous(&self) -> PathBuf {
+        self.out.join("previous")
+    }
     pub(super) fn stamp(&self, stage: &str) -> PathBuf {
         self.out.join("stages").join(format!("{stage}.json"))
     }

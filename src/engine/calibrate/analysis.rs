@@ -22,6 +22,9 @@ pub struct Analysis {
     pub name: String,
     /// SHA-256 of the config file, for provenance.
     pub config_hash: String,
+    /// SHA-256 of the config's tables a fit can depend on (`Config::fit_hash`):
+    /// what a stored fit's key holds of the config.
+    pub fit_config_hash: String,
     pub config_path: PathBuf,
     /// What the model's family read from `[model]`.
     pub setup: Arc<dyn ModelSetup>,
@@ -83,6 +86,7 @@ impl Analysis {
         Ok(Analysis {
             name: config.name.clone(),
             config_hash: config.hash.clone(),
+            fit_config_hash: config.fit_hash.clone(),
             config_path: config.path.clone(),
             setup,
             simulator,

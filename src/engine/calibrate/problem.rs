@@ -250,9 +250,19 @@ fn prior_of(analysis: &Analysis, likelihood: &MdLikelihood) -> Result<UniformPri
 /// Identifies a calibration for its checkpoints: config, data, kernel,
 /// observables, prior, sampler settings and seed.
 pub fn checkpoint_key(problem: &Problem, seed: u64) -> String {
+    key_of(problem, seed, &problem.analysis.config_hash)
+}
+
+/// As `checkpoint_key` without the seed, and with only the config's tables
+/// a fit can depend on: what a stored fit of this problem is found by.
+pub fn fit_key(problem: &Problem) -> String {
+    key_of(problem, 0, &problem.analysis.fit_config_hash)
+}
+
+fn key_of(problem: &Problem, seed: u64, config_hash: &str) -> String {
     let material = format!(
         "{}|{}|{seed}|{}|{:?}|{:?}|{:?}|{:?}|{:?}|{:?}",
-        problem.analysis.config_hash,
+        config_hash,
         artifacts::measurements_hash(&problem.measurements),
         DiscrepancyKernel::label(problem.likelihood.kernel),
         problem.observables(),

@@ -10,6 +10,10 @@ use crate::base::config::Config;
 use crate::pipeline::{run, RunOptions, StandIn, Systems};
 use std::path::{Path, PathBuf};
 
+/// A candidate that corrects the output: nothing to run.
+const DRAG: &str =
+    "[[candidates]]\nname = \"drag\"\ncorrection = { v = \"v*(1 - k*x)\" }\nparameters.k = { min = 0.0, max = 0.2 }\n";
+
 fn study(dir: &Path, samples: usize) -> Config {
     std::fs::write(
         dir.join("design.toml"),
@@ -127,7 +131,7 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     // A candidate declared (a correction of the output: nothing to run)
     // redoes the diagnosis, not the calibrations.
     let mut text = std::fs::read_to_string(dir.join("study.toml")).unwrap();
-    text.push_str("[[candidates]]\nname = \"drag\"\ncorrection = { v = \"v*(1 - k*x)\" }\nparameters.k = { min = 0.0, max = 0.2 }\n");
+    text.push_str(DRAG);
     std::fs::write(dir.join("study.toml"), text).unwrap();
     let with_candidate = Config::load(&dir.join("study.toml")).unwrap();
     assert_eq!(ran(&run(&with_candidate, &options(out.clone()), &systems).unwrap()), ["diagnose"]);
@@ -150,5 +154,36 @@ fn a_second_system_plugs_in_with_its_folder_and_one_line() {
     assert_eq!(verify["checked"], false, "{verify}");
     assert_eq!(verify["outcome"], "not run: [run] verify = false", "{verify}");
     assert!(verify["points"].as_array().unwrap().is_empty(), "{verify}");
+    // The candidate declared again, then the check switched back on: two
+    // more diagnoses, the second taking the first's fit of the candidate.
+    let edits: [fn(String) -> String; 2] = [|t| t + DRAG, |t| t.replace("verify = false\n", "")];
+    for edit in edits {
+        let text = edit(std::fs::read_to_string(dir.join("study.toml")).unwrap());
+        std::fs::write(dir.join("study.toml"), text).unwrap();
+        let edited = Config::load(&dir.join("study.toml")).unwrap();
+        assert_eq!(ran(&run(&edited, &options(out.clone()), &systems).unwrap()), ["diagnose"]);
+    }
+    kept_diagnoses_hold_their_fits(&out);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Each diagnosis a rerun under other settings replaced is kept in
+/// `previous/`, with the stamp of how it was made; the last one's fit of
+/// the candidate (its problem unchanged by the switch) is taken, not
+/// sampled again: the same fit, down to its wall time.
+fn kept_diagnoses_hold_their_fits(out: &std::path::Path) {
+    let kept: Vec<_> = std::fs::read_dir(out.join("previous")).unwrap().map(|e| e.unwrap().path()).collect();
+    assert_eq!(kept.len(), 5, "one per diagnosis replaced: {kept:?}");
+    for k in &kept {
+        assert!(k.join("diagnosis.json").is_file() && k.join("stage.json").is_file(), "{}", k.display());
+    }
+    let wall = |fit: &std::path::Path| -> f64 {
+        let s: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(fit.join("summary.json")).unwrap()).unwrap();
+        s["diagnostics"]["wall_seconds"].as_f64().unwrap()
+    };
+    let now = wall(&out.join("diagnose/candidate_drag"));
+    let before: Vec<f64> =
+        kept.iter().map(|k| k.join("candidate_drag")).filter(|f| f.is_dir()).map(|f| wall(&f)).collect();
+    assert!(before.contains(&now), "the candidate was sampled again ({now} s; kept fits {before:?})");
 }

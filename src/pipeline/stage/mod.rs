@@ -49,6 +49,12 @@ pub(in crate::pipeline) trait Stage: Sync {
     }
     /// What it leaves: the stage reruns when one of them is missing.
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>>;
+    /// A folder of results a person reads and compares (a diagnosis): when
+    /// the stage runs again with other settings, the folder the last
+    /// settings made is kept under `OUT/previous/` rather than overwritten.
+    fn kept_when_rerun(&self, _study: &Study<'_>) -> Option<PathBuf> {
+        None
+    }
     fn settings(&self, study: &Study<'_>) -> Result<Self::Settings>;
     fn run(&self, study: &Study<'_>, keys: &Keys<'_>) -> Result<()>;
 }
@@ -59,6 +65,7 @@ pub(crate) trait AnyStage: Sync {
     fn upstream(&self) -> &'static [StageId];
     fn present(&self, study: &Study<'_>) -> Result<Presence>;
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>>;
+    fn kept_when_rerun(&self, study: &Study<'_>) -> Option<PathBuf>;
     fn settings_value(&self, study: &Study<'_>) -> Result<serde_json::Value>;
     fn run(&self, study: &Study<'_>, keys: &Keys<'_>) -> Result<()>;
 }
@@ -75,6 +82,9 @@ impl<S: Stage> AnyStage for S {
     }
     fn outputs(&self, study: &Study<'_>) -> Result<Vec<PathBuf>> {
         Stage::outputs(self, study)
+    }
+    fn kept_when_rerun(&self, study: &Study<'_>) -> Option<PathBuf> {
+        Stage::kept_when_rerun(self, study)
     }
     fn settings_value(&self, study: &Study<'_>) -> Result<serde_json::Value> {
         Ok(serde_json::to_value(Stage::settings(self, study)?)?)
@@ -170,6 +180,9 @@ impl StageLoop {
             self.keys.insert(name.into(), done.downstream_key());
             return Ok(());
         }
+        if let Some(folder) = stage.kept_when_rerun(study) {
+            keep_previous(paths, name, &key, &folder)?;
+        }
         crate::base::messages::say!("[{name}] running");
         let start = std::time::Instant::now();
         stage
@@ -225,6 +238,29 @@ impl StageLoop {
         }
         Ok(artifacts::sha256_hex(material.to_string().as_bytes()))
     }
+}
+
+/// Moves `folder`, made by the stage's last run under other settings than
+/// `key`, to `OUT/previous/<stage>-<its key>/` with the stamp that says how
+/// it was made. The stamp is removed with it: a run stopped part way then
+/// leaves its partial folder unclaimed, never filed under the old settings.
+fn keep_previous(paths: &super::RunPaths, name: &str, key: &str, folder: &Path) -> Result<()> {
+    let stamp_path = paths.stamp(name);
+    let Some(old) = read_stamp(&stamp_path).filter(|s| s.key != key) else { return Ok(()) };
+    if !folder.is_dir() {
+        return Ok(());
+    }
+    let kept = paths.previous().join(format!("{name}-{}", &old.key[..old.key.len().min(12)]));
+    if kept.exists() {
+        // The same settings' results again: the stage reproduces them.
+        std::fs::remove_dir_all(&kept).with_context(|| format!("removing {}", kept.display()))?;
+    }
+    std::fs::create_dir_all(paths.previous())?;
+    std::fs::rename(folder, &kept).with_context(|| format!("moving {} to {}", folder.display(), kept.display()))?;
+    artifacts::write_json_atomic(&kept.join("stage.json"), &old)?;
+    std::fs::remove_file(&stamp_path).with_context(|| format!("removing {}", stamp_path.display()))?;
+    crate::base::messages::say!("[{name}] the last results, of other settings, are kept in {}", kept.display());
+    Ok(())
 }
 
 pub(in crate::pipeline) fn read_stamp(path: &Path) -> Option<Stamp> {

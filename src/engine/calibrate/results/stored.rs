@@ -5,7 +5,8 @@
 //! observables, prior, sampler settings, the data's covariance) and of its
 //! model's answers at probe points (every prediction and, for an emulator,
 //! its covariance, bit for bit: a retrained emulator answers differently at
-//! every θ). Not the seed. A study fits some problems in more than one stage
+//! every θ). Not the seed, nor the config's `[run]` and `[[candidates]]`
+//! tables (`Config::fit_hash`). A study fits some problems in more than one stage
 //! (the last adaptive-design round's pilots are two of the calibrate stage's
 //! cases; diagnose's base fits are two more): a stage may take a stored fit
 //! with the same key instead of sampling the same posterior again with
@@ -15,7 +16,7 @@ use super::summary::{PredictionRow, Summary};
 use super::Calibration;
 use crate::base::artifacts;
 use crate::base::columns::{f64_column, str_column};
-use crate::engine::calibrate::problem::{checkpoint_key, Problem};
+use crate::engine::calibrate::problem::{fit_key, Problem};
 use crate::engine::calibrate::sampler::chains::Chains;
 use crate::engine::model::Simulator;
 use anyhow::{Context, Result};
@@ -23,9 +24,10 @@ use std::path::{Path, PathBuf};
 
 pub const KEY_FILE: &str = "fit.key";
 
-/// The problem's key: its checkpoint key without the seed, and its model's digest.
+/// The problem's key: its fit key (the checkpoint key without the seed, of
+/// the config's tables a fit can depend on), and its model's digest.
 pub fn problem_key(problem: &Problem) -> String {
-    let material = format!("{}|{}", checkpoint_key(problem, 0), model_digest(problem));
+    let material = format!("{}|{}", fit_key(problem), model_digest(problem));
     artifacts::sha256_hex(material.as_bytes())
 }
 

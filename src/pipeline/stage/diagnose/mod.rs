@@ -42,6 +42,9 @@ impl Stage for Diagnose {
         let dir = study.paths.diagnose();
         Ok(vec![dir.join("diagnosis.json"), dir.join("report.html"), dir.join("verify.json")])
     }
+    fn kept_when_rerun(&self, study: &Study<'_>) -> Option<PathBuf> {
+        Some(study.paths.diagnose())
+    }
     fn settings(&self, study: &Study<'_>) -> Result<Settings> {
         Ok(Settings {
             config: study.config.hash.clone(),
@@ -85,8 +88,10 @@ fn diagnose(study: &Study<'_>) -> Result<()> {
     };
     let seed = study.opts.seed.wrapping_add(77);
     // The base fits are two of the calibrate stage's cases; the diagnosis
-    // after refinement takes the fits whose problems did not change.
-    let stored = [study.paths.calibrate(), super::refine::report::refine_dir(study)]
+    // after refinement takes the fits whose problems did not change, and so
+    // does a diagnosis under new settings (a candidate added) from the last
+    // one's, kept in previous/: each fit is taken only for its own problem.
+    let stored = [study.paths.calibrate(), super::refine::report::refine_dir(study), study.paths.previous()]
         .iter()
         .flat_map(|d| study.stored_fits(d))
         .collect();

@@ -1,0 +1,114 @@
+//! One `mdpipe run` writes an output folder at a time. Two runs into one
+//! folder (a second terminal, a batch job resubmitted while the first still
+//! runs) would interleave their stamps and overwrite each other's stages, so
+//! the second stops at once and names the first.
+//!
+//! The lock is the operating system's advisory lock (`flock`) on
+//! `OUT/.mdpipe-run.lock`: the kernel drops it with the process, so a run
+//! that is killed leaves no stale lock and the next run resumes as before.
+//! The file's text says who holds it. A calibrate array task (`--case`)
+//! writes only its own case and takes no lock: the run that submitted the
+//! array holds it. On a file system without locks the run goes on unlocked,
+//! as it did before there were locks, rather than refusing to run at all.
+
+use anyhow::{bail, Context, Result};
+use std::fs::{File, OpenOptions, TryLockError};
+use std::io::{Read, Seek, Write};
+use std::path::Path;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// The lock's file name in the output folder.
+pub(super) const LOCK_FILE: &str = ".mdpipe-run.lock";
+
+/// Held while a run writes its output folder; released when dropped.
+pub(super) struct RunLock {
+    _file: Option<File>,
+}
+
+/// Takes the lock on `out`, or says which run holds it.
+pub(super) fn take(out: &Path) -> Result<RunLock> {
+    let path = out.join(LOCK_FILE);
+    let mut file = OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .with_context(|| format!("opening {}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => {
+            // Who holds it, then when it started (unix seconds, for its age).
+            let holder = format!(
+                "pid {} on {}: {}
+{}
+",
+                std::process::id(),
+                host(),
+                command(),
+                now()
+            );
+            file.set_len(0)?;
+            file.rewind()?;
+            file.write_all(holder.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
+            Ok(RunLock { _file: Some(file) })
+        }
+        Err(TryLockError::WouldBlock) => {
+            let mut text = String::new();
+            let _ = file.read_to_string(&mut text);
+            bail!(
+                "{}: another `mdpipe run` is writing this folder ({}); wait for it to end, or give this run another --out",
+                out.display(),
+                describe(&text)
+            )
+        }
+        // No advisory locks here (some network file systems): run unlocked.
+        Err(TryLockError::Error(_)) => Ok(RunLock { _file: None }),
+    }
+}
+
+/// The holder with its age in seconds, as a person reads it.
+fn describe(holder: &str) -> String {
+    let mut lines = holder.lines();
+    let who = lines.next().unwrap_or("").trim();
+    match (who, lines.next().and_then(|t| t.trim().parse::<u64>().ok())) {
+        ("", _) => "its holder is still starting".to_string(),
+        (who, Some(t)) => format!("{who}; running for {} s", now().saturating_sub(t)),
+        (who, None) => who.to_string(),
+    }
+}
+
+fn host() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::env::var("HOSTNAME"))
+        .map(|h| h.trim().to_string())
+        .unwrap_or_else(|_| "an unknown host".to_string())
+}
+
+fn now() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0)
+}
+
+fn command() -> String {
+    std::env::args().collect::<Vec<_>>().join(" ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_second_run_into_a_held_folder_stops_naming_the_first_and_may_go_once_it_ends() {
+        let dir = std::env::temp_dir().join(format!("mdpipe-lock-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = take(&dir).unwrap();
+        // A lock is held per open file, so a second open in this process stands for a second run.
+        let err = take(&dir).err().expect("a second run into a held folder must stop").to_string();
+        assert!(err.contains("another `mdpipe run` is writing this folder"), "{err}");
+        assert!(err.contains(&format!("pid {}", std::process::id())) && err.contains("running for"), "{err}");
+        drop(first);
+        let again = take(&dir);
+        assert!(again.is_ok(), "the folder stays locked after its run ended");
+        drop(again);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
