@@ -187,3 +187,44 @@ fn kept_diagnoses_hold_their_fits(out: &std::path::Path) {
         kept.iter().map(|k| k.join("candidate_drag")).filter(|f| f.is_dir()).map(|f| wall(&f)).collect();
     assert!(before.contains(&now), "the candidate was sampled again ({now} s; kept fits {before:?})");
 }
+
+/// The simulator a study ran, changed since its runs (a user's fix, a new
+/// build): the emulator still answers for the old one, and the diagnosis's
+/// check against the simulator says the fit is contradicted. The free fall
+/// runs through a script of the user's, `[run.simulator]`, whose factor on
+/// v = g t lives in a file beside it; the command's text, and so every
+/// stage's key, stays the same.
+#[test]
+fn a_simulator_changed_since_its_runs_contradicts_the_emulated_fit() {
+    let dir = std::env::temp_dir().join(format!("mdpipe-free-fall-changed-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    study(&dir, 10);
+    std::fs::write(
+        dir.join("sim.sh"),
+        "f=$(cat \"$(dirname \"$0\")/factor\")\nmkdir -p \"$2\" && awk -v g=\"$1\" -v f=\"$f\" 'BEGIN { print \"observable,x,value\"; for (i = 1; i <= 10; i++) { t = 2.0 * i / 10; printf \"v,%.17g,%.17g\\n\", t, f * g * t } }' > \"$2/outputs.csv\"\n",
+    )
+    .unwrap();
+    std::fs::write(dir.join("factor"), "1\n").unwrap();
+    let mut text = std::fs::read_to_string(dir.join("study.toml")).unwrap();
+    text.push_str("[run.simulator]\ncommand = \"sh {config_dir}/sim.sh {g} {point}\"\noutput = \"table\"\n");
+    std::fs::write(dir.join("study.toml"), text).unwrap();
+    let config = Config::load(&dir.join("study.toml")).unwrap();
+    let (out, systems) = (dir.join("out"), Systems::new(vec![&StandIn, &FreeFall]));
+    let outcome = |opts: RunOptions| {
+        run(&config, &opts, &systems).unwrap();
+        let verify: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("diagnose/verify.json")).unwrap()).unwrap();
+        verify["outcome"].as_str().unwrap().to_string()
+    };
+    assert!(outcome(options(out.clone())).starts_with("consistent"));
+    // v 20% faster at every θ: the runs of the check disagree with the
+    // emulator by some 40σ per point at the fit's median.
+    std::fs::write(dir.join("factor"), "1.2\n").unwrap();
+    let again = RunOptions { stage: Some("diagnose".into()), force: true, ..options(out.clone()) };
+    let contradicted = outcome(again);
+    assert!(contradicted.starts_with("contradicted by the simulator"), "{contradicted}");
+    let report = std::fs::read_to_string(out.join("diagnose/report.html")).unwrap();
+    assert!(report.contains("contradicted by the simulator"), "the report does not say so");
+    let _ = std::fs::remove_dir_all(&dir);
+}
