@@ -250,12 +250,14 @@ fn keep_previous(paths: &super::RunPaths, name: &str, key: &str, folder: &Path) 
     if !folder.is_dir() {
         return Ok(());
     }
-    let kept = paths.previous().join(format!("{name}-{}", &old.key[..old.key.len().min(12)]));
+    // The key is hex; a stamp edited by hand must not name a path elsewhere.
+    let tag: String = old.key.chars().filter(char::is_ascii_alphanumeric).take(12).collect();
+    let kept = paths.previous().join(format!("{name}-{tag}"));
     if kept.exists() {
         // The same settings' results again: the stage reproduces them.
         std::fs::remove_dir_all(&kept).with_context(|| format!("removing {}", kept.display()))?;
     }
-    std::fs::create_dir_all(paths.previous())?;
+    std::fs::create_dir_all(paths.previous()).with_context(|| format!("creating {}", paths.previous().display()))?;
     std::fs::rename(folder, &kept).with_context(|| format!("moving {} to {}", folder.display(), kept.display()))?;
     artifacts::write_json_atomic(&kept.join("stage.json"), &old)?;
     std::fs::remove_file(&stamp_path).with_context(|| format!("removing {}", stamp_path.display()))?;
