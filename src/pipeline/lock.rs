@@ -38,18 +38,11 @@ pub(super) fn take(out: &Path) -> Result<RunLock> {
     match file.try_lock() {
         Ok(()) => {
             // Who holds it, then when it started (unix seconds, for its age).
-            let holder = format!(
-                "pid {} on {}: {}
-{}
-",
-                std::process::id(),
-                host(),
-                command(),
-                now()
-            );
-            file.set_len(0)?;
-            file.rewind()?;
-            file.write_all(holder.as_bytes()).with_context(|| format!("writing {}", path.display()))?;
+            let holder = format!("pid {} on {}: {}\n{}\n", std::process::id(), host(), command(), now());
+            file.set_len(0)
+                .and_then(|()| file.rewind())
+                .and_then(|()| file.write_all(holder.as_bytes()))
+                .with_context(|| format!("writing {}", path.display()))?;
             Ok(RunLock { _file: Some(file) })
         }
         Err(TryLockError::WouldBlock) => {
