@@ -62,6 +62,14 @@ pub fn measurements_hash(data: &[Measurement]) -> String {
     h.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// This machine's host name ("" where none can be read).
+pub fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::env::var("HOSTNAME"))
+        .map(|h| h.trim().to_string())
+        .unwrap_or_default()
+}
+
 /// A sibling name no other writer uses: SLURM array tasks on different nodes
 /// of a shared file system can have the same PID, so the name also carries
 /// the host, the time and a per-process counter.
@@ -69,13 +77,12 @@ fn temp_path(path: &Path) -> PathBuf {
     use std::sync::atomic::{AtomicU64, Ordering};
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let name = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
-    let host =
-        std::fs::read_to_string("/proc/sys/kernel/hostname").or_else(|_| std::env::var("HOSTNAME")).unwrap_or_default();
+    let host = host_name();
     let nanos =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
     path.with_file_name(format!(
         ".{name}.tmp-{}-{}-{nanos}-{}",
-        host.trim(),
+        host,
         std::process::id(),
         COUNTER.fetch_add(1, Ordering::Relaxed)
     ))

@@ -71,10 +71,7 @@ fn describe(holder: &str) -> String {
 }
 
 fn host() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .or_else(|_| std::env::var("HOSTNAME"))
-        .map(|h| h.trim().to_string())
-        .unwrap_or_else(|_| "an unknown host".to_string())
+    Some(crate::base::artifacts::host_name()).filter(|h| !h.is_empty()).unwrap_or_else(|| "an unknown host".into())
 }
 
 fn now() -> u64 {

@@ -93,8 +93,6 @@ pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<
     variants::check_priors_inside_design(config, &spec).with_context(|| format!("{}", config.path.display()))?;
     artifacts::check_writable(&opts.out)?;
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
-    // Held to the end of the run; a calibrate array task is covered by the run that submitted it.
-    let _lock = opts.case.is_none().then(|| lock::take(&opts.out)).transpose()?;
     let emulator = config.emulator.is_some().then(|| EmulatorSettings::load(&config.path)).transpose()?;
     // Absolute from here on: declarations written for later stages (a variant's
     // emulator folder) are resolved against the config's folder, not the cwd.
@@ -106,6 +104,10 @@ pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<
     // Every candidate's declaration is checked before anything runs.
     stage::candidates::variants(&study)?;
     let planned = plan::plan(&study, systems)?;
+    // Taken once the study is checked (a refused config leaves no lock file)
+    // and held to the end of the run; a calibrate array task is covered by
+    // the run that submitted it.
+    let _lock = opts.case.is_none().then(|| lock::take(&study.paths.out)).transpose()?;
     let mut stages = StageLoop::new(&planned);
     for stage in &planned {
         stages.run(&study, stage)?;
