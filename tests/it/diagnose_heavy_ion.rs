@@ -427,16 +427,18 @@ fn event_mock(b: &HeavyIonBlind, names: &[String], seed: u64, dir: &Path) -> (st
 /// on the noise-free smooth values with the real table's errors. `pick`
 /// chooses which are diagnosed, as in `ball_drop_blind`.
 /// At most `wanted` data sets are diagnosed: the search for them stops there.
+/// Each fit samples `particles` per replicate.
 fn heavy_ion_blind(
     tag: &str,
     wanted: usize,
+    particles: usize,
     pick: &mut dyn FnMut(&str, f64) -> bool,
 ) -> Vec<(&'static str, String, f64)> {
     use mdpipe::model::Simulator;
     let dir = std::env::temp_dir().join(format!("mdpipe-blind-hi-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let mut cfg = mdpipe::systems::resolve(&emulated_stand_in(&dir, 21, 30, 60)).unwrap();
-    cfg.sampler.smc.particles = 600;
+    cfg.sampler.smc.particles = particles;
     cfg.sampler.adapt = false;
     cfg.sampler.smc.replicates = 2;
     cfg.predictions.draws = 300;
@@ -495,7 +497,7 @@ fn heavy_ion_blind(
 #[test]
 #[ignore = "second tier: 40 diagnoses; cargo test --release -- --ignored"]
 fn heavy_ion_blind_test_confusion_matrix() {
-    let rows = heavy_ion_blind("all", usize::MAX, &mut |_, _| true);
+    let rows = heavy_ion_blind("all", usize::MAX, 600, &mut |_, _| true);
     let labels = ["none", "grad_shear_delta_f", "bulk_delta_f", "proton_annihilation", "unexplained", "ambiguous"];
     confusion_matrix_meets_targets("heavy ion", &labels, &rows);
 }
@@ -509,7 +511,7 @@ fn heavy_ion_blind_test_confusion_matrix() {
 fn heavy_ion_blind_test_names_the_grad_delta_f() {
     let mut first = first_of_each_class(3.0);
     let mut pick = |label: &str, size: f64| label == "grad_shear_delta_f" && first(label, size);
-    let rows = heavy_ion_blind("grad", 1, &mut pick);
+    let rows = heavy_ion_blind("grad", 1, 400, &mut pick);
     assert_eq!(rows.len(), 1, "{rows:?}");
     each_verdict_is_right("heavy ion", &rows);
 }
