@@ -407,6 +407,9 @@ fn a_hopeless_candidate_stopped_early_leaves_the_verdict_unchanged() {
     let path = crate::declared::root().join("pipeline/examples/oscillator.toml");
     let mut analysis = mdpipe::systems::load(&path).unwrap();
     analysis.sampler.adapt = false;
+    // 800 particles per replicate (the example's 1000 less a fifth): the
+    // smallest whose quarter is still a scout (200).
+    analysis.sampler.smc.particles = 800;
     let run = |scouts| {
         let settings = DiagnoseSettings { repair: false, scouts, ..Default::default() };
         diagnose::run(&analysis, &Overrides::default(), 1, &settings, None, &Silent).unwrap().diagnosis
