@@ -369,6 +369,15 @@ fn slurm_executor_retries_resumes_and_matches_the_local_executor() {
     assert_eq!(a["verdict"], b["verdict"]);
     assert_eq!(a["candidates"], b["candidates"]);
     assert_eq!(a["verdict"]["best"], "none", "no cubic term in the data: {:#}", a["verdict"]);
+    // The fit the verdict ends on, run through the simulator: as an array
+    // job under Slurm, with the same runs and so the same χ² as locally.
+    let (a, b) = (json(&slurm.join("diagnose/verify.json")), json(&local.join("diagnose/verify.json")));
+    assert!(a["outcome"].as_str().unwrap().starts_with("consistent"), "{a:#}");
+    assert_eq!(a["points"].as_array().unwrap().len(), 5, "the median and four draws: {a:#}");
+    assert_eq!(a["points"], b["points"], "the check's runs differ between Slurm and local");
+    let check = json(&slurm.join("diagnose/verify/design/runs/.attempts/slurm.json"));
+    assert_eq!(check["submissions"][0]["ids"], serde_json::json!([0, 1, 2, 3, 4]), "{check:#}");
+    assert_eq!(json(&slurm.join("diagnose/verify/design/runs/execution.json"))["executor"], "slurm");
 }
 
 /// An array that can never start (held here; a partition limit it can never
