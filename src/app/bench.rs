@@ -288,6 +288,10 @@ pub struct BenchArgs {
     /// and evaluations per second, structured and dense (writes under --out)
     #[arg(long)]
     pub scaling: bool,
+    /// With --scaling: write the covariance files to this many significant
+    /// digits, as users and HEPData write them (default: every digit of the double)
+    #[arg(long, requires = "scaling", value_parser = clap::value_parser!(u8).range(1..=17))]
+    pub digits: Option<u8>,
     /// Likelihood rates of the bundled declared models instead: the ball
     /// drop, the kinetics and the oscillator (run from the checkout)
     #[arg(long)]
@@ -342,7 +346,7 @@ pub fn command(a: BenchArgs) -> Result<()> {
         return Ok(());
     }
     if a.scaling {
-        return super::bench_scaling::print(&a.out.join("scaling"), 2.0);
+        return super::bench_scaling::print(&a.out.join("scaling"), 2.0, a.digits.map(usize::from));
     }
     if a.declared {
         for (name, config) in DECLARED {

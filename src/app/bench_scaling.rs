@@ -56,8 +56,10 @@ pub struct ScalingRow {
     pub emulated_dense_per_second: Option<f64>,
 }
 
-/// Writes the synthetic analysis of `n` points under `dir`; returns its config.
-pub fn write_problem(dir: &Path, n: usize) -> Result<PathBuf> {
+/// Writes the synthetic analysis of `n` points under `dir`, its covariance
+/// to `digits` significant digits (None: the double's shortest exact form);
+/// returns its config.
+pub fn write_problem(dir: &Path, n: usize, digits: Option<usize>) -> Result<PathBuf> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let observables = n.div_ceil(TABLE);
     let value = |o: usize, x: f64| 2.0 + 0.5 * x + 0.3 * x * x + 0.2 * (o as f64 + x).sin();
@@ -80,7 +82,11 @@ pub fn write_problem(dir: &Path, n: usize) -> Result<PathBuf> {
     for &(oa, xa, ya) in &points {
         for &(ob, xb, yb) in &points {
             let table = if oa == ob { 0.05 * ya * 0.05 * yb } else { 0.0 };
-            writeln!(cov, "o{oa:04},{xa},o{ob:04},{xb},{:e}", table + 0.02 * ya * 0.02 * yb)?;
+            let c = table + 0.02 * ya * 0.02 * yb;
+            match digits {
+                Some(d) => writeln!(cov, "o{oa:04},{xa},o{ob:04},{xb},{c:.*e}", d - 1)?,
+                None => writeln!(cov, "o{oa:04},{xa},o{ob:04},{xb},{c:e}")?,
+            }
         }
     }
     cov.flush()?;
@@ -111,11 +117,12 @@ fn rate(problem: &Problem, seconds: f64) -> f64 {
     done as f64 / start.elapsed().as_secs_f64()
 }
 
-/// Measures every size in `sizes`, writing the problems under `out`.
-pub fn measure(out: &Path, sizes: &[usize], seconds: f64) -> Result<Vec<ScalingRow>> {
+/// Measures every size in `sizes`, writing the problems under `out` with
+/// covariances to `digits` significant digits.
+pub fn measure(out: &Path, sizes: &[usize], seconds: f64, digits: Option<usize>) -> Result<Vec<ScalingRow>> {
     let mut rows = Vec::new();
     for &n in sizes {
-        let config = write_problem(&out.join(format!("n{n}")), n)?;
+        let config = write_problem(&out.join(format!("n{n}")), n, digits)?;
         let start = Instant::now();
         let analysis = crate::systems::load(&config)?;
         let overrides = Overrides { kernel: Some(crate::base::choices::Kernel::II), ..Default::default() };
@@ -200,17 +207,18 @@ pub fn exponent(points: &[(usize, f64)]) -> f64 {
 }
 
 /// `mdpipe bench --scaling`, printed.
-pub fn print(out: &Path, seconds: f64) -> Result<()> {
+pub fn print(out: &Path, seconds: f64, digits: Option<usize>) -> Result<()> {
+    let written = digits.map_or("every digit".to_string(), |d| format!("{d} significant digits"));
     println!(
         "likelihood scaling: Kernel II, observables of {TABLE} points, a 5% systematic per table and a 2% one across all \
-         (full covariance files of N² rows); then the same data with an emulator of {COMPONENTS} components from {RUNS} \
-         runs; one core, {seconds} s per rate"
+         (full covariance files of N² rows, written to {written}); then the same data with an emulator of {COMPONENTS} \
+         components from {RUNS} runs; one core, {seconds} s per rate"
     );
     println!(
         "{:>6} {:>5} {:>10} {:>9} {:>5} {:>14} {:>10} {:>9} {:>14} {:>10}",
         "N", "obs", "cov rows", "setup s", "rank", "structured /s", "dense /s", "emu rank", "emulated /s", "dense /s"
     );
-    let rows = measure(out, &SIZES, seconds)?;
+    let rows = measure(out, &SIZES, seconds, digits)?;
     let rank = |r: Option<usize>| r.map_or("dense".into(), |k| k.to_string());
     let per_second = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.1}"));
     for r in &rows {

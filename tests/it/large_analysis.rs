@@ -30,7 +30,7 @@ fn scratch(name: &str) -> PathBuf {
 #[ignore = "second tier: a 1 000-point, 40-observable Kernel II calibration (minutes)"]
 fn a_thousand_point_kernel_ii_calibration_converges_within_ten_minutes() {
     let dir = scratch("thousand");
-    let config = write_problem(&dir.join("problem"), 1000).unwrap();
+    let config = write_problem(&dir.join("problem"), 1000, None).unwrap();
     let out = dir.join("out");
     let started = Instant::now();
     let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
@@ -87,7 +87,7 @@ fn cut(from: &Path, to: &Path, observables: usize) -> PathBuf {
 #[ignore = "second tier: two Kernel II calibrations of 200 points (minutes)"]
 fn the_structured_posterior_equals_the_dense_one_on_a_200_point_cut() {
     let dir = scratch("cut");
-    write_problem(&dir.join("problem"), 1000).unwrap();
+    write_problem(&dir.join("problem"), 1000, None).unwrap();
     let config = cut(&dir.join("problem"), &dir.join("cut"), 8);
     let analysis = mdpipe::systems::load(&config).unwrap();
     let overrides = Overrides { kernel: Some(mdpipe::base::choices::Kernel::II), ..Default::default() };
