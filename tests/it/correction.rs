@@ -193,6 +193,47 @@ fn a_change_in_every_observable_is_found_as_their_corrections_together() {
     assert!(text.contains("b = \"b*(1 + c_b*x^2)\"") && text.contains("parameters.c_a"), "{text}");
 }
 
+/// A cell's voltage over its discharge at two currents, emulated from runs
+/// of a model without the cell's internal resistance; the data (closed
+/// form) lie below it by R·I at each current, R = 0.05 Ω. With the currents
+/// given as the observables' labels, the drop is found as one offset
+/// shared by both, proportional to the current, its coefficient covering
+/// −R; an offset of each voltage on its own, two coefficients for one law,
+/// is not what is named.
+#[test]
+fn a_drop_proportional_to_the_current_is_found_as_one_shared_correction() {
+    let dir = tmpdir("shared");
+    let xs: Vec<f64> = (0..12).map(|k| 0.05 + 0.08 * f64::from(k)).collect();
+    let (resistance, currents) = (0.05, [("v_low", 0.5), ("v_high", 2.0)]);
+    let current = |o: &str| currents.iter().find(|c| c.0 == o).map_or(0.0, |c| c.1);
+    let shape = |o: &str, x: f64| 4.1 - 0.6 * x - 0.3 * x * x - 0.05 * current(o) * x;
+    let amp = 1.1;
+    let effect = |o: &str, x: f64| 1.0 - resistance * current(o) / (amp * shape(o, x));
+    let truth =
+        Truth { observables: &["v_low", "v_high"], xs: &xs, shape: &shape, effect: &effect, amp, relative: 0.001 };
+    truth.write(&dir, 53);
+    let config = "name = \"cell\"\n[model]\nkind = \"emulator\"\nartifact = \"emu\"\n\
+        observable_labels = { current = { v_low = 0.5, v_high = 2.0 } }\n\
+        [data]\nmeasurements = \"data.csv\"\n[parameters.A]\nmin = 0.5\nmax = 2.0\n\
+        [emulator]\nparameters = [\"A\"]\n";
+    let analysis = trained(&dir, "cell.toml", config);
+    let settings = DiagnoseSettings { repair: false, ..Default::default() };
+    let d = diagnose::run(&analysis, &Default::default(), 9, &settings, None, &Silent).unwrap().diagnosis;
+    diagnose::print(&d);
+    assert_eq!(d.verdict.best, "offset_per_current", "{}", d.verdict.statement);
+    let named = &d.candidates[0];
+    assert!(named.parameters["c_per_current"].covers(-resistance), "{:?}", named.parameters);
+    let text = &d.discovery.as_ref().unwrap().screened[0].toml;
+    assert!(
+        text.contains("v_high = \"v_high + (c_per_current*2)\"") && text.matches("parameters.").count() == 1,
+        "{text}"
+    );
+    // A label of an observable the model does not have is refused by name.
+    std::fs::write(dir.join("bad.toml"), config.replace("v_low = 0.5", "v_mid = 0.5")).unwrap();
+    let e = format!("{:#}", mdpipe::systems::load(&dir.join("bad.toml")).err().expect("refused"));
+    assert!(e.contains("bad.toml") && e.contains("observable_labels.current: 'v_mid' is not an observable"), "{e}");
+}
+
 /// A rate that falls as A e^{-x/4}, measured with an efficiency that swings
 /// by 5% with a 4 s period (a detector whose temperature cycles; data in
 /// closed form). With no candidate declared, the periodic gain is named,

@@ -12,6 +12,7 @@
 
 use super::correction::CorrectedModel;
 use super::forms::{self, start_grid, Form, Range, Scales};
+use super::shared::Label;
 use crate::engine::discover::distinct::{distinct, Explanation};
 use crate::engine::discover::prior::FormPrior;
 use crate::engine::gp::CholeskyWorkspace;
@@ -26,21 +27,23 @@ const PROPOSALS: usize = 3;
 
 pub struct EmulatedDiscoverer {
     pub model: Arc<dyn Simulator>,
+    /// Quantities that set the observables apart, for shared corrections.
+    pub labels: Vec<Label>,
 }
 
 /// One observable's correction: its form, its parameters' ranges on that
 /// observable's data, and the form written out with the observable's and
 /// the parameters' names.
 #[derive(Clone)]
-struct Part {
-    form: Form,
+pub(super) struct Part {
+    pub form: Form,
     /// The form's place in the grammar.
-    rank: usize,
-    observable: String,
-    ranges: Vec<Range>,
+    pub rank: usize,
+    pub observable: String,
+    pub ranges: Vec<Range>,
     /// The parameters' names, in the form's order.
-    parameters: Vec<String>,
-    correction: String,
+    pub parameters: Vec<String>,
+    pub correction: String,
 }
 
 impl Part {
@@ -57,10 +60,37 @@ impl Part {
 
 /// A screened correction (of one observable, or of several at once) and
 /// its least-squares fit with θ.
-struct Screened {
+pub(super) struct Screened {
     parts: Vec<Part>,
     simulator: Arc<dyn Simulator>,
     fitted: Fitted,
+    /// The label whose values scale one coefficient shared by every part.
+    pub shared_by: Option<String>,
+}
+
+impl Screened {
+    /// Each parameter once, with its range, in the parts' order (a shared
+    /// coefficient is a parameter of every part).
+    fn parameters(&self) -> Vec<(&String, &Range)> {
+        unique_parameters(&self.parts)
+    }
+
+    fn name(&self) -> String {
+        match &self.shared_by {
+            Some(label) => format!("{}_per_{label}", self.parts[0].form.name),
+            None => self.parts.iter().map(Part::name).collect::<Vec<_>>().join("+"),
+        }
+    }
+}
+
+fn unique_parameters(parts: &[Part]) -> Vec<(&String, &Range)> {
+    let mut seen: Vec<(&String, &Range)> = Vec::new();
+    for (name, range) in parts.iter().flat_map(|p| p.parameters.iter().zip(&p.ranges)) {
+        if !seen.iter().any(|(n, _)| *n == name) {
+            seen.push((name, range));
+        }
+    }
+    seen
 }
 
 impl Explanation for Screened {
@@ -69,7 +99,7 @@ impl Explanation for Screened {
     }
 
     fn added_parameters(&self) -> usize {
-        self.parts.iter().map(|p| p.parameters.len()).sum()
+        self.parameters().len()
     }
 
     fn complexity(&self) -> (usize, usize, usize, usize) {
@@ -111,18 +141,21 @@ impl Discoverer for EmulatedDiscoverer {
                 screened.insert(0, all);
             }
         }
-        let prior = FormPrior::over(&operations);
+        let (shared, shared_nats) = self.screen_shared(&forms, data, &base_fit);
+        screened.extend(shared);
+        screened.sort_by(|a, b| bic(b).total_cmp(&bic(a)));
+        let priors = Priors { per_observable: FormPrior::over(&operations), shared: FormPrior::over(&shared_nats) };
         let proposals = screened
             .into_iter()
             .filter(|s| bic(s) > 0.0)
             .take(PROPOSALS)
             .map(|s| {
                 let delta_bic = bic(&s);
-                proposal(s, base_fit.chi2, delta_bic, &prior, observables)
+                proposal(s, base_fit.chi2, delta_bic, &priors, observables)
             })
             .collect();
         let forms_tried = forms.iter().map(|f| f.form.clone()).collect();
-        Ok(Screening { searched: operations.len(), forms: forms_tried, proposals })
+        Ok(Screening { searched: operations.len() + shared_nats.len(), forms: forms_tried, proposals })
     }
 }
 
@@ -163,7 +196,7 @@ impl EmulatedDiscoverer {
     /// `p_<observable>` when several observables are corrected at once),
     /// unless θ or an observable has that name already (a periodic gain's
     /// `b` on an observable named `b` would be the observable itself).
-    fn parameter(&self, p: &str, observable: Option<&str>) -> String {
+    pub(super) fn parameter(&self, p: &str, observable: Option<&str>) -> String {
         let name = observable.map_or(p.to_string(), |o| format!("{p}_{o}"));
         if self.model.parameter_names().contains(&name) || self.model.observable_names().contains(&name) {
             format!("{name}_new")
@@ -208,16 +241,17 @@ impl EmulatedDiscoverer {
 
     /// The corrections `parts` fitted with θ from the best of `starts`;
     /// None where they cannot be computed on these data.
-    fn fit_parts(&self, parts: Vec<Part>, data: &ScreeningData, starts: &[Vec<f64>]) -> Option<Screened> {
+    pub(super) fn fit_parts(&self, parts: Vec<Part>, data: &ScreeningData, starts: &[Vec<f64>]) -> Option<Screened> {
         let corrections: BTreeMap<String, String> =
             parts.iter().map(|p| (p.observable.clone(), p.correction.clone())).collect();
-        let parameters: Vec<String> = parts.iter().flat_map(|p| p.parameters.iter().cloned()).collect();
+        let unique = unique_parameters(&parts);
+        let parameters: Vec<String> = unique.iter().map(|(n, _)| (*n).clone()).collect();
         let model = CorrectedModel::new(self.model.clone(), &corrections, &parameters, "discover").ok()?;
         let mut bounds = data.bounds.clone();
-        bounds.extend(parts.iter().flat_map(|p| p.ranges.iter().map(|r| (r.spec.min, r.spec.max))));
+        bounds.extend(unique.iter().map(|(_, r)| (r.spec.min, r.spec.max)));
         let ls = LeastSquares { blocks: &data.blocks, model: &model, bounds };
         let fitted = ls.best_of(starts)?;
-        Some(Screened { parts, simulator: Arc::new(model), fitted })
+        Some(Screened { parts, simulator: Arc::new(model), fitted, shared_by: None })
     }
 
     /// Corrections of several observables fitted together, chosen by
@@ -275,10 +309,17 @@ impl EmulatedDiscoverer {
     }
 }
 
+/// The prior over forms of each class of correction: of one observable or
+/// several each its own, and shared by the observables of a label.
+struct Priors {
+    per_observable: FormPrior,
+    shared: FormPrior,
+}
+
 /// A screened correction as a `correction` candidate, with its prior odds
 /// against the model as it is (`observables`: how many were searched).
-fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior, observables: usize) -> Proposal {
-    let name = s.parts.iter().map(Part::name).collect::<Vec<_>>().join("+");
+fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, priors: &Priors, observables: usize) -> Proposal {
+    let name = s.name();
     let formula = s.parts.iter().map(|p| format!("{} → {}", p.observable, p.correction)).collect::<Vec<_>>().join("; ");
     let mut meanings: Vec<&str> = Vec::new();
     for p in &s.parts {
@@ -286,20 +327,25 @@ fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior, obse
             meanings.push(&p.form.meaning);
         }
     }
-    let meaning = meanings.join("; ");
+    let mut meaning = meanings.join("; ");
+    if let Some(label) = &s.shared_by {
+        meaning = format!("{meaning}; one coefficient for all the observables, in proportion to each one's {label}");
+    }
     let corrections = s.parts.iter().map(|p| format!("{} = {:?}", p.observable, p.correction)).collect::<Vec<_>>();
     let mut toml = format!(
         "[[candidates]]\nname = {name:?}\ndescription = {meaning:?}\ncorrection = {{ {} }}\n",
         corrections.join(", ")
     );
-    for (name, r) in s.parts.iter().flat_map(|p| p.parameters.iter().zip(&p.ranges)) {
+    for (name, r) in s.parameters() {
         toml.push_str(&format!("parameters.{name} = {{ min = {}, max = {} }}\n", r.spec.min, r.spec.max));
     }
     let sizes: Vec<f64> = s.parts.iter().map(|p| p.form.nats).collect();
-    let prior_log_odds = match sizes.as_slice() {
-        [one] => prior.log_odds(&[*one]),
-        many => prior.log_odds_one_per_observable(many, observables),
+    let prior_log_odds = match (&s.shared_by, sizes.as_slice()) {
+        (Some(_), [one, ..]) => priors.shared.log_odds(&[*one]),
+        (_, [one]) => priors.per_observable.log_odds(&[*one]),
+        (_, many) => priors.per_observable.log_odds_one_per_observable(many, observables),
     };
+    let extra_parameters = s.parameters().into_iter().map(|(n, r)| (n.clone(), r.spec.clone())).collect();
     // The corrected model names θ and then the corrections' parameters.
     let best_fit = s.simulator.parameter_names().into_iter().zip(s.fitted.phi.iter().copied()).collect();
     Proposal {
@@ -313,11 +359,7 @@ fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, prior: &FormPrior, obse
         candidate: CandidateModel {
             name,
             description: format!("discovered: {formula}"),
-            extra_parameters: s
-                .parts
-                .iter()
-                .flat_map(|p| p.parameters.iter().cloned().zip(p.ranges.iter().map(|r| r.spec.clone())))
-                .collect(),
+            extra_parameters,
             simulator: s.simulator,
             special_case_of: Vec::new(),
             own_emulator: false,

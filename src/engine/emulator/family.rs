@@ -24,6 +24,12 @@ struct EmulatorModelTable {
     /// knows only names): `units = { x = "s", observables = { rate = "1/s" } }`.
     #[serde(default)]
     units: EmulatorUnits,
+    /// A quantity that sets the observables apart, by name, with its value
+    /// for each: `observable_labels = { current = { v_low = 0.5, v_high = 1.0 } }`.
+    /// Discovery then also searches corrections whose one coefficient is
+    /// shared across them, scaled by it (`emulator::shared`).
+    #[serde(default)]
+    observable_labels: BTreeMap<String, BTreeMap<String, f64>>,
 }
 
 #[derive(Default, serde::Deserialize)]
@@ -132,7 +138,9 @@ impl ModelFamily for EmulatorFamily {
         )?;
         let units = Units { x: table.units.x, observables: table.units.observables, parameters: Default::default() };
         let model = Arc::new(model);
-        let discoverer = EmulatedDiscoverer { model: model.clone() };
+        let labels = super::shared::labels(&table.observable_labels, model.as_ref())
+            .with_context(|| config.path.display().to_string())?;
+        let discoverer = EmulatedDiscoverer { model: model.clone(), labels };
         Ok(Arc::new(EmulatorSetup { model, units, config: config.clone(), discoverer }))
     }
 }

@@ -33,6 +33,7 @@ pub mod low_rank;
 pub mod model;
 pub mod nugget;
 pub mod panels;
+pub mod shared;
 pub mod store;
 pub mod table;
 pub mod train;
