@@ -91,8 +91,11 @@ pub(super) fn needed(
     // With the repair, the standing fits' posteriors are shown (the
     // before-and-after), so they are made in full; without it the verdict
     // is the answer, and a fit is made again only where a comparison it
-    // enters is close.
-    let mut need = Needed { candidates: if repair { standing.clone() } else { Vec::new() }, ..Default::default() };
+    // enters is close. A named candidate's intervals are the verdict's own
+    // numbers: its fit is made in full either way.
+    let named = index(&verdict.best);
+    let first = if repair { standing.clone() } else { named.into_iter().collect() };
+    let mut need = Needed { candidates: first, ..Default::default() };
     let (mut md, mut base) = (false, false);
     let mut add = |i: usize| {
         if !need.candidates.contains(&i) {
@@ -113,12 +116,22 @@ pub(super) fn needed(
             let l = &runs[s].result;
             let (el, ec) = (l.log_evidence_err, c.log_evidence_err);
             // A candidate that contains the leader, or is within it, is
-            // weighed against it by Occam's margin; any other, as a rival.
-            let nested = members(&c.name).is_superset(&members(&l.name)) || within(c, l) || within(l, c);
-            let margin = if nested { strong } else { decisive_lead(l, c, settings) };
-            if close(c.log_evidence, l.log_evidence, margin, ec, el)
-                || close(l.log_evidence, c.log_evidence, margin, el, ec)
-            {
+            // weighed against it by Occam's margin, in one direction only:
+            // an extension is named instead only if it leads by the margin
+            // (behind, or ahead by less, the simpler leader stands either
+            // way), and a simpler form instead if it comes within the
+            // margin. Any other is a rival, and both sides of its lead count.
+            let extends = members(&c.name).is_superset(&members(&l.name)) || within(l, c);
+            let simpler = within(c, l);
+            let rival = decisive_lead(l, c, settings);
+            let ahead = close(c.log_evidence, l.log_evidence, if extends { strong } else { rival }, ec, el);
+            let behind = close(l.log_evidence, c.log_evidence, if simpler { strong } else { rival }, el, ec);
+            let turns = match (extends, simpler) {
+                (true, _) => ahead,
+                (_, true) => behind,
+                _ => ahead || behind,
+            };
+            if turns {
                 add(i);
                 add(s);
             }
