@@ -232,6 +232,12 @@ fn a_drop_proportional_to_the_current_is_found_as_one_shared_correction() {
     std::fs::write(dir.join("bad.toml"), config.replace("v_low = 0.5", "v_mid = 0.5")).unwrap();
     let e = format!("{:#}", mdpipe::systems::load(&dir.join("bad.toml")).err().expect("refused"));
     assert!(e.contains("bad.toml") && e.contains("observable_labels.current: 'v_mid' is not an observable"), "{e}");
+    // So are a value that is no number and one value for every observable.
+    for (label, why) in [("v_low = nan", "not a finite number"), ("v_low = 2.0", "with values that differ")] {
+        std::fs::write(dir.join("bad.toml"), config.replace("v_low = 0.5", label)).unwrap();
+        let e = format!("{:#}", mdpipe::systems::load(&dir.join("bad.toml")).err().expect("refused"));
+        assert!(e.contains("bad.toml") && e.contains("observable_labels.current") && e.contains(why), "{e}");
+    }
 }
 
 /// A rate that falls as A e^{-x/4}, measured with an efficiency that swings
