@@ -17,7 +17,8 @@ fn mdpipe() -> Command {
 
 /// A toy simulator, y(x) = a + b x² (+ c x³, a candidate's term) at six x: it fails for the ids in
 /// `$FAIL` while `$marks/down` exists, sleeps past any limit for `$HANG`, fails the first time for
-/// `$FLAKY` (a marker file remembers), and otherwise writes outputs.csv.
+/// `$FLAKY` (a marker file remembers), and otherwise naps `$NAP` seconds (or what `$marks/nap`
+/// says, when a test shortens the nap between two runs) and writes outputs.csv.
 const SIMULATOR: &str = r#"#!/bin/bash
 id=$1; a=$2; b=$3; out=$4; marks=$5; c=${6:-0}
 for f in $FAIL; do [ "$id" = "$f" ] && [ -e "$marks/down" ] && { echo "solver diverged at design point $id" >&2; exit 3; }; done
@@ -25,7 +26,7 @@ for h in $HANG; do [ "$id" = "$h" ] && sleep 60; done
 if [ "$id" = "$FLAKY" ] && [ ! -e "$marks/flaky_$id" ]; then
   touch "$marks/flaky_$id"; echo "transient failure: scratch disk busy" >&2; exit 1
 fi
-sleep "$NAP"
+sleep "$(cat "$marks/nap" 2>/dev/null || echo "$NAP")"
 {
   echo "observable,x,value"
   for x in 0.1 0.3 0.5 0.7 0.9 1.1; do
@@ -470,7 +471,10 @@ fn cancelled_pending_tasks_use_no_attempt() {
     assert!(!o.status.success(), "mdpipe went on after the array was cancelled");
     assert!(stderr.contains("left the queue without starting"), "{stderr}");
 
-    // Run again: with no retries allowed, every point that never started still runs.
+    // Run again: with no retries allowed, every point that never started
+    // still runs (without the nap, which only had to hold the array until
+    // the scancel: the command and hence the points' keys are unchanged).
+    std::fs::write(dir.join("marks/nap"), "0").unwrap();
     let o = run(&config, &out, &["--stage", "simulate", "--executor", "slurm"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report = json(&out.join("design/runs/execution.json"));

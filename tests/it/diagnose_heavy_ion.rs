@@ -506,7 +506,7 @@ fn heavy_ion_blind_test_confusion_matrix() {
 /// δf concealed is named. Its nulls and out-of-library tails are judged in
 /// the second tier's campaign; on an emulated model the first tier judges
 /// those classes on the decay counter's route
-/// (`your_simulator::bundled_example_names_the_dead_time`).
+/// (`decay_counter::bundled_example_names_the_dead_time`).
 #[test]
 fn heavy_ion_blind_test_names_the_grad_delta_f() {
     let mut first = first_of_each_class(3.0);

@@ -8,6 +8,11 @@
 //! the simulator. An effect's size is computed by the test's own integrator
 //! from closed forms (Bateman for the daughter, n/(1+nτ) for the dead time):
 //! the largest |truth − best ideal-detector fit| / σ over the bins.
+//!
+//! libtest starts tests in name order; this module's name puts the first
+//! tier's longest test near the start, so that the shorter ones fill the
+//! other test thread while it runs (last in the list, it ran its final two
+//! minutes alone).
 
 use crate::diagnose::{clopper_pearson, confusion_matrix_meets_targets, each_verdict_is_right, first_of_each_class};
 use crate::pipeline::tmpdir;
