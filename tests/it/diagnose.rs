@@ -153,6 +153,14 @@ pub(crate) fn effect_size(opts: &MockOptions) -> f64 {
 /// most 5% false alarms on null data, at least 90% of in-library effects of
 /// 3σ or more named correctly, and out-of-library effects never given a name.
 pub(crate) fn confusion_matrix_meets_targets(system: &str, labels: &[&str], rows: &[(&str, String, f64)]) {
+    // A verdict class the campaign did not list (a partial explanation) still gets its column.
+    let mut labels = labels.to_vec();
+    for r in rows {
+        if !labels.contains(&r.1.as_str()) {
+            labels.push(r.1.as_str());
+        }
+    }
+    let labels = &labels[..];
     let width = labels.iter().map(|l| l.len()).max().unwrap_or(0) + 2;
     println!("{system}: confusion matrix (rows: concealed effect, columns: verdict)");
     print!("{:>width$}", "");

@@ -27,6 +27,7 @@ mod large_analysis;
 mod layers;
 mod ode_campaign;
 mod odebench;
+mod partial;
 mod pipeline;
 mod readers;
 mod readme;

@@ -188,8 +188,7 @@ pub(super) fn decide(
                     z_md - z_base
                 );
                 let share = explained_share(c, base);
-                let statement = statement
-                    + &share_phrase(share, c, base, " Its fit", ": a partial explanation, the rest left to δ.");
+                let statement = statement + &share_phrase(share, c, base, " Its fit", ", the rest left to δ.");
                 return Verdict { explained_share: share, ..verdict("unexplained", statement, prob(z_md)) };
             }
             let mut statement = named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch);
@@ -204,9 +203,8 @@ pub(super) fn decide(
                 .unwrap_or_default();
             let b = best.map(|c| format!("the best candidate, {}, reaches χ²/dof = {:.2} (p = {:.1e}) and log BF = {:.1} against the model; ", c.name, c.chi2_per_dof, c.p_value, c.log_bayes_factor)).unwrap_or_default();
             let share = best.and_then(|c| explained_share(c, base));
-            let partial = best
-                .map(|c| share_phrase(share, c, base, " Its fit", ": a partial explanation, the rest left to δ."))
-                .unwrap_or_default();
+            let partial =
+                best.map(|c| share_phrase(share, c, base, " Its fit", ", the rest left to δ.")).unwrap_or_default();
             let statement = format!("a mismatch that no candidate explains: {w}{b}the model-discrepancy fit (log BF = {:.1} against no MD) stays the honest answer.{partial}", z_md - z_base);
             Verdict { explained_share: share, ..verdict("unexplained", statement, prob(z_md)) }
         }

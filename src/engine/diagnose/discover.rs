@@ -81,10 +81,11 @@ fn covariance_factor(block: &ObservableBlock) -> Result<Option<Vec<f64>>> {
 
 /// What the verdict says of the search.
 pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
-    let found = report.screened.iter().find(|s| s.name == verdict.best);
+    let partial = verdict.best == "partial";
+    let found = report.screened.iter().find(|s| Some(s.name.as_str()) == verdict.named());
     let standing: Vec<_> =
         verdict.standing.iter().filter_map(|n| report.screened.iter().find(|s| &s.name == n)).collect();
-    if found.is_none() && !standing.is_empty() {
+    if found.is_none() && !standing.is_empty() && !partial {
         let read: Vec<String> = standing.iter().map(|s| format!("{} ({})", s.formula, s.meaning)).collect();
         verdict.statement.push_str(&format!(
             " Discovered in a search of {} terms, not declared: {}. Once a measurement settles it, declare the winner; the leader reads:\n{}",

@@ -211,7 +211,7 @@ pub(super) fn refit(
     verdict: &Verdict,
     base: (f64, f64),
 ) -> Result<Option<CandidateRun>> {
-    let answer = verdict.best == run.result.name;
+    let answer = verdict.named() == Some(run.result.name.as_str());
     let (candidate, odds) = (run.candidate.clone(), run.result.prior_log_odds);
     d.fit_candidate(analysis, candidate, odds, run.seed, base, &|_, _| answer)
 }

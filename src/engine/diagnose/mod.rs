@@ -46,6 +46,7 @@ mod decide;
 mod discover;
 mod fits;
 mod locate;
+mod partial;
 mod precision;
 mod reuse;
 mod suggest;
@@ -250,6 +251,32 @@ pub fn run_reusing(
             c.scout = !f;
         }
     }
+    // A partial explanation: the leader with δ on top, as one of the compared models.
+    let mut with_delta = None;
+    if partial::worth_trying(&candidates, &verdict, &base.summary, settings) {
+        let fit = d.calibrate(
+            &analysis.with_candidate(&runs[0].candidate),
+            Some(settings.kernel),
+            seed.wrapping_add(99),
+            partial::FIT_NAME,
+        )?;
+        let largest = |f: &FitFigures| f.delta_max_sigma.values().copied().fold(0.0, f64::max);
+        let weighed = partial::Weighed {
+            candidates: &candidates,
+            share: explained_share(&candidates[0], &base.summary),
+            base_chi2_per_dof: base.summary.fit.chi2_per_dof,
+            mismatch: &mismatch,
+            z_base,
+            z_md: (z_md, e_md),
+            delta_md: largest(&figures("model + MD", &md_problem, &md)),
+        };
+        let shown = figures(&format!("model + {} + MD", runs[0].candidate.name), &fit.0, &fit.1);
+        if let Some(v) = partial::verdict(&weighed, &shown, settings) {
+            verdict = v;
+            named_alone = true;
+        }
+        with_delta = Some(fit);
+    }
     if let Some(report) = &discovery {
         discover::word(&mut verdict, report);
     }
@@ -259,12 +286,15 @@ pub fn run_reusing(
     let mut repaired_md = None;
     if named_alone && settings.repair {
         let winner = &runs[0];
-        let (rep_md_problem, rep_md) = d.calibrate(
-            &analysis.with_candidate(&winner.candidate),
-            Some(settings.kernel),
-            seed.wrapping_add(99),
-            "repaired_md",
-        )?;
+        let (rep_md_problem, rep_md) = match with_delta {
+            Some(fit) => fit,
+            None => d.calibrate(
+                &analysis.with_candidate(&winner.candidate),
+                Some(settings.kernel),
+                seed.wrapping_add(99),
+                partial::FIT_NAME,
+            )?,
+        };
         let before = vec![figures("model, no MD", &base_problem, &base), figures("model + MD", &md_problem, &md)];
         let after = vec![
             figures(&format!("model + {}", winner.candidate.name), &winner.problem, &winner.calibration),
@@ -324,7 +354,8 @@ fn information_limit(rep_problem: &Problem, rep: &Calibration, md: &Calibration)
 mod tests {
     use super::*;
 
-    fn ranked(evidences: &[(&str, f64)]) -> Vec<CandidateResult> {
+    /// Candidates of these log evidences, each fitting adequately, errors 0.1.
+    pub(super) fn ranked(evidences: &[(&str, f64)]) -> Vec<CandidateResult> {
         evidences
             .iter()
             .map(|(name, z)| CandidateResult {

@@ -126,9 +126,12 @@ pub struct CandidateResult {
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Verdict {
-    /// A candidate name, "ambiguous", "emulator_limited", "none" or "unexplained".
+    /// A candidate name, "partial" (a candidate that explains most of the
+    /// mismatch, named in `standing`, with δ for the rest), "ambiguous",
+    /// "emulator_limited", "none" or "unexplained".
     pub best: String,
-    /// For "ambiguous": the candidates still standing, best evidence first.
+    /// For "ambiguous": the candidates still standing, best evidence first;
+    /// for "partial": the candidate that explains part of the mismatch.
     #[serde(default)]
     pub standing: Vec<String>,
     /// For "ambiguous": the measurement that would best separate the first two.
@@ -173,6 +176,17 @@ impl Verdict {
         }
     }
 
+    /// The candidate the verdict names: the winner, or for "partial" the
+    /// candidate that explains part of the mismatch (`standing[0]`); None
+    /// for "none", "unexplained", "ambiguous" and "emulator_limited".
+    pub fn named(&self) -> Option<&str> {
+        match self.best.as_str() {
+            "none" | "unexplained" | "ambiguous" | "emulator_limited" => None,
+            "partial" => self.standing.first().map(String::as_str),
+            name => Some(name),
+        }
+    }
+
     /// The verdict's probability in words: what it is the probability of.
     pub fn confidence_phrase(&self) -> String {
         let v = self;
@@ -184,6 +198,10 @@ impl Verdict {
             }
             "unexplained" => "of the model-discrepancy fit".to_string(),
             "ambiguous" | "emulator_limited" => "of the models still standing".to_string(),
+            "partial" => format!(
+                "that the data need {}, with δ for the rest, over every model that contains it",
+                v.named().unwrap_or("its candidate")
+            ),
             name => format!("that the data need {name}, over every model that contains it"),
         };
         let shown = if p > 0.999 { "> 0.999".to_string() } else { format!("{p:.3}") };

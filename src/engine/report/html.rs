@@ -415,7 +415,7 @@ fn discovery_section(html: &mut String, diag: &Diagnosis) {
         ));
     }
     html.push_str("</table>\n");
-    if let Some(t) = d.screened.iter().find(|t| t.name == diag.verdict.best) {
+    if let Some(t) = d.screened.iter().find(|t| Some(t.name.as_str()) == diag.verdict.named()) {
         html.push_str(&format!(
             "<p>Discovered: <b>{}</b> ({}). Declare it in the config to use it from now on:</p><pre>{}</pre>\n",
             html_escape(&t.formula),

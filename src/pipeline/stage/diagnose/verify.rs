@@ -114,7 +114,10 @@ fn what_to_check(
             spec: base_spec,
         }));
     }
-    let name = &diagnosis.verdict.best;
+    let Some(name) = diagnosis.verdict.named().map(String::from) else {
+        return Ok(Err(format!("not run: the verdict ({}) names no candidate", diagnosis.verdict.best)));
+    };
+    let name = &name;
     let variants: Vec<Variant> = crate::pipeline::stage::candidates::variants(study)?;
     let Some(variant) = variants.into_iter().find(|v| &v.name == name) else {
         return Ok(Err(format!(
