@@ -64,7 +64,7 @@ pub(super) fn system_settings(study: &Study<'_>, stage: StageId) -> serde_json::
 
 impl Study<'_> {
     /// What the simulate stage runs: `[run.simulator]`, or a system's own
-    /// (the stand-in's command, the same as the design's SLURM array runs).
+    /// (a system's command runs the same in the design's Slurm array).
     pub(super) fn simulator(&self, validation: bool) -> Result<SimulatorSpec> {
         if let Some(s) = &self.run.simulator {
             return Ok(s.clone());
@@ -101,7 +101,7 @@ impl Study<'_> {
     }
 
     /// The study's analysis: the study's emulator as the model, a system's
-    /// family (the stand-in itself) as the `[truth]` process.
+    /// family (a system that simulates its own data) as the `[truth]` process.
     pub(super) fn analysis(&self, config: &Config) -> Result<Analysis> {
         let mut families = Registry::new();
         families.register(Arc::new(EmulatorFamily));

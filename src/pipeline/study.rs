@@ -29,7 +29,7 @@ pub struct RunOptions {
     pub show_progress: bool,
     /// Where the simulate stage runs the design points.
     pub executor: Executor,
-    /// The mdpipe executable, substituted for `{mdpipe}` (the stand-in's command).
+    /// The mdpipe executable, substituted for `{mdpipe}` (a built-in system's command).
     pub mdpipe: PathBuf,
     /// With `stage = calibrate`: only this case (by index), as one array task
     /// would; nothing is assessed or stamped but the case.
@@ -126,7 +126,7 @@ pub(crate) trait StudySystem: Sync {
     fn default_simulator(&self, _study: &Study<'_>, _validation: bool) -> Result<Option<SimulatorSpec>> {
         Ok(None)
     }
-    /// Candidate physics from its own library (`[run.stand_in] candidates`), as variants of its simulator.
+    /// Candidate physics from its own library (a table of its own in `[run]`), as variants of its simulator.
     fn library_variants(&self, _study: &Study<'_>) -> Result<Vec<Variant>> {
         Ok(Vec::new())
     }

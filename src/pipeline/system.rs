@@ -1,7 +1,7 @@
 //! The systems of a run: what each brings to a study (`study::StudySystem`,
 //! the queries the study holds) and the stages it adds (`System::stages`).
 //! The runner knows no system: `app::systems()` is the one list, passed to
-//! `pipeline::run`; the heavy-ion stand-in (`stand_in/`) is the one built in.
+//! `pipeline::run`; each built-in system is a folder of its own here.
 //! A new system is its own folder and one line in that list.
 
 use super::stage::{AnyStage, StageId};

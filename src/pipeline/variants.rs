@@ -6,8 +6,8 @@
 //! (`parameter_file`), other values of the command's own placeholders
 //! (`placeholders`, declared in `[run.simulator] placeholders`), or a command
 //! of its own (`command`). Its `parameters` join θ in its design and are the
-//! priors of its fit. The stand-in's library (`[run.stand_in] candidates`) gives
-//! variants of the same kind (`study::StudySystem::library_variants`).
+//! priors of its fit. A system's own library (a table of its own in `[run]`)
+//! gives variants of the same kind (`study::StudySystem::library_variants`).
 
 use crate::base::config::{Config, ParamSpec};
 use crate::engine::design::{DesignParameter, DesignSpec};

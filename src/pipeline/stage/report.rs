@@ -1,6 +1,6 @@
 //! The report stage: report.html over the calibrations and the emulator,
-//! with the section and figures of a system that assessed the study (the
-//! stand-in's study against its truth).
+//! with the section and figures of a system that assessed the study against
+//! its truth.
 
 use super::{Keys, Stage, StageId};
 use crate::base::artifacts;

@@ -1,7 +1,7 @@
 //! The calibrate stage: every observable set × kernel as one case
 //! (`cases`), each stamped on its own so an interrupted stage
 //! resumes case by case; then a system that made the data assesses the
-//! calibrations against its truth (the stand-in: study.json, study.md) or,
+//! calibrations against its truth (its own study.json, study.md) or,
 //! without a truth, each case's parameters and evidence are tabled
 //! (calibrate/cases.json, cases.md).
 
