@@ -45,6 +45,8 @@ enum Outcome {
     Right,
     AmbiguousLeading,
     AmbiguousBehind,
+    /// A partial explanation naming the right form, δ kept for the rest.
+    PartialRight,
     Unexplained,
     Wrong,
 }
@@ -57,6 +59,8 @@ fn outcome(d: &Diagnosis, right_name: impl Fn(&str) -> bool, covered: impl Fn(&D
         Outcome::AmbiguousLeading
     } else if d.verdict.best == "ambiguous" && d.verdict.standing.iter().any(|s| right_name(s)) {
         Outcome::AmbiguousBehind
+    } else if d.verdict.best == "partial" && d.verdict.named().is_some_and(&right_name) {
+        Outcome::PartialRight
     } else if d.verdict.best == "unexplained" {
         Outcome::Unexplained
     } else {
@@ -75,6 +79,7 @@ fn report(what: &str, first: &[Outcome], followed: &[Outcome]) {
             (Outcome::Right, "right form named, parameters covered"),
             (Outcome::AmbiguousLeading, "ambiguous, the right form leading"),
             (Outcome::AmbiguousBehind, "ambiguous, the right form behind a wrong one (wrong)"),
+            (Outcome::PartialRight, "partial, the right form with δ for the rest"),
             (Outcome::Unexplained, "unexplained"),
             (Outcome::Wrong, "wrong"),
         ] {

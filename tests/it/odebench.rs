@@ -179,6 +179,8 @@ fn repaired(case: &Case, d: &Diagnosis, name: &str) -> Option<(Vec<String>, BTre
 enum Outcome {
     Right,
     AmbiguousLeading,
+    /// A partial explanation naming the right form, δ kept for the rest.
+    PartialRight,
     Unexplained,
     None,
     Wrong,
@@ -190,6 +192,13 @@ fn judge(case: &Case, d: &Diagnosis) -> (Outcome, String) {
     match best {
         "unexplained" | "emulator_limited" => (Outcome::Unexplained, best.into()),
         "none" => (Outcome::None, best.into()),
+        "partial" => {
+            let named = d.verdict.named().unwrap_or_default().to_string();
+            match close(&named) {
+                Some(w) if w <= 0.1 => (Outcome::PartialRight, format!("partial, {named} ({w:.3})")),
+                w => (Outcome::Wrong, format!("partial, {named} ({w:?})")),
+            }
+        }
         "ambiguous" => {
             let lead = d.verdict.standing.first().cloned().unwrap_or_default();
             match close(&lead) {
@@ -238,9 +247,10 @@ fn odebench_a_term_left_out() {
     for (o, label) in [
         (Outcome::Right, "decisive and right"),
         (Outcome::AmbiguousLeading, "ambiguous, the right form leading"),
+        (Outcome::PartialRight, "partial, the right form with δ for the rest"),
         (Outcome::Unexplained, "unexplained"),
         (Outcome::None, "none"),
-        (Outcome::Wrong, "wrong (decisive, or ambiguous with a wrong form leading)"),
+        (Outcome::Wrong, "wrong (decisive, ambiguous or partial with a wrong form leading)"),
     ] {
         println!("odebench: {}", rate(label, count(o), n));
     }
