@@ -18,7 +18,7 @@ use cli::Cli;
 /// is the system's that claims it, and reports take their figures. A new
 /// system is its own folder and one line here.
 pub fn systems() -> crate::pipeline::Systems {
-    crate::pipeline::Systems::new(vec![&crate::pipeline::StandIn])
+    crate::pipeline::Systems::new(vec![&crate::run_systems::StandIn])
 }
 
 /// Runs one parsed command line.

@@ -35,19 +35,16 @@
 //! (`lock`): a second run into it stops and names the first.
 
 mod complete;
-#[cfg(test)]
-mod free_fall;
 mod lock;
-mod plan;
+pub(crate) mod plan;
 mod points;
-mod run_config;
+pub(crate) mod run_config;
 mod setup;
-mod stage;
+pub(crate) mod stage;
 mod stage_id;
-mod stand_in;
-mod study;
-mod system;
-mod variants;
+pub(crate) mod study;
+pub(crate) mod system;
+pub(crate) mod variants;
 
 use crate::base::artifacts::{self};
 use crate::base::config::Config;
@@ -59,7 +56,6 @@ pub use run_config::{RefineConfig, RunConfig};
 pub use stage::refine::report::Rounds;
 use stage::StageLoop;
 pub use stage::{StageId, StageOutcome};
-pub(crate) use stand_in::StandIn;
 use study::Study;
 pub use study::{RunOptions, RunPaths};
 pub use system::Systems;

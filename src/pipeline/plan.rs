@@ -25,7 +25,7 @@ fn generic() -> Vec<&'static dyn AnyStage> {
 /// Every stage, the generic ones and those the systems add, in the order a
 /// study runs them, each with the stages it reads. A system's stage runs
 /// right after the stage it names (after the others placed there before it).
-pub(super) fn stages(systems: &Systems) -> Vec<Planned> {
+pub(crate) fn stages(systems: &Systems) -> Vec<Planned> {
     let mut stages: Vec<Planned> =
         generic().into_iter().map(|stage| Planned { stage, upstream: stage.upstream().to_vec() }).collect();
     let mut placed_after: Vec<StageId> = Vec::new();
@@ -69,47 +69,37 @@ pub(super) fn plan(study: &Study<'_>, systems: &Systems) -> Result<Vec<Planned>>
     Ok(planned)
 }
 
+/// Asserts that each stage has an id of its own and reads only stages that
+/// run before it (a system's own tests call it with its stages).
+#[cfg(test)]
+pub(crate) fn assert_reads_only_earlier(stages: &[Planned]) {
+    for (i, p) in stages.iter().enumerate() {
+        let id = p.stage.id();
+        assert!(stages[..i].iter().all(|s| s.stage.id() != id), "{id} twice");
+        for u in &p.upstream {
+            assert!(stages[..i].iter().any(|s| s.stage.id() == *u), "{id} reads {u}, which is not before it");
+        }
+    }
+}
+
+/// The stage names in run order.
+#[cfg(test)]
+pub(crate) fn names(stages: &[Planned]) -> Vec<&'static str> {
+    stages.iter().map(|p| p.stage.id().name()).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// With the test system's stages, each stage has an id of its own and
-    /// reads only stages that run before it; a system's stage sits where it
-    /// says, and its readers read it.
+    /// The generic stages, with no system, in their order, each reading
+    /// only stages before it (a system's own tests check its stages).
     #[test]
-    fn every_stage_reads_only_earlier_stages() {
+    fn every_generic_stage_reads_only_earlier_stages() {
         let generic = stages(&Systems::new(vec![]));
-        let with_system = stages(&Systems::new(vec![&crate::pipeline::free_fall::FreeFall]));
-        for stages in [&generic, &with_system] {
-            for (i, p) in stages.iter().enumerate() {
-                let id = p.stage.id();
-                assert!(stages[..i].iter().all(|s| s.stage.id() != id), "{id} twice");
-                for u in &p.upstream {
-                    assert!(stages[..i].iter().any(|s| s.stage.id() == *u), "{id} reads {u}, which is not before it");
-                }
-            }
-        }
-        let names = |stages: &[Planned]| stages.iter().map(|p| p.stage.id().name()).collect::<Vec<_>>();
+        assert_reads_only_earlier(&generic);
         let generic_names =
             ["design", "simulate", "ingest", "emulator", "refine", "calibrate", "report", "candidates", "diagnose"];
         assert_eq!(names(&generic), generic_names);
-        let placed = [
-            "design",
-            "simulate",
-            "ingest",
-            "emulator",
-            "fall_mock",
-            "refine",
-            "calibrate",
-            "fall_probe",
-            "report",
-            "candidates",
-            "diagnose",
-        ];
-        assert_eq!(names(&with_system), placed);
-        let calibrate = with_system.iter().find(|p| p.stage.id() == StageId::CALIBRATE).unwrap();
-        assert!(calibrate.upstream.contains(&StageId::new("fall_mock")), "a reader reads the system's stage");
-        let report = with_system.iter().find(|p| p.stage.id() == StageId::REPORT).unwrap();
-        assert!(!report.upstream.contains(&StageId::new("fall_mock")), "a stage that does not read it does not");
     }
 }

@@ -79,14 +79,14 @@ impl RunPaths {
 /// writes and how. Read only: stages change
 /// nothing in it.
 pub(crate) struct Study<'a> {
-    pub(super) config: &'a Config,
-    pub(super) run: &'a RunConfig,
+    pub(crate) config: &'a Config,
+    pub(crate) run: &'a RunConfig,
     /// `[emulator]`, decoded once.
-    pub(super) emulator: Option<EmulatorSettings>,
-    pub(super) paths: RunPaths,
-    pub(super) opts: &'a RunOptions,
+    pub(crate) emulator: Option<EmulatorSettings>,
+    pub(crate) paths: RunPaths,
+    pub(crate) opts: &'a RunOptions,
     /// The systems of this run, which complete the study (`setup`).
-    pub(super) systems: &'a [&'a dyn StudySystem],
+    pub(crate) systems: &'a [&'a dyn StudySystem],
 }
 
 /// Data a system made for the study (mock data with a known truth).
@@ -186,7 +186,7 @@ impl Study<'_> {
     /// The calibrations written under `dir`, at most three folders down (the
     /// calibrate stage's cases, the refine rounds' pilots), in path order:
     /// fits a later stage may take for the same problem (`calibrate::results::stored`).
-    pub(super) fn stored_fits(&self, dir: &Path) -> Vec<PathBuf> {
+    pub(crate) fn stored_fits(&self, dir: &Path) -> Vec<PathBuf> {
         let mut found = Vec::new();
         let mut level = vec![dir.to_path_buf()];
         for _ in 0..3 {
@@ -207,7 +207,7 @@ impl Study<'_> {
         self.run.observable_sets.last().cloned().unwrap_or_default()
     }
 
-    pub(super) fn all_observables(&self) -> Vec<String> {
+    pub(crate) fn all_observables(&self) -> Vec<String> {
         let mut all: Vec<String> = Vec::new();
         for set in &self.run.observable_sets {
             for o in set {
@@ -220,7 +220,7 @@ impl Study<'_> {
     }
 }
 
-pub(super) fn absolute(p: &Path) -> PathBuf {
+pub(crate) fn absolute(p: &Path) -> PathBuf {
     std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf())
 }
 

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 /// the order data flow: the sampler (which knows only its target's
 /// interface), the likelihood that implements it, the analysis and the
 /// problem built from it, the results, and the run above them all.
-const UNITS: [(&str, u32); 27] = [
+const UNITS: [(&str, u32); 28] = [
     ("base", 0),
     ("engine::gp", 10),
     ("engine::formula", 10),
@@ -36,6 +36,7 @@ const UNITS: [(&str, u32); 27] = [
     ("systems::heavy_ion", 80),
     ("systems", 90),
     ("pipeline", 100),
+    ("run_systems", 105),
     ("app", 110),
     ("engine", 120),
 ];

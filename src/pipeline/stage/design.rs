@@ -10,12 +10,12 @@ use crate::pipeline::study::Study;
 use anyhow::Result;
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Design;
+pub(crate) struct Design;
 
 /// The design stage also writes the array script, which carries the
 /// simulate settings (a system's among them).
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     spec: String,
     points: usize,
     validation_points: usize,

@@ -7,10 +7,10 @@ use crate::pipeline::study::Study;
 use anyhow::{bail, Result};
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Emulator;
+pub(crate) struct Emulator;
 
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     emulator: Option<EmulatorSettings>,
     seed: u64,
 }

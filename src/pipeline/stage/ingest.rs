@@ -8,11 +8,11 @@ use crate::pipeline::study::{runs_fingerprint, Study};
 use anyhow::Result;
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Ingest;
+pub(crate) struct Ingest;
 
 /// The run folders' contents, which a rerun of the simulate stage may change.
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     runs: [String; 2],
     observables: Vec<String>,
 }

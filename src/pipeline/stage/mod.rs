@@ -19,7 +19,7 @@ pub(super) mod design;
 pub(super) mod diagnose;
 pub(super) mod emulator;
 pub(super) mod ingest;
-pub(super) mod refine;
+pub(crate) mod refine;
 pub(super) mod report;
 pub(super) mod simulate;
 
@@ -38,7 +38,7 @@ pub(crate) enum Presence {
 }
 
 /// One stage of a study: what it needs, what it leaves, what it does.
-pub(in crate::pipeline) trait Stage: Sync {
+pub(crate) trait Stage: Sync {
     /// What defines its output beyond its upstream keys; serialized into its key.
     type Settings: serde::Serialize;
     const ID: StageId;
@@ -98,27 +98,27 @@ impl<S: Stage> AnyStage for S {
 /// (what their outputs were) and its own key.
 pub(crate) struct Keys<'k> {
     /// Stage name → key, for each stage it reads that the study has.
-    pub(in crate::pipeline) reads: &'k BTreeMap<&'static str, String>,
-    pub(in crate::pipeline) this: &'k str,
+    pub(crate) reads: &'k BTreeMap<&'static str, String>,
+    pub(crate) this: &'k str,
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
-pub(in crate::pipeline) struct Stamp {
-    pub(in crate::pipeline) stage: String,
+pub(crate) struct Stamp {
+    pub(crate) stage: String,
     /// Hash of the stage's settings and upstream keys: unchanged, the stage is skipped.
-    pub(in crate::pipeline) key: String,
+    pub(crate) key: String,
     /// What later stages key on: new each time the stage runs, so a stage
     /// run again with the same settings (`--force`) reruns what follows.
     /// (Keyed on `key`, a forced refine once left the calibrations of the
     /// previous emulator in place.) Empty in stamps from before it existed.
     #[serde(default)]
-    pub(in crate::pipeline) output_key: String,
-    pub(in crate::pipeline) seconds: f64,
-    pub(in crate::pipeline) provenance: Provenance,
+    pub(crate) output_key: String,
+    pub(crate) seconds: f64,
+    pub(crate) provenance: Provenance,
 }
 
 impl Stamp {
-    pub(in crate::pipeline) fn downstream_key(&self) -> String {
+    pub(crate) fn downstream_key(&self) -> String {
         if self.output_key.is_empty() {
             self.key.clone()
         } else {
@@ -129,9 +129,9 @@ impl Stamp {
 
 /// A stage as a study runs it: the stages it reads are its own upstream
 /// and the systems' stages that say they feed it.
-pub(in crate::pipeline) struct Planned {
-    pub(in crate::pipeline) stage: &'static dyn AnyStage,
-    pub(in crate::pipeline) upstream: Vec<StageId>,
+pub(crate) struct Planned {
+    pub(crate) stage: &'static dyn AnyStage,
+    pub(crate) upstream: Vec<StageId>,
 }
 
 /// What happened to each stage.
@@ -144,15 +144,15 @@ pub struct StageOutcome {
 
 /// The loop over a study's stages: it owns the keys, skips a stage whose
 /// stamp holds its key, runs the rest and stamps them.
-pub(in crate::pipeline) struct StageLoop {
+pub(crate) struct StageLoop {
     /// The study's stages.
     planned: Vec<StageId>,
     keys: BTreeMap<String, String>,
-    pub(in crate::pipeline) outcomes: Vec<StageOutcome>,
+    pub(crate) outcomes: Vec<StageOutcome>,
 }
 
 impl StageLoop {
-    pub(in crate::pipeline) fn new(planned: &[Planned]) -> StageLoop {
+    pub(crate) fn new(planned: &[Planned]) -> StageLoop {
         StageLoop {
             planned: planned.iter().map(|p| p.stage.id()).collect(),
             keys: BTreeMap::new(),
@@ -160,7 +160,7 @@ impl StageLoop {
         }
     }
 
-    pub(in crate::pipeline) fn run(&mut self, study: &Study<'_>, planned: &Planned) -> Result<()> {
+    pub(crate) fn run(&mut self, study: &Study<'_>, planned: &Planned) -> Result<()> {
         let (stage, paths, opts) = (planned.stage, &study.paths, study.opts);
         let name = stage.id().name();
         if opts.stage.as_deref().is_some_and(|s| s != name) {
@@ -265,6 +265,6 @@ fn keep_previous(paths: &super::RunPaths, name: &str, key: &str, folder: &Path) 
     Ok(())
 }
 
-pub(in crate::pipeline) fn read_stamp(path: &Path) -> Option<Stamp> {
+pub(crate) fn read_stamp(path: &Path) -> Option<Stamp> {
     serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
 }

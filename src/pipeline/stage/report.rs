@@ -8,10 +8,10 @@ use crate::pipeline::study::Study;
 use anyhow::Result;
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Report;
+pub(crate) struct Report;
 
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     config: String,
 }
 

@@ -9,10 +9,10 @@ use crate::pipeline::study::Study;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Simulate;
+pub(crate) struct Simulate;
 
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     simulator: Option<SimulatorSpec>,
     seed: u64,
     #[serde(flatten)]

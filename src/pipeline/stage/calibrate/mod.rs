@@ -15,10 +15,10 @@ use crate::pipeline::study::Study;
 use anyhow::{anyhow, Result};
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Calibrate;
+pub(crate) struct Calibrate;
 
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     config: String,
     data: String,
     sets: Vec<Vec<String>>,

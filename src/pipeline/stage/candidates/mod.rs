@@ -16,12 +16,12 @@ use crate::pipeline::study::Study;
 use crate::pipeline::variants::Variant;
 use anyhow::{anyhow, Context, Result};
 use std::path::{Path, PathBuf};
-pub(in crate::pipeline) use variants::{presence, variants};
+pub(crate) use variants::{presence, variants};
 
-pub(in crate::pipeline) struct Candidates;
+pub(crate) struct Candidates;
 
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     spec: String,
     variants: Vec<Variant>,
     points: usize,

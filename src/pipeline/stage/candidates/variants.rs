@@ -13,7 +13,7 @@ use crate::pipeline::variants::{check_declaration, design_parameter, Variant};
 use anyhow::{bail, Context, Result};
 
 /// The candidates stage's presence: a variant to build for some candidate.
-pub(in crate::pipeline) fn presence(study: &Study<'_>) -> Result<Presence> {
+pub(crate) fn presence(study: &Study<'_>) -> Result<Presence> {
     Ok(if variants(study)?.is_empty() {
         Presence::Absent(format!(
             "{} declares no candidates that run the simulator ([[candidates]], or a system's library: {})",
@@ -28,7 +28,7 @@ pub(in crate::pipeline) fn presence(study: &Study<'_>) -> Result<Presence> {
 /// Every candidate of the study that is a variant of the simulator: the
 /// systems' library names, then the declared `[[candidates]]` (not the
 /// corrections of the emulated output, which need no runs).
-pub(in crate::pipeline) fn variants(study: &Study<'_>) -> Result<Vec<Variant>> {
+pub(crate) fn variants(study: &Study<'_>) -> Result<Vec<Variant>> {
     let mut variants = Vec::new();
     for system in study.systems {
         variants.extend(system.library_variants(study)?);

@@ -14,10 +14,10 @@ use crate::pipeline::study::Study;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Diagnose;
+pub(crate) struct Diagnose;
 
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     config: String,
     conventions: &'static str,
     data: String,

@@ -3,7 +3,7 @@
 //! the data error; the stages after it use its emulator
 //! (`report::emulator_in_use`, from its report `rounds.json`).
 
-pub(in crate::pipeline) mod report;
+pub(crate) mod report;
 mod rounds;
 
 use super::{Keys, Presence, Stage, StageId};
@@ -16,10 +16,10 @@ use anyhow::Result;
 use report::refine_dir;
 use std::path::PathBuf;
 
-pub(in crate::pipeline) struct Refine;
+pub(crate) struct Refine;
 
 #[derive(serde::Serialize)]
-pub(in crate::pipeline) struct Settings {
+pub(crate) struct Settings {
     config: String,
     data: String,
     refine: Option<RefineConfig>,

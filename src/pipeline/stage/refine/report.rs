@@ -86,12 +86,12 @@ impl Rounds {
 }
 
 /// Where the refine stage writes: `OUT/refine/`.
-pub(in crate::pipeline) fn refine_dir(study: &Study<'_>) -> PathBuf {
+pub(crate) fn refine_dir(study: &Study<'_>) -> PathBuf {
     study.paths.out.join("refine")
 }
 
 /// The refine stage's report, when `[run.refine]` is set.
-pub(in crate::pipeline) fn rounds(study: &Study<'_>) -> Result<Option<Rounds>> {
+pub(crate) fn rounds(study: &Study<'_>) -> Result<Option<Rounds>> {
     if study.run.refine.is_none() {
         return Ok(None);
     }
@@ -103,7 +103,7 @@ pub(in crate::pipeline) fn rounds(study: &Study<'_>) -> Result<Option<Rounds>> {
 }
 
 /// The emulator the calibrations use: refine's last, when `[run.refine]` is set.
-pub(in crate::pipeline) fn emulator_in_use(study: &Study<'_>) -> Result<PathBuf> {
+pub(crate) fn emulator_in_use(study: &Study<'_>) -> Result<PathBuf> {
     Ok(match rounds(study)? {
         Some(rounds) => refine_dir(study).join(rounds.emulator),
         None => study.paths.emulator(),

@@ -9,13 +9,13 @@
 //! stages that read the data, and a probe after the calibrations); the
 //! study's data; and its units.
 
-use super::run_config::RunConfig;
-use super::stage::{Keys, Presence, Stage, StageId};
-use super::study::{Study, StudyData, StudySystem};
-use super::system::{System, SystemStage};
 use crate::base::artifacts;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
 use crate::engine::model::Units;
+use crate::pipeline::run_config::RunConfig;
+use crate::pipeline::stage::{Keys, Presence, Stage, StageId};
+use crate::pipeline::study::{Study, StudyData, StudySystem};
+use crate::pipeline::system::{System, SystemStage};
 use anyhow::{bail, Context, Result};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};

@@ -7,7 +7,10 @@
 use super::FreeFall;
 use crate::base::choices::Executor;
 use crate::base::config::Config;
-use crate::pipeline::{run, RunOptions, StandIn, Systems};
+use crate::pipeline::plan::{assert_reads_only_earlier, names};
+use crate::pipeline::stage::StageId;
+use crate::pipeline::{run, RunOptions, Systems};
+use crate::run_systems::StandIn;
 use std::path::{Path, PathBuf};
 
 /// A candidate that corrects the output: nothing to run.
@@ -70,6 +73,33 @@ fn options(out: PathBuf) -> RunOptions {
 
 fn ran(outcomes: &[crate::pipeline::StageOutcome]) -> Vec<&str> {
     outcomes.iter().filter(|o| o.ran).map(|o| o.stage.as_str()).collect()
+}
+
+/// Its stages sit where it says, each with an id of its own and reading
+/// only stages before it; the stages that read its mock data read it, and
+/// a stage that does not read it does not.
+#[test]
+fn its_stages_sit_where_it_says_and_their_readers_read_them() {
+    let with_system = crate::pipeline::plan::stages(&Systems::new(vec![&FreeFall]));
+    assert_reads_only_earlier(&with_system);
+    let placed = [
+        "design",
+        "simulate",
+        "ingest",
+        "emulator",
+        "fall_mock",
+        "refine",
+        "calibrate",
+        "fall_probe",
+        "report",
+        "candidates",
+        "diagnose",
+    ];
+    assert_eq!(names(&with_system), placed);
+    let calibrate = with_system.iter().find(|p| p.stage.id() == StageId::CALIBRATE).unwrap();
+    assert!(calibrate.upstream.contains(&StageId::new("fall_mock")), "a reader reads the system's stage");
+    let report = with_system.iter().find(|p| p.stage.id() == StageId::REPORT).unwrap();
+    assert!(!report.upstream.contains(&StageId::new("fall_mock")), "a stage that does not read it does not");
 }
 
 #[test]

@@ -7,16 +7,16 @@
 mod mock;
 mod settings;
 
-use super::run_config::RunConfig;
-use super::stage::StageId;
-use super::study::*;
-use super::system::{System, SystemStage};
-use super::variants::Variant;
 use crate::base::artifacts;
 use crate::base::config::Config;
 use crate::engine::execute::{OutputKind, SimulatorSpec};
 use crate::engine::model::{ModelFamily, Units};
 use crate::engine::report::SystemFigures;
+use crate::pipeline::run_config::RunConfig;
+use crate::pipeline::stage::StageId;
+use crate::pipeline::study::*;
+use crate::pipeline::system::{System, SystemStage};
+use crate::pipeline::variants::Variant;
 use crate::systems::heavy_ion::family::HeavyIonFamily;
 use crate::systems::heavy_ion::figures::HeavyIonFigures;
 use crate::systems::heavy_ion::{self, DeltaF};
@@ -105,13 +105,13 @@ impl StudySystem for StandIn {
             config,
             dirs,
             &truth_curve,
-            &super::stage::refine::report::emulator_in_use(study)?,
+            &crate::pipeline::stage::refine::report::emulator_in_use(study)?,
             &study.paths.validation(),
             &mock::measurements(study),
         )?;
         artifacts::write_json_atomic(&study.paths.out.join("study.json"), &assessed)?;
         let mut md = assessed.markdown();
-        if let Some(rounds) = super::stage::refine::report::rounds(study)? {
+        if let Some(rounds) = crate::pipeline::stage::refine::report::rounds(study)? {
             md.push_str(&rounds.study_section());
         }
         artifacts::write_text_atomic(&study.paths.out.join("study.md"), &md)?;
