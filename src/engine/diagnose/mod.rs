@@ -300,17 +300,21 @@ pub fn run_reusing(
             figures(&format!("model + {}", winner.candidate.name), &winner.problem, &winner.calibration),
             figures(&format!("model + {} + MD", winner.candidate.name), &rep_md_problem, &rep_md),
         ];
+        // A partial explanation's answer is the fit with δ kept for the rest.
+        let answer = usize::from(verdict.best == "partial");
+        let (answer_problem, answer_fit) =
+            if answer == 1 { (&rep_md_problem, &rep_md) } else { (&winner.problem, &winner.calibration) };
         let interval_narrowing = base_problem
             .simulator
             .parameter_names()
             .iter()
-            .map(|n| {
-                (n.clone(), md.summary.parameters[n].width95() / winner.calibration.summary.parameters[n].width95())
-            })
+            .map(|n| (n.clone(), md.summary.parameters[n].width95() / answer_fit.summary.parameters[n].width95()))
             .collect();
-        let information_limit = information_limit(&winner.problem, &winner.calibration, &md);
+        // The Cramér–Rao limit is of θ alone, without δ's hyperparameters.
+        let information_limit =
+            if answer == 0 { information_limit(answer_problem, answer_fit, &md) } else { BTreeMap::new() };
         let truth = winner.problem.analysis.truth_values();
-        improvement = Some(Improvement { before, after, interval_narrowing, information_limit, truth });
+        improvement = Some(Improvement { before, after, interval_narrowing, information_limit, truth, answer });
         repaired_md = Some(rep_md);
     }
     let diagnosis = Diagnosis {

@@ -238,6 +238,11 @@ pub struct Improvement {
     /// The parameters' true values, when the config knows them (mock data).
     #[serde(default)]
     pub truth: BTreeMap<String, f64>,
+    /// Which of `after` is the verdict's answer: 0, the model with the named
+    /// candidate; 1, with δ on top, for a partial explanation (the
+    /// candidate alone misfits, so its own intervals are not the answer).
+    #[serde(default)]
+    pub answer: usize,
 }
 
 impl Improvement {
@@ -248,7 +253,7 @@ impl Improvement {
         let Some(&t) = self.truth.get(name) else { return String::new() };
         let covers =
             |f: Option<&FitFigures>| f.and_then(|f| f.parameters.get(name)).map(|p| p.q025 <= t && t <= p.q975);
-        match (covers(self.after.first()), covers(self.before.get(1))) {
+        match (covers(self.after.get(self.answer)), covers(self.before.get(1))) {
             (Some(true), Some(false)) => format!("; it covers the truth {t}, which MD alone missed"),
             (Some(true), Some(true)) => format!("; both cover the truth {t}"),
             (Some(false), Some(true)) => format!("; it misses the truth {t}, which MD alone covered"),

@@ -41,7 +41,10 @@ impl std::fmt::Display for PiledAtBound {
 }
 
 /// Every parameter piled against a bound of `prior`, in parameter order.
-pub fn piled_at_bounds(chains: &Chains, prior: &UniformPrior) -> Vec<PiledAtBound> {
+/// The first `n_theta` are the model's; those after are δ's hyperparameters,
+/// whose lower bound of zero is no box but the data's own answer (δ's
+/// amplitude at zero: no discrepancy there), and is not reported.
+pub fn piled_at_bounds(chains: &Chains, prior: &UniformPrior, n_theta: usize) -> Vec<PiledAtBound> {
     let mut found = Vec::new();
     for p in 0..chains.dim.min(prior.dim()) {
         let draws = chains.param(p);
@@ -54,7 +57,8 @@ pub fn piled_at_bounds(chains: &Chains, prior: &UniformPrior) -> Vec<PiledAtBoun
         let near_lower = draws.iter().filter(|v| **v <= lo + width).count() as f64 / n;
         let near_upper = draws.iter().filter(|v| **v >= hi - width).count() as f64 / n;
         for (bound, value, share) in [("lower", lo, near_lower), ("upper", hi, near_upper)] {
-            if share > PILED {
+            let natural = p >= n_theta && bound == "lower" && value == 0.0;
+            if share > PILED && !natural {
                 found.push(PiledAtBound { parameter: chains.names[p].clone(), bound: bound.into(), value, share });
             }
         }
@@ -82,10 +86,22 @@ mod tests {
         let u: Vec<f64> = (0..n).map(|i| (i as f64 + 0.5) / n as f64).collect();
         let rising: Vec<f64> = u.iter().map(|v| v.powf(1.0 / 21.0)).collect();
         let narrow: Vec<f64> = u.iter().map(|v| 0.5 + 0.05 * (v - 0.5)).collect();
-        let found = piled_at_bounds(&chains_of(&[rising, u.clone(), narrow]), &prior);
+        let found = piled_at_bounds(&chains_of(&[rising, u.clone(), narrow]), &prior, 3);
         assert_eq!(found.len(), 1, "{found:?}");
         assert_eq!((found[0].parameter.as_str(), found[0].bound.as_str()), ("p0", "upper"));
         assert!((found[0].share - (1.0 - 0.98f64.powi(21))).abs() < 0.01, "{}", found[0].share);
         assert!(found[0].to_string().contains("widen the prior"));
+    }
+
+    #[test]
+    fn a_discrepancy_amplitude_at_zero_is_not_the_box_but_a_model_parameter_there_is() {
+        // p0 a model parameter, p1 δ's amplitude.
+        let prior = UniformPrior::new(vec!["p0".into(), "p1".into()], vec![0.0; 2], vec![1.0; 2]).unwrap();
+        let n = 4000;
+        // Both fall from zero (density ∝ (1 − x)^20: 35% in the lower strip).
+        let falling: Vec<f64> = (0..n).map(|i| 1.0 - ((i as f64 + 0.5) / n as f64).powf(1.0 / 21.0)).collect();
+        let found = piled_at_bounds(&chains_of(&[falling.clone(), falling]), &prior, 1);
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert_eq!((found[0].parameter.as_str(), found[0].bound.as_str()), ("p0", "lower"));
     }
 }

@@ -322,7 +322,7 @@ pub fn summarize(
             sampler,
             adaptation: Vec::new(),
         },
-        piled_at_bounds: piled_at_bounds(chains, &problem.prior),
+        piled_at_bounds: piled_at_bounds(chains, &problem.prior, problem.likelihood.n_theta),
         provenance: problem.provenance(seed, "calibrate"),
     }
 }
