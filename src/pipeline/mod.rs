@@ -36,6 +36,7 @@
 
 mod complete;
 mod lock;
+mod owner;
 pub(crate) mod plan;
 mod points;
 pub(crate) mod run_config;
@@ -104,6 +105,11 @@ pub fn run(config: &Config, opts: &RunOptions, systems: &Systems) -> Result<Vec<
     // and held to the end of the run; a calibrate array task is covered by
     // the run that submitted it.
     let _lock = opts.case.is_none().then(|| lock::take(&study.paths.out)).transpose()?;
+    if opts.case.is_none() {
+        if let Some(other) = owner::claim(&study.paths.out, &config.path)? {
+            crate::base::messages::note!("{}", owner::shared_warning(&study.paths.out, &config.path, &other));
+        }
+    }
     let mut stages = StageLoop::new(&planned);
     for stage in &planned {
         stages.run(&study, stage)?;

@@ -483,3 +483,26 @@ fn cancelled_pending_tasks_use_no_attempt() {
     assert!(failed.len() <= 1, "more failures than tasks running at the scancel: {report:#}");
     assert_eq!(report["succeeded"].as_u64().unwrap() as usize + failed.len(), 16, "{report:#}");
 }
+
+/// Two configs that share a name, run from one folder into one output
+/// folder: the second is told whose folder it is writing; run again, it is
+/// not told twice.
+#[test]
+fn a_second_config_into_the_same_output_folder_is_told_whose_it_was() {
+    let dir = std::env::temp_dir().join(format!("mdpipe-owner-it-{}", std::process::id()));
+    let (a, b, out) = (dir.join("a"), dir.join("b"), dir.join("outputs/toy_study"));
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    let (config_a, config_b) = (write_study(&a, "NAP=0", ""), write_study(&b, "NAP=0", ""));
+    let said = |o: &std::process::Output| String::from_utf8_lossy(&o.stderr).to_string();
+    let first = run(&config_a, &out, &["--stage", "design"]);
+    assert!(first.status.success(), "{}", said(&first));
+    assert!(!said(&first).contains("last written by another config"), "{}", said(&first));
+    let second = run(&config_b, &out, &["--stage", "design"]);
+    assert!(second.status.success(), "{}", said(&second));
+    let text = said(&second);
+    assert!(text.contains("last written by another config") && text.contains("a/study.toml"), "{text}");
+    let again = run(&config_b, &out, &["--stage", "design"]);
+    assert!(!said(&again).contains("last written by another config"), "{}", said(&again));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
