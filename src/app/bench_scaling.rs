@@ -118,46 +118,61 @@ fn rate(problem: &Problem, seconds: f64) -> f64 {
 }
 
 /// Measures every size in `sizes`, writing the problems under `out` with
-/// covariances to `digits` significant digits.
-pub fn measure(out: &Path, sizes: &[usize], seconds: f64, digits: Option<usize>) -> Result<Vec<ScalingRow>> {
-    let mut rows = Vec::new();
+/// covariances to `digits` significant digits. A size whose problem is
+/// refused (a covariance written to few digits can be no longer positive
+/// definite as written) is listed with the reason, and the rest measured.
+pub fn measure(
+    out: &Path,
+    sizes: &[usize],
+    seconds: f64,
+    digits: Option<usize>,
+) -> Result<(Vec<ScalingRow>, Vec<(usize, String)>)> {
+    let (mut rows, mut refused) = (Vec::new(), Vec::new());
     for &n in sizes {
         let config = write_problem(&out.join(format!("n{n}")), n, digits)?;
-        let start = Instant::now();
-        let analysis = crate::systems::load(&config)?;
-        let overrides = Overrides { kernel: Some(crate::base::choices::Kernel::II), ..Default::default() };
-        let mut problem = Problem::new(&analysis, &overrides)?;
-        let setup_seconds = start.elapsed().as_secs_f64();
-        let rank = problem.likelihood.form.structure().map(|s| s.rank);
-        let mut emulated = analysis.clone();
-        emulated.simulator = Arc::new(EmulatedModel::new(emulator_of(&problem)?));
-        let structured_per_second = rate(&problem, seconds);
-        let dense_per_second = (n <= DENSE_UP_TO).then(|| {
-            problem.likelihood = problem.likelihood.dense();
-            rate(&problem, seconds)
-        });
-        let mut problem = Problem::new(&emulated, &overrides)?;
-        let emulator_rank = problem.likelihood.form.structure().and_then(|s| s.model()).map(|m| m.rank);
-        let emulated_structured_per_second = rate(&problem, seconds);
-        let emulated_dense_per_second = (n <= DENSE_UP_TO).then(|| {
-            problem.likelihood = problem.likelihood.dense();
-            rate(&problem, seconds)
-        });
-        rows.push(ScalingRow {
-            points: n,
-            observables: n.div_ceil(TABLE),
-            covariance_rows: n * n,
-            setup_seconds,
-            rank,
-            structured_per_second,
-            dense_per_second,
-            emulator_rank,
-            emulated_structured_per_second,
-            emulated_dense_per_second,
-        });
+        match measure_one(&config, n, seconds) {
+            Ok(row) => rows.push(row),
+            Err(e) => refused.push((n, format!("{e:#}"))),
+        }
         let _ = std::fs::remove_file(out.join(format!("n{n}")).join("covariance.csv"));
     }
-    Ok(rows)
+    Ok((rows, refused))
+}
+
+/// One size's setup time and rates, its problem written at `config`.
+fn measure_one(config: &Path, n: usize, seconds: f64) -> Result<ScalingRow> {
+    let start = Instant::now();
+    let analysis = crate::systems::load(config)?;
+    let overrides = Overrides { kernel: Some(crate::base::choices::Kernel::II), ..Default::default() };
+    let mut problem = Problem::new(&analysis, &overrides)?;
+    let setup_seconds = start.elapsed().as_secs_f64();
+    let rank = problem.likelihood.form.structure().map(|s| s.rank);
+    let mut emulated = analysis.clone();
+    emulated.simulator = Arc::new(EmulatedModel::new(emulator_of(&problem)?));
+    let structured_per_second = rate(&problem, seconds);
+    let dense_per_second = (n <= DENSE_UP_TO).then(|| {
+        problem.likelihood = problem.likelihood.dense();
+        rate(&problem, seconds)
+    });
+    let mut problem = Problem::new(&emulated, &overrides)?;
+    let emulator_rank = problem.likelihood.form.structure().and_then(|s| s.model()).map(|m| m.rank);
+    let emulated_structured_per_second = rate(&problem, seconds);
+    let emulated_dense_per_second = (n <= DENSE_UP_TO).then(|| {
+        problem.likelihood = problem.likelihood.dense();
+        rate(&problem, seconds)
+    });
+    Ok(ScalingRow {
+        points: n,
+        observables: n.div_ceil(TABLE),
+        covariance_rows: n * n,
+        setup_seconds,
+        rank,
+        structured_per_second,
+        dense_per_second,
+        emulator_rank,
+        emulated_structured_per_second,
+        emulated_dense_per_second,
+    })
 }
 
 /// An emulator of `problem`'s observables at their points, trained on
@@ -218,7 +233,7 @@ pub fn print(out: &Path, seconds: f64, digits: Option<usize>) -> Result<()> {
         "{:>6} {:>5} {:>10} {:>9} {:>5} {:>14} {:>10} {:>9} {:>14} {:>10}",
         "N", "obs", "cov rows", "setup s", "rank", "structured /s", "dense /s", "emu rank", "emulated /s", "dense /s"
     );
-    let rows = measure(out, &SIZES, seconds, digits)?;
+    let (rows, refused) = measure(out, &SIZES, seconds, digits)?;
     let rank = |r: Option<usize>| r.map_or("dense".into(), |k| k.to_string());
     let per_second = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.1}"));
     for r in &rows {
@@ -235,6 +250,9 @@ pub fn print(out: &Path, seconds: f64, digits: Option<usize>) -> Result<()> {
             r.emulated_structured_per_second,
             per_second(r.emulated_dense_per_second),
         );
+    }
+    for (n, why) in &refused {
+        println!("{n:>6} refused: {why}");
     }
     let fit = |rate: &dyn Fn(&ScalingRow) -> Option<f64>| {
         exponent(&rows.iter().filter_map(|r| rate(r).map(|v| (r.points, v))).collect::<Vec<_>>())

@@ -146,6 +146,7 @@ impl Problem {
             crate::base::messages::note!("warning: {} covariance entries between observables are not used: [data] between_observables = \"independent\"", across.len());
         }
         let likelihood = MdLikelihood::linked(simulator.clone(), blocks, kernel, analysis.between_observables, &across);
+        note_rounding_left(&likelihood, analysis.covariance.as_deref().unwrap_or(&data_path));
         let prior = prior_of(analysis, &likelihood)?;
         let sampler = overrides.sampler.unwrap_or(analysis.sampler.kind);
         let mut analysis = analysis.clone();
@@ -292,4 +293,27 @@ fn key_of(problem: &Problem, seed: u64, config_hash: &str) -> String {
         )
     );
     artifacts::sha256_hex(material.as_bytes())
+}
+
+/// Says, once per covariance file in a process, how far the structured
+/// split of a covariance written to few digits is from its numbers as
+/// written, when that is a noticeable share of the smallest error²
+/// (`Structure::rounding_share`).
+fn note_rounding_left(likelihood: &MdLikelihood, data_path: &std::path::Path) {
+    use crate::engine::calibrate::likelihood::structured::NOTED_ROUNDING_SHARE;
+    static NOTED: std::sync::Mutex<Vec<std::path::PathBuf>> = std::sync::Mutex::new(Vec::new());
+    let Some(structure) = likelihood.form.structure() else { return };
+    if structure.rounding_share <= NOTED_ROUNDING_SHARE {
+        return;
+    }
+    let Ok(mut noted) = NOTED.lock() else { return };
+    if noted.iter().any(|p| p == data_path) {
+        return;
+    }
+    noted.push(data_path.to_path_buf());
+    crate::base::messages::note!(
+        "note: {}: the covariance is written to too few digits for its size: its systematics were found to the precision printed, and the covariance used differs from the numbers as written by up to {:.0}% of the smallest error² (in the pattern of their rounding); more digits in the file would tell them apart",
+        data_path.display(),
+        100.0 * structure.rounding_share
+    );
 }
