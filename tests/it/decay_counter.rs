@@ -325,6 +325,7 @@ fn decay_blind(
             effect.label(),
             run.diagnosis.verdict.best
         );
+        crate::diagnose::named_at_even_odds_or_better("decay counter", &run.diagnosis.verdict);
         rows.push((effect.label(), run.diagnosis.verdict.best.clone(), size));
     }
     rows
@@ -460,6 +461,7 @@ fn discovery_set(
     let d = diagnose::run(analysis, &overrides, 11 + k as u64, &settings, None, &mdpipe::progress::Silent)
         .unwrap()
         .diagnosis;
+    crate::diagnose::named_at_even_odds_or_better("decay counter discovery", &d.verdict);
     let named = d.candidates.iter().find(|c| c.name == d.verdict.best && c.prior_log_odds < 0.0);
     let covers = |name: &str, p: &str, value: f64| {
         named.is_some_and(|c| c.name == name && c.parameters.get(p).is_some_and(|s| s.covers(value)))

@@ -490,6 +490,7 @@ fn kinetics_blind(pick: &mut dyn FnMut(&str, f64) -> bool) -> Vec<(&'static str,
             effect.expected(),
             run.diagnosis.verdict.best
         );
+        crate::diagnose::named_at_even_odds_or_better("kinetics", &run.diagnosis.verdict);
         rows.push((effect.expected(), run.diagnosis.verdict.best.clone(), s));
     }
     rows

@@ -303,6 +303,7 @@ fn ball_drop_blind(pick: &mut dyn FnMut(&str, f64) -> bool, particles: usize) ->
             "  concealed {expected:<15} verdict {:<15} noise-free mismatch {size:.1}σ",
             run.diagnosis.verdict.best
         );
+        named_at_even_odds_or_better("ball drop", &run.diagnosis.verdict);
         rows.push((expected, run.diagnosis.verdict.best.clone(), size));
     }
     rows
@@ -345,6 +346,15 @@ pub(crate) fn first_of_each_class(min_size: f64) -> impl FnMut(&str, f64) -> boo
 /// Each verdict as the rules demand, data set by data set: a null is called
 /// `none`, an in-library effect of 3σ or more is named right, and an
 /// out-of-library effect is never given a candidate's name.
+/// No verdict names a candidate below posterior probability one half
+/// (`MIN_NAMED_PROBABILITY`, enforced where verdicts are made): every
+/// campaign asserts it of each of its verdicts.
+pub(crate) fn named_at_even_odds_or_better(system: &str, v: &mdpipe::diagnose::Verdict) {
+    if let Some(name) = v.named() {
+        assert!(v.confidence >= 0.5, "{system}: {name} named at posterior probability {}", v.confidence);
+    }
+}
+
 pub(crate) fn each_verdict_is_right(system: &str, rows: &[(&str, String, f64)]) {
     for (expected, verdict, size) in rows {
         match *expected {

@@ -487,6 +487,7 @@ fn heavy_ion_blind(
             "  data set {k:>2}: concealed {:<20} verdict {:<20} noise-free mismatch {:.1}σ",
             b.expected, run.diagnosis.verdict.best, best.1
         );
+        crate::diagnose::named_at_even_odds_or_better("heavy ion", &run.diagnosis.verdict);
         rows.push((b.expected, run.diagnosis.verdict.best.clone(), best.1));
     }
     let _ = std::fs::remove_dir_all(&dir);

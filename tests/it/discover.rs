@@ -69,6 +69,7 @@ fn drag_leads(d: &Diagnosis, k: f64) -> bool {
 /// miss lands (in kinetics, the alias on the data's spacing of 0.3 s is
 /// 2π/0.3 − 2π/0.7 = 11.97 rad/s).
 fn outcome(d: &Diagnosis, right: bool) -> String {
+    crate::diagnose::named_at_even_odds_or_better("discovery", &d.verdict);
     let omega = discovered(d).and_then(|c| c.parameters.get("w")).map(|w| format!(" ω {w:?}"));
     format!("{} ({}){}", d.verdict.best, if right { "right" } else { "WRONG" }, omega.unwrap_or_default())
 }

@@ -52,6 +52,7 @@ enum Outcome {
 }
 
 fn outcome(d: &Diagnosis, right_name: impl Fn(&str) -> bool, covered: impl Fn(&Diagnosis) -> bool) -> Outcome {
+    crate::diagnose::named_at_even_odds_or_better("discovery's reach", &d.verdict);
     if discovered(d).is_some_and(|c| right_name(&c.name)) && covered(d) {
         Outcome::Right
     } else if d.verdict.best == "ambiguous" && d.verdict.standing.first().is_some_and(|s| right_name(s)) {

@@ -187,6 +187,7 @@ enum Outcome {
 }
 
 fn judge(case: &Case, d: &Diagnosis) -> (Outcome, String) {
+    crate::diagnose::named_at_even_odds_or_better("ODEBench", &d.verdict);
     let best = d.verdict.best.as_str();
     let close = |name: &str| repaired(case, d, name).map(|(r, v)| worst_rms(case, &r, &v));
     match best {
