@@ -143,7 +143,18 @@ pub fn attach(
         let mut chol = CholeskyWorkspace::new(whole.len());
         chol.factor.copy_from_slice(&whole.data);
         if !chol.factorize_exact() {
-            bail!("{}: the covariance of all observables together, with the errors² on the diagonal, is not positive definite", path.display());
+            // A file written to few digits can be indefinite by its rounding
+            // alone once it is large: say so, and what mends it.
+            let rounded = across.iter().any(|c| c.rounding > 0.0 && c.rounding > 1e-12 * c.covariance.abs());
+            let why = if rounded {
+                format!(
+                    "; its {} entries between observables are rounded to their printed digits, and at this size that rounding alone can make it so: write the file with more significant digits",
+                    across.len()
+                )
+            } else {
+                String::new()
+            };
+            bail!("{}: the covariance of all observables together, with the errors² on the diagonal, is not positive definite{why}", path.display());
         }
     }
     Ok(across)
