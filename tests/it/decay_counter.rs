@@ -49,7 +49,7 @@ fn mdpipe_run(dir: &Path, extra: &[&str]) {
     assert!(out.status.success(), "mdpipe run failed:\n{text}");
 }
 
-fn json(path: &Path) -> serde_json::Value {
+pub(crate) fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap()
 }
 

@@ -8,6 +8,7 @@
 //! trained on other runs. The null is Cantera's adiabatic reactor at
 //! another truth, through the same study.
 
+use crate::decay_counter::json;
 use crate::pipeline::tmpdir;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -23,7 +24,7 @@ fn cantera_answers() -> bool {
 fn study_copy(tag: &str) -> PathBuf {
     let dir = tmpdir(tag);
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/shock_tube");
-    for f in ["ignition.py", "make_measurements.py", "design.toml", "study.toml", "measurements.csv"] {
+    for f in ["ignition.py", "make_measurements.py", "design.toml", "study.toml", "measurements.csv", "null.params"] {
         std::fs::copy(src.join(f), dir.join(f)).unwrap();
     }
     dir
@@ -38,10 +39,6 @@ fn mdpipe_run(dir: &Path) {
     let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     println!("{text}");
     assert!(out.status.success(), "mdpipe run failed:\n{text}");
-}
-
-fn json(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap()
 }
 
 /// The check against Cantera: at the repaired fit's posterior median the
@@ -90,10 +87,9 @@ fn cantera_shock_tube_names_heat_loss_as_a_partial_explanation_and_a_null_as_non
     assert!(residual > 2.0, "the residual δ after heat loss is only {residual}σ");
     checked_against_cantera(&out);
 
-    // The null: Cantera's adiabatic reactor at another truth, 6% errors; the
+    // The null (null.params): Cantera's adiabatic reactor at another truth, 6% errors; the
     // study's runs and emulators are reused, its calibrations and diagnosis
     // redone on the new data.
-    std::fs::write(dir.join("null.params"), "k_branching 0.9\nk_ho2_h2 1.3\n").unwrap();
     let made = Command::new("python3")
         .current_dir(&dir)
         .args(["make_measurements.py", "null.params", "measurements.csv", "--seed", "7"])
