@@ -154,9 +154,15 @@ impl StagedWrites {
 
     /// Renames every file into place, in the order written.
     pub fn commit(mut self) -> Result<()> {
-        for (tmp, path) in std::mem::take(&mut self.pending) {
-            std::fs::rename(&tmp, &path)
-                .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+        let pending = std::mem::take(&mut self.pending);
+        for (k, (tmp, path)) in pending.iter().enumerate() {
+            if let Err(e) = std::fs::rename(tmp, path) {
+                // The ones not renamed, this one included, leave no temporary files.
+                pending[k..].iter().for_each(|(t, _)| {
+                    let _ = std::fs::remove_file(t);
+                });
+                return Err(e).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()));
+            }
         }
         Ok(())
     }
@@ -346,6 +352,22 @@ pub fn stage_measurements(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rename_that_fails_leaves_no_temporary_files() {
+        let dir = tmpdir("rename-fails");
+        std::fs::create_dir_all(dir.join("taken")).unwrap();
+        let mut staged = StagedWrites::new();
+        staged.text(&dir.join("first.txt"), "a").unwrap();
+        staged.text(&dir.join("taken"), "b").unwrap();
+        staged.text(&dir.join("third.txt"), "c").unwrap();
+        let err = staged.commit().expect_err("a directory in the way").to_string();
+        assert!(err.contains("taken"), "{err}");
+        let left: Vec<String> =
+            std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+        assert!(left.iter().all(|f| !f.contains(".tmp")), "{left:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     fn tmpdir(tag: &str) -> PathBuf {
         let d = std::env::temp_dir().join(format!("mdpipe-artifacts-{tag}-{}", std::process::id()));
