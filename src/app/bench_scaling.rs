@@ -254,6 +254,18 @@ pub fn print(out: &Path, seconds: f64, digits: Option<usize>) -> Result<()> {
     for (n, why) in &refused {
         println!("{n:>6} refused: {why}");
     }
+    if rows.len() < 2 {
+        println!("fewer than two sizes measured: no growth of the cost to fit");
+    } else {
+        print_growth(&rows);
+    }
+    crate::base::artifacts::write_json_atomic(&out.join("scaling.json"), &rows)?;
+    println!("{}", out.join("scaling.json").display());
+    Ok(())
+}
+
+/// The cost's growth with N, least squares over the measured sizes.
+fn print_growth(rows: &[ScalingRow]) {
     let fit = |rate: &dyn Fn(&ScalingRow) -> Option<f64>| {
         exponent(&rows.iter().filter_map(|r| rate(r).map(|v| (r.points, v))).collect::<Vec<_>>())
     };
@@ -265,7 +277,4 @@ pub fn print(out: &Path, seconds: f64, digits: Option<usize>) -> Result<()> {
         fit(&|r| Some(r.emulated_structured_per_second)),
         fit(&|r| r.emulated_dense_per_second),
     );
-    crate::base::artifacts::write_json_atomic(&out.join("scaling.json"), &rows)?;
-    println!("{}", out.join("scaling.json").display());
-    Ok(())
 }
