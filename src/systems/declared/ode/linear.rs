@@ -295,7 +295,7 @@ mod tests {
     }
 
     fn last_was_exact() -> bool {
-        super::super::SOLVED.with(|c| c.borrow().as_ref().is_some_and(|s| s.exact))
+        super::super::SOLVED.with(|c| c.borrow().first().is_some_and(|s| s.exact))
     }
 
     /// The predictions at `theta`, given in the order of the config's tables.

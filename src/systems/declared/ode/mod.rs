@@ -109,8 +109,16 @@ impl Solved {
     }
 }
 
+/// Solutions kept per thread. A sampler's sweep proposes two points (the
+/// joint move and the shared parameters' move) and then moves each
+/// observable's discrepancy parameters at the particle's current θ: with
+/// three kept, the current θ's solution is still there when both
+/// proposals were rejected, and those moves integrate nothing.
+const KEPT: usize = 3;
+
 thread_local! {
-    static SOLVED: RefCell<Option<Solved>> = const { RefCell::new(None) };
+    /// The latest solutions on this thread, the most recently used first.
+    static SOLVED: RefCell<Vec<Solved>> = const { RefCell::new(Vec::new()) };
 }
 
 static NEXT_ID: AtomicU64 = AtomicU64::new(1);
@@ -419,17 +427,25 @@ impl Simulator for OdeModel {
 
     fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
         SOLVED.with(|cell| {
-            let mut cache = cell.borrow_mut();
+            let mut kept = cell.borrow_mut();
+            let found = kept.iter().position(|s| s.model == self.id && s.theta == theta);
+            // Found or not, the slot used moves to the front; a new solution
+            // takes the least recently used slot's buffers.
+            let slot = found.unwrap_or_else(|| {
+                if kept.len() < KEPT {
+                    kept.push(Solved::empty());
+                }
+                kept.len() - 1
+            });
+            kept[..=slot].rotate_right(1);
+            let solved = &mut kept[0];
             // The likelihood asks for each observable in turn at one θ: the
             // solution made for the first serves the others.
-            if let Some(s) = cache.as_mut().filter(|s| s.model == self.id && s.theta == theta) {
-                if self.predict_from(s, observable, x, out) {
-                    return;
-                }
+            if found.is_some() && self.predict_from(solved, observable, x, out) {
+                return;
             }
             let t_needed = x.iter().copied().fold(self.horizon(), f64::max);
             let grid = self.grid_for(x, t_needed);
-            let solved = cache.get_or_insert_with(Solved::empty);
             self.solve(solved, theta, t_needed, grid);
             if solved.dense.is_none() {
                 self.failures.fetch_add(1, Ordering::Relaxed);
@@ -487,7 +503,7 @@ mod tests {
 
     /// Whether the latest solution on this thread was made over the grid.
     fn solved_on_grid() -> bool {
-        SOLVED.with(|c| matches!(c.borrow().as_ref().and_then(|s| s.dense.as_ref()), Some(Dense::OnGrid { .. })))
+        SOLVED.with(|c| matches!(c.borrow().first().and_then(|s| s.dense.as_ref()), Some(Dense::OnGrid { .. })))
     }
 
     /// The bundled oscillator, x'' = −w²x from x0 at rest, against its closed
