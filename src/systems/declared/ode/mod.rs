@@ -506,6 +506,36 @@ mod tests {
         SOLVED.with(|c| matches!(c.borrow().first().and_then(|s| s.dense.as_ref()), Some(Dense::OnGrid { .. })))
     }
 
+    /// The θ of the solutions kept on this thread, the most recent first.
+    fn kept_thetas() -> Vec<Vec<f64>> {
+        SOLVED.with(|c| c.borrow().iter().map(|s| s.theta.clone()).collect())
+    }
+
+    /// Three solutions are kept, the least recently used one replaced: a
+    /// particle's θ, then two proposals, then the particle's θ again is
+    /// answered from what was kept (the same numbers), and a fourth θ
+    /// replaces the one unused longest.
+    #[test]
+    fn the_last_three_solutions_are_kept() {
+        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/examples/oscillator.toml");
+        let model = crate::systems::load(&config).expect("the bundled oscillator").simulator;
+        let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
+        model.check_inputs(0, &times).unwrap();
+        let [a, b, c, d] = [[1.0, 1.0], [2.0, 1.0], [3.0, 1.0], [4.0, 1.0]];
+        let predict = |theta: &[f64]| {
+            let mut out = vec![0.0; times.len()];
+            model.predict(0, &times, theta, &mut out);
+            out
+        };
+        let first = predict(&a);
+        predict(&b);
+        predict(&c);
+        assert_eq!(predict(&a), first);
+        assert_eq!(kept_thetas(), vec![a.to_vec(), c.to_vec(), b.to_vec()]);
+        predict(&d);
+        assert_eq!(kept_thetas(), vec![d.to_vec(), a.to_vec(), c.to_vec()]);
+    }
+
     /// The bundled oscillator, x'' = −w²x from x0 at rest, against its closed
     /// form x0·cos(wt): at the data's times (DOP853 over their grid) and off
     /// them (Dormand–Prince 5(4)'s continuous output), within 1e-6 m, 2·10⁴
