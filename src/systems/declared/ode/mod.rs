@@ -506,6 +506,15 @@ mod tests {
         SOLVED.with(|c| matches!(c.borrow().first().and_then(|s| s.dense.as_ref()), Some(Dense::OnGrid { .. })))
     }
 
+    /// The bundled oscillator, told its data's 40 times (0.25 s apart).
+    fn bundled_oscillator() -> (std::sync::Arc<dyn Simulator>, Vec<f64>) {
+        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/examples/oscillator.toml");
+        let model = crate::systems::load(&config).expect("the bundled oscillator").simulator;
+        let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
+        model.check_inputs(0, &times).unwrap();
+        (model, times)
+    }
+
     /// The θ of the solutions kept on this thread, the most recent first.
     fn kept_thetas() -> Vec<Vec<f64>> {
         SOLVED.with(|c| c.borrow().iter().map(|s| s.theta.clone()).collect())
@@ -517,10 +526,7 @@ mod tests {
     /// replaces the one unused longest.
     #[test]
     fn the_last_three_solutions_are_kept() {
-        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/examples/oscillator.toml");
-        let model = crate::systems::load(&config).expect("the bundled oscillator").simulator;
-        let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
-        model.check_inputs(0, &times).unwrap();
+        let (model, times) = bundled_oscillator();
         let [a, b, c, d] = [[1.0, 1.0], [2.0, 1.0], [3.0, 1.0], [4.0, 1.0]];
         let predict = |theta: &[f64]| {
             let mut out = vec![0.0; times.len()];
@@ -542,10 +548,7 @@ mod tests {
     /// times below the data's error of 0.02 m.
     #[test]
     fn the_oscillator_matches_its_closed_form_on_and_off_the_data_grid() {
-        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/examples/oscillator.toml");
-        let model = crate::systems::load(&config).expect("the bundled oscillator").simulator;
-        let data_times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
-        model.check_inputs(0, &data_times).unwrap();
+        let (model, data_times) = bundled_oscillator();
         let off_grid: Vec<f64> = (0..30).map(|k| 0.1 + 0.33 * k as f64).collect();
         for (w, x0) in [(0.5, 1.5), (2.0, 1.0), (4.0, 0.5), (3.3, 0.8)] {
             // The third request, at the same θ, is answered by the continuous
