@@ -7,11 +7,14 @@
 //! The engine calls only these traits; the families live in `crate::systems`.
 
 pub mod fit;
+pub mod observed;
 
 use crate::base::config::{Config, ParamSpec};
 use anyhow::{anyhow, bail, Result};
 use std::collections::BTreeMap;
 use std::sync::Arc;
+
+pub use observed::{ObservedData, ObservedSeries};
 
 /// A deterministic model `η(x, θ)` for a set of named observables.
 ///
@@ -41,6 +44,16 @@ pub trait Simulator: Send + Sync {
     /// ODE that failed to integrate): those θ got zero likelihood.
     fn failures(&self) -> u64 {
         0
+    }
+    /// Whether Σ ((y − η(θ))/σ)² over `data` is known to exceed `limit`
+    /// sooner than by computing every prediction: a model that builds its
+    /// predictions in order (an ODE integrated over the data's times) may
+    /// stop once the points it has passed sum past the limit, and answer
+    /// true. False means only "not known to exceed": `predict` then gives
+    /// the predictions at θ as always. A sampler asks this where a θ that
+    /// far from the data has no weight it could notice (`smc`'s floor).
+    fn chi_square_exceeds(&self, _theta: &[f64], _data: &ObservedData, _limit: f64) -> bool {
+        false
     }
     /// Adds `inv_scale2 ×` the model's predictive covariance at (x, θ) to the
     /// lower triangle of `lower` (column-major n × n).

@@ -20,10 +20,10 @@ use super::joint::{add_lower_block, CrossEntry, JointLayout};
 use super::structured::{self, Moving, Structure, LN_2PI};
 use crate::base::config::BetweenObservables;
 use crate::engine::gp::{copy_lower, gaussian_logpdf_factored, CholeskyWorkspace, DiscrepancyKernel};
-use crate::engine::model::Simulator;
+use crate::engine::model::{ObservedData, Simulator};
 use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 /// Per-thread scratch so that evaluations allocate nothing.
 pub(super) struct Workspace {
@@ -77,6 +77,9 @@ pub struct MdLikelihood {
     pub form: Form,
     /// Factorizations of this likelihood's covariances that needed jitter.
     jitter_events: AtomicUsize,
+    /// The data as a model may watch its χ², and the log-likelihood at
+    /// χ² = 0 (`far`), made at first use.
+    pub(super) observed: OnceLock<Option<(ObservedData, f64)>>,
 }
 
 impl MdLikelihood {
@@ -122,6 +125,7 @@ impl MdLikelihood {
             log_jacobian,
             model_covariance,
             jitter_events: AtomicUsize::new(0),
+            observed: OnceLock::new(),
             form,
         }
     }

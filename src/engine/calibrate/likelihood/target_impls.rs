@@ -12,6 +12,9 @@ impl LogLikelihood for MdLikelihood {
     fn log_likelihood(&self, x: &[f64]) -> f64 {
         MdLikelihood::log_likelihood(self, x)
     }
+    fn log_likelihood_above(&self, x: &[f64], floor: f64) -> f64 {
+        MdLikelihood::log_likelihood_above(self, x, floor)
+    }
     fn term_structure(&self) -> Option<TermStructure> {
         let nh = self.n_hyper();
         if nh == 0 {

@@ -5,6 +5,14 @@
 pub trait LogLikelihood: Sync {
     fn log_likelihood(&self, x: &[f64]) -> f64;
 
+    /// `log_likelihood(x)`, or −∞ when it is below `floor`: a likelihood
+    /// that can tell sooner than by computing it may stop there. Values
+    /// below the floor may come back either way; a sampler that passes a
+    /// floor treats them all as −∞.
+    fn log_likelihood_above(&self, x: &[f64], _floor: f64) -> f64 {
+        self.log_likelihood(x)
+    }
+
     /// How the log-likelihood splits into independent terms, when it does; a
     /// sampler may then move one term's own parameters at the cost of that term.
     fn term_structure(&self) -> Option<TermStructure> {

@@ -31,20 +31,22 @@
 mod dense;
 mod grid;
 mod linear;
+mod rhs;
 
 use super::declaration::{check_parameters_used, corners, describe, Declared, SolverSettings, Variables, MAX_NAMES};
 use crate::engine::formula::Formula;
-use crate::engine::model::Simulator;
+use crate::engine::model::{ObservedData, Simulator};
 use anyhow::{bail, Result};
 use dense::Dense;
 use grid::Grid;
 use nalgebra::allocator::Allocator;
 use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
 use ode_solvers::continuous_output_model::ContinuousOutputModel;
-use ode_solvers::{Dop853, Dopri5, OutputType, System};
-use std::cell::RefCell;
+use ode_solvers::{Dop853, Dopri5, OutputType};
+use rhs::{Checks, Rhs, Watch};
+use std::cell::{Cell, RefCell};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Mutex, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 
 pub struct OdeModel {
     /// Tells this model's solutions apart in the per-thread cache.
@@ -74,6 +76,8 @@ pub struct OdeModel {
     /// Every data time seen by `check_inputs`, and the grid that holds them.
     data_times: Mutex<Vec<f64>>,
     grid: RwLock<Option<Grid>>,
+    /// The latest data a sampler watched the χ² of, on the grid.
+    checks: RwLock<Option<Arc<Checks>>>,
     failures: AtomicU64,
 }
 
@@ -88,6 +92,9 @@ struct Solved {
     /// Made by the affine propagator, not an integrator.
     #[cfg_attr(not(test), allow(dead_code))]
     exact: bool,
+    /// The integration stopped early, its χ² against the data of this id
+    /// past this limit (`dense` is None, and is no failure).
+    far: Option<(u64, f64)>,
     y0: Vec<f64>,
     /// The value vector at θ, kept so that each observable's predictions
     /// write t, the state and the rates into it instead of copying it.
@@ -103,6 +110,7 @@ impl Solved {
             t_end: f64::NAN,
             dense: None,
             exact: false,
+            far: None,
             y0: Vec::new(),
             values: [0.0; MAX_NAMES],
         }
@@ -169,6 +177,7 @@ impl OdeModel {
             horizon: AtomicU64::new(d.t0.to_bits()),
             data_times: Mutex::new(Vec::new()),
             grid: RwLock::new(None),
+            checks: RwLock::new(None),
             failures: AtomicU64::new(0),
         })
     }
@@ -177,12 +186,15 @@ impl OdeModel {
     /// given (its end must reach `t_end`), else continuously to `t_end`. The
     /// previous solution's buffers are reused, so the exact path allocates
     /// nothing per θ (and nothing the size of the value vector is moved).
-    fn solve(&self, solved: &mut Solved, theta: &[f64], t_end: f64, grid: Option<Grid>) {
+    /// With a watch (the data's points on the grid and a χ² limit), an
+    /// integration stops once the points passed exceed the limit.
+    fn solve(&self, solved: &mut Solved, theta: &[f64], t_end: f64, grid: Option<Grid>, watch: Option<(&Checks, f64)>) {
         solved.model = self.id;
         solved.theta.clear();
         solved.theta.extend_from_slice(theta);
         solved.t_end = t_end;
         solved.exact = false;
+        solved.far = None;
         let states = match solved.dense.take() {
             Some(Dense::OnGrid { states, .. }) => states,
             _ => Vec::new(),
@@ -212,13 +224,15 @@ impl OdeModel {
             // The clock: t as the last state when a rate reads it.
             let y0: Vec<f64> = y0.iter().copied().chain((!self.autonomous).then_some(self.t0)).collect();
             let v = *v;
-            solved.dense = match y0.len() {
-                1 => self.integrate_on_grid::<Const<1>>(v, &y0, grid),
-                2 => self.integrate_on_grid::<Const<2>>(v, &y0, grid),
-                3 => self.integrate_on_grid::<Const<3>>(v, &y0, grid),
-                4 => self.integrate_on_grid::<Const<4>>(v, &y0, grid),
-                _ => self.integrate_on_grid::<Dyn>(v, &y0, grid),
+            let (dense, exceeded) = match y0.len() {
+                1 => self.integrate_on_grid::<Const<1>>(v, &y0, grid, watch),
+                2 => self.integrate_on_grid::<Const<2>>(v, &y0, grid, watch),
+                3 => self.integrate_on_grid::<Const<3>>(v, &y0, grid, watch),
+                4 => self.integrate_on_grid::<Const<4>>(v, &y0, grid, watch),
+                _ => self.integrate_on_grid::<Dyn>(v, &y0, grid, watch),
             };
+            solved.dense = dense;
+            solved.far = watch.filter(|_| exceeded).map(|(checks, limit)| (checks.data, limit));
             return;
         }
         let v = *v;
@@ -233,8 +247,14 @@ impl OdeModel {
 
     /// DOP853 from t0 to the grid's end, interpolating the state at every
     /// grid point; `y0` ends with t0 when the rates read t. None when the
-    /// integration fails.
-    fn integrate_on_grid<D: Dim>(&self, values: [f64; MAX_NAMES], y0: &[f64], grid: Grid) -> Option<Dense>
+    /// integration fails or its watch stopped it (then true).
+    fn integrate_on_grid<D: Dim>(
+        &self,
+        values: [f64; MAX_NAMES],
+        y0: &[f64],
+        grid: Grid,
+        watch: Option<(&Checks, f64)>,
+    ) -> (Option<Dense>, bool)
     where
         DefaultAllocator: Allocator<D>,
         OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
@@ -246,7 +266,9 @@ impl OdeModel {
         // asked, measured on the oscillator), inside a step it is right.
         let t_end = grid.end() + 0.5 * grid.dx;
         let span = t_end - self.t0;
-        let rhs = Rhs { model: self, values: RefCell::new(values), clock: !self.autonomous };
+        let exceeded = Cell::new(false);
+        let watch = watch.map(|(checks, limit)| Watch::new(checks, limit, &exceeded));
+        let rhs = Rhs { model: self, values: RefCell::new(values), clock: !self.autonomous, watch };
         // Hairer's defaults for DOP853: safety 0.9, no PI term, step factors
         // in [0.333, 6], stiffness tested every 1000 steps.
         let mut stepper = Dop853::from_param(
@@ -267,15 +289,36 @@ impl OdeModel {
             1000,
             OutputType::Dense,
         );
-        stepper.integrate().ok()?;
+        let ended = stepper.integrate().is_ok();
+        if exceeded.get() {
+            return (None, true);
+        }
         let (times, ys) = stepper.results().get();
         // One state per grid point, t0 included; the solver's running sum of
         // dx must land on the grid.
-        if ys.len() != grid.last + 1 || times.last().is_none_or(|t| grid.index(*t) != Some(grid.last)) {
-            return None;
+        if !ended || ys.len() != grid.last + 1 || times.last().is_none_or(|t| grid.index(*t) != Some(grid.last)) {
+            return (None, false);
         }
         let states = ys.iter().flat_map(|y| y.iter().copied()).collect();
-        Some(Dense::OnGrid { grid, states, stride: y0.len() })
+        (Some(Dense::OnGrid { grid, states, stride: y0.len() }), false)
+    }
+
+    /// The points of `data` on the data's grid, made once per data; None
+    /// when there is no grid, it does not reach them, or the model solves
+    /// exactly (nothing to stop).
+    fn checks_for(&self, data: &ObservedData) -> Option<Arc<Checks>> {
+        if self.affine.is_some() {
+            return None;
+        }
+        let grid = (*self.grid.read().unwrap_or_else(|e| e.into_inner()))?;
+        if let Some(c) = self.checks.read().unwrap_or_else(|e| e.into_inner()).as_ref() {
+            if c.data == data.id && c.grid == grid {
+                return Some(c.clone());
+            }
+        }
+        let made = Arc::new(Checks::of(data, grid)?);
+        *self.checks.write().unwrap_or_else(|e| e.into_inner()) = Some(made.clone());
+        Some(made)
     }
 
     /// Adds data times and finds the grid that holds all of them.
@@ -302,7 +345,7 @@ impl OdeModel {
         let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
         let s = &self.solver;
         let span = t_end - self.t0;
-        let rhs = Rhs { model: self, values: RefCell::new(values), clock: false };
+        let rhs = Rhs { model: self, values: RefCell::new(values), clock: false, watch: None };
         let mut stepper = Dopri5::from_param(
             rhs,
             self.t0,
@@ -383,39 +426,6 @@ impl OdeModel {
     }
 }
 
-/// The equations of motion as ode_solvers sees them.
-struct Rhs<'a> {
-    model: &'a OdeModel,
-    /// θ and constants in place; t and the state are written per call (in
-    /// place: a copy of the whole vector per call was a tenth of the time).
-    values: RefCell<[f64; MAX_NAMES]>,
-    /// t is the last state (dt/dt = 1) rather than the solver's time.
-    clock: bool,
-}
-
-impl<D: Dim> System<f64, OVector<f64, D>> for Rhs<'_>
-where
-    DefaultAllocator: Allocator<D>,
-{
-    fn system(&self, t: f64, y: &OVector<f64, D>, dy: &mut OVector<f64, D>) {
-        let mut v = self.values.borrow_mut();
-        let n = self.model.rates.len();
-        v[0] = if self.clock { y[n] } else { t };
-        let at = self.model.variables.state_at;
-        // A loop, not copy_from_slice: n is a handful and memcpy's call cost
-        // more than the copy (perf, the ball drop with drag).
-        for (slot, y) in v[at..at + n].iter_mut().zip(y.iter()) {
-            *slot = *y;
-        }
-        for (k, rate) in self.model.rates.iter().enumerate() {
-            dy[k] = rate.eval(&v[..]);
-        }
-        if self.clock {
-            dy[n] = 1.0;
-        }
-    }
-}
-
 impl Simulator for OdeModel {
     fn parameter_names(&self) -> Vec<String> {
         self.parameters.clone()
@@ -440,13 +450,14 @@ impl Simulator for OdeModel {
             kept[..=slot].rotate_right(1);
             let solved = &mut kept[0];
             // The likelihood asks for each observable in turn at one θ: the
-            // solution made for the first serves the others.
-            if found.is_some() && self.predict_from(solved, observable, x, out) {
+            // solution made for the first serves the others (not one its
+            // watch stopped).
+            if found.is_some() && solved.far.is_none() && self.predict_from(solved, observable, x, out) {
                 return;
             }
             let t_needed = x.iter().copied().fold(self.horizon(), f64::max);
             let grid = self.grid_for(x, t_needed);
-            self.solve(solved, theta, t_needed, grid);
+            self.solve(solved, theta, t_needed, grid, None);
             if solved.dense.is_none() {
                 self.failures.fetch_add(1, Ordering::Relaxed);
             }
@@ -494,106 +505,40 @@ impl Simulator for OdeModel {
     fn failures(&self) -> u64 {
         self.failures.load(Ordering::Relaxed)
     }
+
+    /// Integrates at θ over the data's grid, watching the χ² of the points
+    /// passed, and keeps the solution for `predict` (a stopped one only to
+    /// answer this again). Without a grid holding every point, answers false.
+    fn chi_square_exceeds(&self, theta: &[f64], data: &ObservedData, limit: f64) -> bool {
+        let Some(checks) = self.checks_for(data) else {
+            return false;
+        };
+        SOLVED.with(|cell| {
+            let mut kept = cell.borrow_mut();
+            let found = kept.iter().position(|s| s.model == self.id && s.theta == theta);
+            let slot = found.unwrap_or_else(|| {
+                if kept.len() < KEPT {
+                    kept.push(Solved::empty());
+                }
+                kept.len() - 1
+            });
+            kept[..=slot].rotate_right(1);
+            let solved = &mut kept[0];
+            if found.is_some() {
+                match solved.far {
+                    None => return false,
+                    Some((id, stopped_at)) if id == data.id && stopped_at >= limit => return true,
+                    Some(_) => {}
+                }
+            }
+            self.solve(solved, theta, checks.grid.end(), Some(checks.grid), Some((&checks, limit)));
+            if solved.dense.is_none() && solved.far.is_none() {
+                self.failures.fetch_add(1, Ordering::Relaxed);
+            }
+            solved.far.is_some()
+        })
+    }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use std::path::Path;
-
-    /// Whether the latest solution on this thread was made over the grid.
-    fn solved_on_grid() -> bool {
-        SOLVED.with(|c| matches!(c.borrow().first().and_then(|s| s.dense.as_ref()), Some(Dense::OnGrid { .. })))
-    }
-
-    /// The bundled oscillator, told its data's 40 times (0.25 s apart).
-    fn bundled_oscillator() -> (std::sync::Arc<dyn Simulator>, Vec<f64>) {
-        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipeline/examples/oscillator.toml");
-        let model = crate::systems::load(&config).expect("the bundled oscillator").simulator;
-        let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
-        model.check_inputs(0, &times).unwrap();
-        (model, times)
-    }
-
-    /// The θ of the solutions kept on this thread, the most recent first.
-    fn kept_thetas() -> Vec<Vec<f64>> {
-        SOLVED.with(|c| c.borrow().iter().map(|s| s.theta.clone()).collect())
-    }
-
-    /// Three solutions are kept, the least recently used one replaced: a
-    /// particle's θ, then two proposals, then the particle's θ again is
-    /// answered from what was kept (the same numbers), and a fourth θ
-    /// replaces the one unused longest.
-    #[test]
-    fn the_last_three_solutions_are_kept() {
-        let (model, times) = bundled_oscillator();
-        let [a, b, c, d] = [[1.0, 1.0], [2.0, 1.0], [3.0, 1.0], [4.0, 1.0]];
-        let predict = |theta: &[f64]| {
-            let mut out = vec![0.0; times.len()];
-            model.predict(0, &times, theta, &mut out);
-            out
-        };
-        let first = predict(&a);
-        predict(&b);
-        predict(&c);
-        assert_eq!(predict(&a), first);
-        assert_eq!(kept_thetas(), vec![a.to_vec(), c.to_vec(), b.to_vec()]);
-        predict(&d);
-        assert_eq!(kept_thetas(), vec![d.to_vec(), a.to_vec(), c.to_vec()]);
-    }
-
-    /// The bundled oscillator, x'' = −w²x from x0 at rest, against its closed
-    /// form x0·cos(wt): at the data's times (DOP853 over their grid) and off
-    /// them (Dormand–Prince 5(4)'s continuous output), within 1e-6 m, 2·10⁴
-    /// times below the data's error of 0.02 m.
-    #[test]
-    fn the_oscillator_matches_its_closed_form_on_and_off_the_data_grid() {
-        let (model, data_times) = bundled_oscillator();
-        let off_grid: Vec<f64> = (0..30).map(|k| 0.1 + 0.33 * k as f64).collect();
-        for (w, x0) in [(0.5, 1.5), (2.0, 1.0), (4.0, 0.5), (3.3, 0.8)] {
-            // The third request, at the same θ, is answered by the continuous
-            // solution the second made.
-            for (times, on_grid) in [(&data_times, true), (&off_grid, false), (&data_times, false)] {
-                let mut got = vec![0.0; times.len()];
-                model.predict(0, times, &[w, x0], &mut got);
-                assert_eq!(solved_on_grid(), on_grid, "w = {w}, on the grid: {on_grid}");
-                for (t, g) in times.iter().zip(&got) {
-                    let want = x0 * (w * t).cos();
-                    assert!((g - want).abs() < 1e-6, "w = {w}, t = {t}, on the grid: {on_grid}: {g} vs {want}");
-                }
-            }
-        }
-        assert_eq!(model.failures(), 0);
-    }
-
-    /// A rate with t, y' = a·cos(wt) from y(0) = 1, against its closed form
-    /// 1 + (a/w)·sin(wt), on the data's grid (DOP853 with t as a state) and
-    /// off it.
-    #[test]
-    fn a_rate_with_time_matches_its_closed_form_on_and_off_the_grid() {
-        let dir = std::env::temp_dir().join(format!("mdpipe-ode-time-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let times: Vec<f64> = (1..=20).map(|k| 0.5 * k as f64).collect();
-        let rows: String = times.iter().map(|t| format!("y,{t},1.0,0.1\n")).collect();
-        std::fs::write(dir.join("data.csv"), format!("observable,x,value,error\n{rows}")).unwrap();
-        let config = "name = \"forced\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\ny = \"1\"\n\
-            [model.rates]\ny = \"a*cos(w*t)\"\n[model.observables]\ny = \"y\"\n[data]\nmeasurements = \"data.csv\"\n\
-            [parameters.a]\nmin = 0.0\nmax = 5.0\n[parameters.w]\nmin = 0.5\nmax = 6.0\n";
-        std::fs::write(dir.join("forced.toml"), config).unwrap();
-        let model = crate::systems::load(&dir.join("forced.toml")).expect("the forced model").simulator;
-        model.check_inputs(0, &times).unwrap();
-        let off_grid: Vec<f64> = (0..30).map(|k| 0.1 + 0.33 * k as f64).collect();
-        for (a, w) in [(1.0, 0.5), (5.0, 6.0), (2.5, 3.3)] {
-            for (x, on_grid) in [(&times, true), (&off_grid, false)] {
-                let mut got = vec![0.0; x.len()];
-                model.predict(0, x, &[a, w], &mut got);
-                assert_eq!(solved_on_grid(), on_grid);
-                for (t, g) in x.iter().zip(&got) {
-                    let want = 1.0 + a / w * (w * t).sin();
-                    assert!((g - want).abs() < 1e-6, "a = {a}, w = {w}, t = {t}, grid {on_grid}: {g} vs {want}");
-                }
-            }
-        }
-        std::fs::remove_dir_all(&dir).ok();
-    }
-}
+mod tests;

@@ -251,6 +251,13 @@ struct ReplicateState {
     /// The weights at β = 1, set by the step that reaches it.
     #[serde(default, with = "f64_bits")]
     final_weights: Vec<f64>,
+    /// The largest log-likelihood a particle has had (`tempering::floor_at`).
+    #[serde(default = "nothing_seen", with = "f64_bit")]
+    best: f64,
+}
+
+fn nothing_seen() -> f64 {
+    f64::NEG_INFINITY
 }
 
 /// What stays fixed while a replicate tempers: the target and the settings
@@ -328,8 +335,15 @@ impl<'a> Tempered<'a> {
         }
     }
 
-    fn target(&self) -> Target<'a> {
-        Target { prior: self.prior, likelihood: self.likelihood, cache: self.cache.0 }
+    /// The target at the floor `floor_at(best, β)`; a target that keeps
+    /// terms moves them at a term's cost without a total to compare, so it
+    /// has none.
+    fn target(&self, best: f64, beta: f64) -> Target<'a> {
+        let floor = match self.cache.0 {
+            TermCache::None => floor_at(best, beta),
+            _ => f64::NEG_INFINITY,
+        };
+        Target { prior: self.prior, likelihood: self.likelihood, cache: self.cache.0, floor }
     }
 
     /// The particles drawn from the prior, at β = 0.
@@ -357,6 +371,7 @@ impl<'a> Tempered<'a> {
             evaluations: self.n as u64,
             term_evaluations: 0,
             final_weights: Vec::new(),
+            best: f64::NEG_INFINITY,
         }
     }
 
@@ -375,6 +390,9 @@ impl<'a> Tempered<'a> {
         let n = self.n;
         let delta = next_increment(&st.cloud.loglik, st.beta, self.target_ess);
         let next = if 1.0 - (st.beta + delta) < 1e-12 { 1.0 } else { st.beta + delta };
+        st.best = st.cloud.loglik.iter().copied().filter(|l| l.is_finite()).fold(st.best, f64::max);
+        let target = self.target(st.best, next);
+        drop_below(&mut st.cloud.loglik, target.floor);
         let logw: Vec<f64> = st
             .cloud
             .loglik
@@ -393,11 +411,11 @@ impl<'a> Tempered<'a> {
         st.cloud.resample(&ancestors);
         st.eve = ancestors.iter().map(|&a| st.eve[a]).collect();
         update_factors(&mut st.groups, &st.cloud.x, self.dim);
-        let mixture_acceptance = self.independent_moves(st, next, self.settings.mixture_proposals).acceptance();
+        let mixture_acceptance = self.independent_moves(st, next, self.settings.mixture_proposals, target).acceptance();
         let steps = ((self.base_steps * (self.settings.target_acceptance / st.last_acceptance.max(1e-3)).max(1.0))
             .ceil() as usize)
             .min(self.max_steps);
-        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, next, steps, self.target());
+        let counts = mutate(&mut st.cloud, &mut st.rngs, &st.groups, next, steps, target);
         st.evaluations += counts.full_evaluations;
         st.term_evaluations += counts.term_evaluations;
         for (gi, g) in st.groups.iter_mut().enumerate() {
@@ -417,14 +435,20 @@ impl<'a> Tempered<'a> {
 
     /// `proposals` independent moves of every particle from a mixture fitted
     /// to the cloud (none when the cloud has no spread).
-    fn independent_moves(&self, st: &mut ReplicateState, beta: f64, proposals: usize) -> IndependentCounts {
+    fn independent_moves(
+        &self,
+        st: &mut ReplicateState,
+        beta: f64,
+        proposals: usize,
+        target: Target,
+    ) -> IndependentCounts {
         if proposals == 0 {
             return IndependentCounts::default();
         }
         let Some(mixture) = Mixture::fit(&st.cloud.x, self.dim, &mut st.master) else {
             return IndependentCounts::default();
         };
-        let counts = independent_moves(&mut st.cloud, &mut st.rngs, &mixture, beta, proposals, self.target());
+        let counts = independent_moves(&mut st.cloud, &mut st.rngs, &mixture, beta, proposals, target);
         st.evaluations += counts.evaluations;
         counts
     }
@@ -447,7 +471,8 @@ impl<'a> Tempered<'a> {
         let unique_fraction = unique.len() as f64 / nf;
         st.cloud.resample(&ancestors);
         update_factors(&mut st.groups, &st.cloud.x, self.dim);
-        let independent = self.independent_moves(&mut st, 1.0, self.settings.final_mixture_proposals);
+        let target = self.target(st.best, 1.0);
+        let independent = self.independent_moves(&mut st, 1.0, self.settings.final_mixture_proposals, target);
         // Where nearly every copy has already been replaced by an independent
         // draw, the random walk only refines locally, at a tempering step's count.
         let sweeps = if independent.moved as f64 >= MOVED_ENOUGH * nf {
@@ -462,7 +487,7 @@ impl<'a> Tempered<'a> {
         let mut counts = MoveCounts { accepted: vec![0; groups], proposed: vec![0; groups], ..Default::default() };
         let mut done = 0;
         while done < sweeps {
-            counts = counts.merge(mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, 1, self.target()));
+            counts = counts.merge(mutate(&mut st.cloud, &mut st.rngs, &st.groups, 1.0, 1, target));
             done += 1;
             if copies::separated(&st.cloud.x, self.dim, &ancestors, SEPARATED_COPIES) {
                 break;

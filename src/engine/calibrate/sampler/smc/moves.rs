@@ -132,10 +132,18 @@ impl<'a> TermCache<'a> {
         }
     }
 
-    /// A whole evaluation at `x`, refilling the cache's `values`.
-    fn evaluate(self, likelihood: &dyn LogLikelihood, x: &[f64], values: &mut [f64]) -> f64 {
+    /// A whole evaluation at `x`, refilling the cache's `values`; −∞ below
+    /// `floor` (which only a target without a cache has).
+    fn evaluate(self, likelihood: &dyn LogLikelihood, x: &[f64], values: &mut [f64], floor: f64) -> f64 {
         match self {
-            TermCache::None => likelihood.log_likelihood(x),
+            TermCache::None => {
+                let l = likelihood.log_likelihood_above(x, floor);
+                if l < floor {
+                    f64::NEG_INFINITY
+                } else {
+                    l
+                }
+            }
             TermCache::Terms(terms) => terms.log_likelihood_terms(x, values),
             TermCache::Stats(stats) => stats.log_likelihood_stats(x, values),
         }
@@ -149,6 +157,9 @@ pub(super) struct Target<'a> {
     pub(super) prior: &'a UniformPrior,
     pub(super) likelihood: &'a dyn LogLikelihood,
     pub(super) cache: TermCache<'a>,
+    /// Log-likelihoods below this are taken as −∞ (`tempering::floor_at`);
+    /// −∞ where the target keeps terms.
+    pub(super) floor: f64,
 }
 
 /// The particle cloud between tempering steps, in the unbounded coordinates u.
@@ -243,7 +254,7 @@ pub(super) fn mutate(
     groups: &[MoveGroup],
     beta: f64,
     sweeps: usize,
-    Target { prior, likelihood, cache }: Target,
+    Target { prior, likelihood, cache, floor }: Target,
 ) -> MoveCounts {
     let (dim, nt) = (cloud.dim, cloud.n_terms);
     // A cloud resumed from a checkpoint written without values keeps none.
@@ -310,7 +321,7 @@ pub(super) fn mutate(
                         }
                         _ => {
                             counts.full_evaluations += 1;
-                            (cache.evaluate(likelihood, &prop_x, &mut prop_terms), f64::NAN)
+                            (cache.evaluate(likelihood, &prop_x, &mut prop_terms, floor), f64::NAN)
                         }
                     };
                     let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
@@ -388,7 +399,7 @@ pub(super) fn independent_moves(
     mixture: &Mixture,
     beta: f64,
     proposals: usize,
-    Target { prior, likelihood, cache }: Target,
+    Target { prior, likelihood, cache, floor }: Target,
 ) -> IndependentCounts {
     let (dim, nt) = (cloud.dim, cloud.n_terms);
     let cache = if nt == 0 { TermCache::None } else { cache };
@@ -411,7 +422,7 @@ pub(super) fn independent_moves(
                     continue;
                 }
                 evaluated += 1;
-                let lp = cache.evaluate(likelihood, &prop_x, &mut prop_terms);
+                let lp = cache.evaluate(likelihood, &prop_x, &mut prop_terms, floor);
                 let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
                 let log_ratio = if li.is_finite() {
                     beta * (lp - *li) + lpi - *pi + log_q - log_q_prop
@@ -492,7 +503,7 @@ pub(super) fn initial_cloud(
             let mut draw = vec![0.0; dim];
             prior.sample(rng, &mut draw);
             prior.to_unbounded(&draw, row);
-            cache.evaluate(likelihood, &draw, t)
+            cache.evaluate(likelihood, &draw, t, f64::NEG_INFINITY)
         })
         .collect();
     drop(term_chunks);

@@ -1,7 +1,34 @@
 //! Tempering: the next inverse temperature β from the weights' effective
-//! sample size, and multinomial resampling.
+//! sample size, the floor below which a particle has no weight, and
+//! multinomial resampling.
 
 use super::*;
+
+/// A particle whose log-likelihood is this many nats over β below the best
+/// seen has relative weight below e^-200 at β: none to notice. The target
+/// at β is `π L^β` times the indicator of log L ≥ that floor; as β and the
+/// best seen grow, the floor rises, so each target's support lies in the
+/// last one's (as SMC's reweighting needs), and at β = 1 the region left
+/// out holds at most e^-200 of the best point's likelihood per unit of
+/// prior mass: the evidence and the posterior change by less than any
+/// Monte Carlo error. What it buys: a likelihood told the floor may stop
+/// computing a point below it (`LogLikelihood::log_likelihood_above`),
+/// such as an ODE that a proposal drives far from the data.
+pub(super) const FLOOR_NATS: f64 = 200.0;
+
+/// The floor at β given the best log-likelihood seen (−∞ at β = 0).
+pub(super) fn floor_at(best: f64, beta: f64) -> f64 {
+    if beta > 0.0 && best.is_finite() {
+        best - FLOOR_NATS / beta
+    } else {
+        f64::NEG_INFINITY
+    }
+}
+
+/// Log-likelihoods below `floor` set to −∞: the target there is zero.
+pub(super) fn drop_below(loglik: &mut [f64], floor: f64) {
+    loglik.iter_mut().filter(|l| **l < floor).for_each(|l| *l = f64::NEG_INFINITY);
+}
 
 pub fn log_sum_exp(v: &[f64]) -> f64 {
     let m = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
