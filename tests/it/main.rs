@@ -33,6 +33,7 @@ mod readers;
 mod readme;
 mod report;
 mod sbc;
+mod sbc_ode;
 mod shock_tube;
 mod structured;
 mod structured_emulator;

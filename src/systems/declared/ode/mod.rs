@@ -76,8 +76,9 @@ pub struct OdeModel {
     /// Every data time seen by `check_inputs`, and the grid that holds them.
     data_times: Mutex<Vec<f64>>,
     grid: RwLock<Option<Grid>>,
-    /// The latest data a sampler watched the χ² of, on the grid.
-    checks: RwLock<Option<Arc<Checks>>>,
+    /// The latest data samplers watched the χ² of, on the grid (fits of
+    /// different data may run at once).
+    checks: RwLock<Vec<Arc<Checks>>>,
     failures: AtomicU64,
 }
 
@@ -123,6 +124,9 @@ impl Solved {
 /// three kept, the current θ's solution is still there when both
 /// proposals were rejected, and those moves integrate nothing.
 const KEPT: usize = 3;
+
+/// Data sets whose points on the grid are kept (`checks_for`).
+const KEPT_DATA: usize = 8;
 
 thread_local! {
     /// The latest solutions on this thread, the most recently used first.
@@ -177,7 +181,7 @@ impl OdeModel {
             horizon: AtomicU64::new(d.t0.to_bits()),
             data_times: Mutex::new(Vec::new()),
             grid: RwLock::new(None),
-            checks: RwLock::new(None),
+            checks: RwLock::new(Vec::new()),
             failures: AtomicU64::new(0),
         })
     }
@@ -311,13 +315,17 @@ impl OdeModel {
             return None;
         }
         let grid = (*self.grid.read().unwrap_or_else(|e| e.into_inner()))?;
-        if let Some(c) = self.checks.read().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            if c.data == data.id && c.grid == grid {
-                return Some(c.clone());
-            }
+        let known = self.checks.read().unwrap_or_else(|e| e.into_inner()).iter().find(|c| c.data == data.id).cloned();
+        if let Some(c) = known.filter(|c| c.grid == grid) {
+            return Some(c);
         }
         let made = Arc::new(Checks::of(data, grid)?);
-        *self.checks.write().unwrap_or_else(|e| e.into_inner()) = Some(made.clone());
+        let mut kept = self.checks.write().unwrap_or_else(|e| e.into_inner());
+        kept.retain(|c| c.data != data.id);
+        if kept.len() >= KEPT_DATA {
+            kept.remove(0);
+        }
+        kept.push(made.clone());
         Some(made)
     }
 

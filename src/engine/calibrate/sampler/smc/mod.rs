@@ -338,9 +338,12 @@ impl<'a> Tempered<'a> {
     /// The target at the floor `floor_at(best, β)`; a target that keeps
     /// terms moves them at a term's cost without a total to compare, so it
     /// has none.
-    fn target(&self, best: f64, beta: f64) -> Target<'a> {
+    /// The floor never passes the cloud's own best (`loglik`): should every
+    /// particle have fallen that far below the best ever seen, which the
+    /// moves make a chance of e^-200, none is dropped.
+    fn target(&self, best: f64, beta: f64, loglik: &[f64]) -> Target<'a> {
         let floor = match self.cache.0 {
-            TermCache::None => floor_at(best, beta),
+            TermCache::None => floor_at(best, beta).min(loglik.iter().copied().fold(f64::NEG_INFINITY, f64::max)),
             _ => f64::NEG_INFINITY,
         };
         Target { prior: self.prior, likelihood: self.likelihood, cache: self.cache.0, floor }
@@ -391,7 +394,7 @@ impl<'a> Tempered<'a> {
         let delta = next_increment(&st.cloud.loglik, st.beta, self.target_ess);
         let next = if 1.0 - (st.beta + delta) < 1e-12 { 1.0 } else { st.beta + delta };
         st.best = st.cloud.loglik.iter().copied().filter(|l| l.is_finite()).fold(st.best, f64::max);
-        let target = self.target(st.best, next);
+        let target = self.target(st.best, next, &st.cloud.loglik);
         drop_below(&mut st.cloud.loglik, target.floor);
         let logw: Vec<f64> = st
             .cloud
@@ -471,7 +474,7 @@ impl<'a> Tempered<'a> {
         let unique_fraction = unique.len() as f64 / nf;
         st.cloud.resample(&ancestors);
         update_factors(&mut st.groups, &st.cloud.x, self.dim);
-        let target = self.target(st.best, 1.0);
+        let target = self.target(st.best, 1.0, &st.cloud.loglik);
         let independent = self.independent_moves(&mut st, 1.0, self.settings.final_mixture_proposals, target);
         // Where nearly every copy has already been replaced by an independent
         // draw, the random walk only refines locally, at a tempering step's count.
