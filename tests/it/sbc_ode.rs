@@ -45,8 +45,8 @@ fn pendulum() -> Arc<dyn Simulator> {
 }
 
 /// The states at the data's times by classical RK4 at step 1e-3.
-fn rk4_states(theta: &[f64]) -> Vec<[f64; 2]> {
-    let rate = |y: [f64; 2]| [y[1], theta[0] - y[0].sin() - theta[1] * y[1]];
+fn rk4_states(c0: f64, c: f64) -> Vec<[f64; 2]> {
+    let rate = |y: [f64; 2]| [y[1], c0 - y[0].sin() - c * y[1]];
     let (h, per_point) = (1e-3, (SPACING / 1e-3).round() as usize);
     let mut y = INITIAL;
     let mut out = Vec::new();
@@ -71,7 +71,9 @@ fn data_set(k: usize, prior: &UniformPrior, model: &Arc<dyn Simulator>) -> (Vec<
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(5000 + k as u64);
     let mut truth = vec![0.0; 2];
     prior.sample(&mut rng, &mut truth);
-    let states = rk4_states(&truth);
+    let names = model.parameter_names();
+    let value = |name: &str| truth[names.iter().position(|n| n == name).unwrap()];
+    let states = rk4_states(value("c0"), value("c"));
     let mut rows = Vec::new();
     for (i, s) in states.iter().enumerate() {
         let t = SPACING * (i + 1) as f64;
@@ -95,7 +97,15 @@ fn data_set(k: usize, prior: &UniformPrior, model: &Arc<dyn Simulator>) -> (Vec<
 #[ignore = "second tier: SBC over 200 data sets of a declared ODE without MD; cargo test --release -- --ignored"]
 fn a_declared_ode_fit_with_its_floor_has_nominal_coverage() {
     let model = pendulum();
-    let prior = UniformPrior::new(vec!["c0".into(), "c".into()], vec![0.5, -1.0], vec![2.0, 1.5]).unwrap();
+    // The prior in the model's order of parameters (not the config's).
+    let names = model.parameter_names();
+    let bounds = |n: &String| if n == "c0" { (0.5, 2.0) } else { (-1.0, 1.5) };
+    let prior = UniformPrior::new(
+        names.clone(),
+        names.iter().map(|n| bounds(n).0).collect(),
+        names.iter().map(|n| bounds(n).1).collect(),
+    )
+    .unwrap();
     let (datasets, levels) = (200, [0.5, 0.9]);
     let covered: Vec<[[bool; 2]; 2]> = (0..datasets)
         .into_par_iter()
@@ -118,7 +128,7 @@ fn a_declared_ode_fit_with_its_floor_has_nominal_coverage() {
         .collect();
     let mut report = String::new();
     let mut off = Vec::new();
-    for (p, name) in ["c0", "c"].iter().enumerate() {
+    for (p, name) in names.iter().enumerate() {
         for (l, level) in levels.iter().enumerate() {
             let count = covered.iter().filter(|c| c[p][l]).count() as f64;
             let (expected, sd) = (level * datasets as f64, (datasets as f64 * level * (1.0 - level)).sqrt());
