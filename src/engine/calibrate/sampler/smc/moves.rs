@@ -221,11 +221,14 @@ impl MoveCounts {
 
 /// `move_one` applied to every particle in parallel (its point u, log-
 /// likelihood, log prior density, likelihood terms and own random stream),
-/// the results merged.
+/// adding to a running count. Counts and `scratch_len` values of scratch
+/// are made once per parallel task, not per particle: the final sweeps
+/// call this once per sweep.
 fn each_particle<T: Send>(
     cloud: &mut Cloud,
     rngs: &mut [Xoshiro256PlusPlus],
-    move_one: impl Fn(&mut [f64], &mut f64, &mut f64, &mut [f64], &mut Xoshiro256PlusPlus) -> T + Sync + Send,
+    scratch_len: usize,
+    move_one: impl Fn(&mut T, &mut [f64], &mut [f64], &mut f64, &mut f64, &mut [f64], &mut Xoshiro256PlusPlus) + Sync + Send,
     identity: impl Fn() -> T + Sync + Send,
     merge: impl Fn(T, T) -> T + Sync + Send,
 ) -> T {
@@ -242,8 +245,15 @@ fn each_particle<T: Send>(
         .zip(cloud.logprior.par_iter_mut())
         .zip(term_chunks.par_iter_mut())
         .zip(rngs.par_iter_mut())
-        .map(|((((u, l), p), t), rng)| move_one(u, l, p, t, rng))
-        .reduce(identity, merge)
+        .fold(
+            || (identity(), vec![0.0; scratch_len]),
+            |(mut counts, mut scratch), ((((u, l), p), t), rng)| {
+                move_one(&mut counts, &mut scratch, u, l, p, t, rng);
+                (counts, scratch)
+            },
+        )
+        .map(|(counts, _)| counts)
+        .reduce(&identity, merge)
 }
 
 /// `sweeps` rounds of random-walk Metropolis moves, one per group in turn, of
@@ -259,17 +269,20 @@ pub(super) fn mutate(
     let (dim, nt) = (cloud.dim, cloud.n_terms);
     // A cloud resumed from a checkpoint written without values keeps none.
     let cache = if nt == 0 { TermCache::None } else { cache };
+    let n_screens = groups.iter().filter_map(|g| g.term).max().map_or(0, |t| t + 1);
     each_particle(
         cloud,
         rngs,
-        |xi, li, pi, ti, rng| {
-            let (mut z, mut prop, mut prop_x, mut cur_x, mut prop_terms) =
-                (vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; dim], vec![0.0; nt]);
-            let mut counts =
-                MoveCounts { accepted: vec![0; groups.len()], proposed: vec![0; groups.len()], ..Default::default() };
+        4 * dim + nt + n_screens,
+        |counts: &mut MoveCounts, scratch, xi, li, pi, ti, rng| {
+            let (z, rest) = scratch.split_at_mut(dim);
+            let (prop, rest) = rest.split_at_mut(dim);
+            let (prop_x, rest) = rest.split_at_mut(dim);
+            let (cur_x, rest) = rest.split_at_mut(dim);
+            let (prop_terms, screens) = rest.split_at_mut(nt);
             // Each term's screen at the current point, NaN until computed;
             // reset whenever a move changes the shared parameters.
-            let mut screens = vec![f64::NAN; groups.iter().filter_map(|g| g.term).max().map_or(0, |t| t + 1)];
+            screens.fill(f64::NAN);
             for _ in 0..sweeps {
                 for (gi, g) in groups.iter().enumerate() {
                     if g.term.is_some() && !li.is_finite() {
@@ -288,16 +301,16 @@ pub(super) fn mutate(
                         prop[g.coords[a]] += g.scale * s;
                     }
                     counts.proposed[gi] += 1;
-                    let lpi = prior.from_unbounded_with_log_density(&prop, &mut prop_x);
+                    let lpi = prior.from_unbounded_with_log_density(prop, prop_x);
                     // Far out in u the logistic rounds onto a bound: outside the open box.
-                    if !prior.contains(&prop_x) {
+                    if !prior.contains(prop_x) {
                         continue;
                     }
                     // Terms linked without kept statistics (no cache) move at the cost
                     // of a whole evaluation, paid only for moves their screen lets through.
                     let screened = match g.term {
                         Some(t) if matches!(cache, TermCache::None) => {
-                            screen_change(likelihood, prior, xi, &prop_x, &mut cur_x, &mut screens[t], t)
+                            screen_change(likelihood, prior, xi, prop_x, cur_x, &mut screens[t], t)
                         }
                         None | Some(_) => None,
                     };
@@ -311,17 +324,17 @@ pub(super) fn mutate(
                     let (lp, new_term) = match (g.term, cache) {
                         (Some(t), TermCache::Terms(terms)) => {
                             counts.term_evaluations += 1;
-                            let lt = terms.log_likelihood_term(&prop_x, t);
+                            let lt = terms.log_likelihood_term(prop_x, t);
                             (*li - ti[t] + lt, lt)
                         }
                         (Some(t), TermCache::Stats(stats)) => {
                             counts.term_evaluations += 1;
                             prop_terms.copy_from_slice(ti);
-                            (stats.update_term_stats(&prop_x, t, &mut prop_terms), f64::NAN)
+                            (stats.update_term_stats(prop_x, t, prop_terms), f64::NAN)
                         }
                         _ => {
                             counts.full_evaluations += 1;
-                            (cache.evaluate(likelihood, &prop_x, &mut prop_terms, floor), f64::NAN)
+                            (cache.evaluate(likelihood, prop_x, prop_terms, floor), f64::NAN)
                         }
                     };
                     let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
@@ -340,12 +353,12 @@ pub(super) fn mutate(
                     };
                     let u: f64 = rng.random();
                     if u.ln() < log_ratio {
-                        xi.copy_from_slice(&prop);
+                        xi.copy_from_slice(prop);
                         *li = lp;
                         *pi = lpi;
                         match (g.term, cache) {
                             (Some(t), TermCache::Terms(_)) => ti[t] = new_term,
-                            _ => ti.copy_from_slice(&prop_terms),
+                            _ => ti.copy_from_slice(prop_terms),
                         }
                         match (g.term, screened) {
                             (Some(t), Some((_, at_prop))) => screens[t] = at_prop,
@@ -356,9 +369,8 @@ pub(super) fn mutate(
                     }
                 }
             }
-            counts
         },
-        MoveCounts::default,
+        || MoveCounts { accepted: vec![0; groups.len()], proposed: vec![0; groups.len()], ..Default::default() },
         MoveCounts::merge,
     )
 }
@@ -406,23 +418,25 @@ pub(super) fn independent_moves(
     each_particle(
         cloud,
         rngs,
-        |ui, li, pi, ti, rng| {
-            let (mut prop, mut prop_x, mut scratch, mut prop_terms) =
-                (vec![0.0; dim], vec![0.0; dim], vec![0.0; 2 * dim], vec![0.0; nt]);
-            let mut log_q = mixture.log_density(ui, &mut scratch);
+        4 * dim + nt,
+        |counts: &mut IndependentCounts, buffers, ui, li, pi, ti, rng| {
+            let (prop, rest) = buffers.split_at_mut(dim);
+            let (prop_x, rest) = rest.split_at_mut(dim);
+            let (scratch, prop_terms) = rest.split_at_mut(2 * dim);
+            let mut log_q = mixture.log_density(ui, scratch);
             let (mut accepted, mut evaluated) = (0u64, 0u64);
             for _ in 0..proposals {
-                mixture.sample(rng, &mut prop, &mut scratch);
-                let lpi = prior.from_unbounded_with_log_density(&prop, &mut prop_x);
-                let log_q_prop = mixture.log_density(&prop, &mut scratch);
+                mixture.sample(rng, prop, scratch);
+                let lpi = prior.from_unbounded_with_log_density(prop, prop_x);
+                let log_q_prop = mixture.log_density(prop, scratch);
                 // Draw the uniform whatever happens, so that the streams do
                 // not depend on which proposals fell outside the box.
                 let uniform: f64 = rng.random();
-                if !prior.contains(&prop_x) {
+                if !prior.contains(prop_x) {
                     continue;
                 }
                 evaluated += 1;
-                let lp = cache.evaluate(likelihood, &prop_x, &mut prop_terms, floor);
+                let lp = cache.evaluate(likelihood, prop_x, prop_terms, floor);
                 let lp = if lp.is_nan() { f64::NEG_INFINITY } else { lp };
                 let log_ratio = if li.is_finite() {
                     beta * (lp - *li) + lpi - *pi + log_q - log_q_prop
@@ -432,18 +446,16 @@ pub(super) fn independent_moves(
                     f64::NEG_INFINITY
                 };
                 if uniform.ln() < log_ratio {
-                    ui.copy_from_slice(&prop);
+                    ui.copy_from_slice(prop);
                     (*li, *pi, log_q) = (lp, lpi, log_q_prop);
-                    ti.copy_from_slice(&prop_terms);
+                    ti.copy_from_slice(prop_terms);
                     accepted += 1;
                 }
             }
-            IndependentCounts {
-                accepted,
-                proposed: proposals as u64,
-                evaluations: evaluated,
-                moved: (accepted > 0) as u64,
-            }
+            counts.accepted += accepted;
+            counts.proposed += proposals as u64;
+            counts.evaluations += evaluated;
+            counts.moved += (accepted > 0) as u64;
         },
         IndependentCounts::default,
         IndependentCounts::merge,
