@@ -194,3 +194,10 @@ pub fn small_ball_drop(dir: &std::path::Path) -> std::path::PathBuf {
     std::fs::write(&path, small).unwrap();
     path
 }
+
+/// Whether the central `level` interval of `draws` (sorted here) holds `truth`.
+pub fn central_interval_covers(mut draws: Vec<f64>, truth: f64, level: f64) -> bool {
+    use mdpipe::calibrate::sampler::diagnostics::quantile_sorted;
+    draws.sort_by(|a, b| a.total_cmp(b));
+    quantile_sorted(&draws, (1.0 - level) / 2.0) <= truth && truth <= quantile_sorted(&draws, (1.0 + level) / 2.0)
+}

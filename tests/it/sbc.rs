@@ -73,12 +73,8 @@ fn credible_intervals_have_nominal_coverage() {
                 .unwrap();
             let mut covered = [[false; 2]; 5];
             for p in 0..5 {
-                let mut d = out.chains.param(p);
-                d.sort_by(|a, b| a.total_cmp(b));
                 for (l, level) in levels.iter().enumerate() {
-                    let lo = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 - level) / 2.0);
-                    let hi = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 + level) / 2.0);
-                    covered[p][l] = lo <= truth[p] && truth[p] <= hi;
+                    covered[p][l] = central_interval_covers(out.chains.param(p), truth[p], *level);
                 }
             }
             covered
@@ -219,17 +215,7 @@ fn joint_coverage(prior: &UniformPrior, path: &str, failures: &mut Vec<String>) 
                 .unwrap();
             let screens: u64 = out.replicates.iter().map(|r| r.term_evaluations).sum();
             let covered = (0..dim)
-                .map(|p| {
-                    let mut d = out.chains.param(p);
-                    d.sort_by(|a, b| a.total_cmp(b));
-                    let mut c = [false; 2];
-                    for (l, level) in levels.iter().enumerate() {
-                        let lo = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 - level) / 2.0);
-                        let hi = mdpipe::calibrate::sampler::diagnostics::quantile_sorted(&d, (1.0 + level) / 2.0);
-                        c[l] = lo <= truth[p] && truth[p] <= hi;
-                    }
-                    c
-                })
+                .map(|p| levels.map(|level| central_interval_covers(out.chains.param(p), truth[p], level)))
                 .collect();
             (covered, screens)
         })

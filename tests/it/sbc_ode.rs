@@ -5,8 +5,8 @@
 //! off the data and the watch stops most proposals. The data come from the
 //! test's own RK4 integrator, not from the code under test.
 
+use super::common::central_interval_covers;
 use mdpipe::artifacts::Measurement;
-use mdpipe::calibrate::sampler::diagnostics::quantile_sorted;
 use mdpipe::calibrate::sampler::smc::{Smc, SmcSettings};
 use mdpipe::calibrate::{MdLikelihood, ObservableBlock, UniformPrior};
 use mdpipe::model::Simulator;
@@ -116,11 +116,8 @@ fn a_declared_ode_fit_with_its_floor_has_nominal_coverage() {
                 .unwrap();
             let mut covered = [[false; 2]; 2];
             for p in 0..2 {
-                let mut d = out.chains.param(p);
-                d.sort_by(|a, b| a.total_cmp(b));
                 for (l, level) in levels.iter().enumerate() {
-                    let (lo, hi) = (quantile_sorted(&d, (1.0 - level) / 2.0), quantile_sorted(&d, (1.0 + level) / 2.0));
-                    covered[p][l] = lo <= truth[p] && truth[p] <= hi;
+                    covered[p][l] = central_interval_covers(out.chains.param(p), truth[p], *level);
                 }
             }
             covered

@@ -4,6 +4,7 @@
 //! more than a given χ² before it has finished, and stop there
 //! (`Simulator::chi_square_exceeds`).
 
+use super::Simulator;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// One observable's measurements: times or inputs `x`, values `y` and the
@@ -32,12 +33,16 @@ impl ObservedData {
         ObservedData { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), series }
     }
 
-    /// Σ ((y − η)/σ)² of predictions `eta[s]` of each series.
-    pub fn chi_square(&self, eta: &[Vec<f64>]) -> f64 {
+    /// Σ ((y − η(θ))/σ)² over every series, η from `model.predict`
+    /// (allocates: for tests and checks, not a sampler's loop).
+    pub fn chi_square_at(&self, model: &dyn Simulator, theta: &[f64]) -> f64 {
         self.series
             .iter()
-            .zip(eta)
-            .flat_map(|(s, e)| s.y.iter().zip(&s.inv_error).zip(e).map(|((y, w), e)| ((y - e) * w).powi(2)))
+            .map(|s| {
+                let mut eta = vec![0.0; s.x.len()];
+                model.predict(s.observable, &s.x, theta, &mut eta);
+                s.y.iter().zip(&s.inv_error).zip(&eta).map(|((y, w), e)| ((y - e) * w).powi(2)).sum::<f64>()
+            })
             .sum()
     }
 }

@@ -74,16 +74,7 @@ mod tests {
             Line.predict(o, x, theta, out)
         }
         fn chi_square_exceeds(&self, theta: &[f64], data: &ObservedData, limit: f64) -> bool {
-            let eta: Vec<Vec<f64>> = data
-                .series
-                .iter()
-                .map(|s| {
-                    let mut out = vec![0.0; s.x.len()];
-                    self.predict(s.observable, &s.x, theta, &mut out);
-                    out
-                })
-                .collect();
-            data.chi_square(&eta) > limit
+            data.chi_square_at(self, theta) > limit
         }
     }
 

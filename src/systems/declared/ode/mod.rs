@@ -307,6 +307,21 @@ impl OdeModel {
         (Some(Dense::OnGrid { grid, states, stride: y0.len() }), false)
     }
 
+    /// Moves this model's kept solution at θ to the front of `kept` (true),
+    /// or else the least recently used slot, whose buffers a new solution
+    /// reuses (false).
+    fn to_front(&self, kept: &mut Vec<Solved>, theta: &[f64]) -> bool {
+        let found = kept.iter().position(|s| s.model == self.id && s.theta == theta);
+        let slot = found.unwrap_or_else(|| {
+            if kept.len() < KEPT {
+                kept.push(Solved::empty());
+            }
+            kept.len() - 1
+        });
+        kept[..=slot].rotate_right(1);
+        found.is_some()
+    }
+
     /// The points of `data` on the data's grid, made once per data; None
     /// when there is no grid, it does not reach them, or the model solves
     /// exactly (nothing to stop).
@@ -446,21 +461,12 @@ impl Simulator for OdeModel {
     fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
         SOLVED.with(|cell| {
             let mut kept = cell.borrow_mut();
-            let found = kept.iter().position(|s| s.model == self.id && s.theta == theta);
-            // Found or not, the slot used moves to the front; a new solution
-            // takes the least recently used slot's buffers.
-            let slot = found.unwrap_or_else(|| {
-                if kept.len() < KEPT {
-                    kept.push(Solved::empty());
-                }
-                kept.len() - 1
-            });
-            kept[..=slot].rotate_right(1);
+            let found = self.to_front(&mut kept, theta);
             let solved = &mut kept[0];
             // The likelihood asks for each observable in turn at one θ: the
             // solution made for the first serves the others (not one its
             // watch stopped).
-            if found.is_some() && solved.far.is_none() && self.predict_from(solved, observable, x, out) {
+            if found && solved.far.is_none() && self.predict_from(solved, observable, x, out) {
                 return;
             }
             let t_needed = x.iter().copied().fold(self.horizon(), f64::max);
@@ -523,16 +529,9 @@ impl Simulator for OdeModel {
         };
         SOLVED.with(|cell| {
             let mut kept = cell.borrow_mut();
-            let found = kept.iter().position(|s| s.model == self.id && s.theta == theta);
-            let slot = found.unwrap_or_else(|| {
-                if kept.len() < KEPT {
-                    kept.push(Solved::empty());
-                }
-                kept.len() - 1
-            });
-            kept[..=slot].rotate_right(1);
+            let found = self.to_front(&mut kept, theta);
             let solved = &mut kept[0];
-            if found.is_some() {
+            if found {
                 match solved.far {
                     None => return false,
                     Some((id, stopped_at)) if id == data.id && stopped_at >= limit => return true,

@@ -129,20 +129,6 @@ fn pendulum_and_data() -> (std::sync::Arc<dyn Simulator>, ObservedData) {
     (model, ObservedData::new(series))
 }
 
-/// The χ² of the model's predictions at θ against the data.
-fn chi_square_at(model: &dyn Simulator, data: &ObservedData, theta: &[f64]) -> f64 {
-    let eta: Vec<Vec<f64>> = data
-        .series
-        .iter()
-        .map(|s| {
-            let mut out = vec![0.0; s.x.len()];
-            model.predict(s.observable, &s.x, theta, &mut out);
-            out
-        })
-        .collect();
-    data.chi_square(&eta)
-}
-
 /// The watch never claims a χ² above the limit that the predictions do not
 /// have; below the true χ² by a factor it stops (a driven pendulum, c < 0,
 /// spins off); a watched integration that ran through gives the same
@@ -156,11 +142,11 @@ fn the_watch_stops_only_where_the_chi_square_exceeds_its_limit() {
     // other θ push it out first.
     let forget = || {
         for k in 0..KEPT {
-            chi_square_at(model.as_ref(), &data, &[0.85, 0.1 + k as f64 * 0.1]);
+            data.chi_square_at(model.as_ref(), &[0.85, 0.1 + k as f64 * 0.1]);
         }
     };
     for theta in [[1.67, 0.64], [1.0, 0.0], [2.5, -0.5], [1.67, -3.0], [3.3, 1.5], [0.9, 6.0]] {
-        let chi2 = chi_square_at(model.as_ref(), &data, &theta);
+        let chi2 = data.chi_square_at(model.as_ref(), &theta);
         for factor in [1e-6, 0.5, 0.999, 1.001, 2.0] {
             let limit = (factor * chi2).max(1e-9);
             forget();
@@ -171,7 +157,7 @@ fn the_watch_stops_only_where_the_chi_square_exceeds_its_limit() {
             }
             stopped += exceeds as usize;
             // Whatever the watch did, predict answers with the full solution.
-            assert_eq!(chi_square_at(model.as_ref(), &data, &theta), chi2, "θ = {theta:?}, limit {limit}");
+            assert_eq!(data.chi_square_at(model.as_ref(), &theta), chi2, "θ = {theta:?}, limit {limit}");
         }
     }
     assert!(stopped > 5, "only the million-fold limits stopped ({stopped})");
