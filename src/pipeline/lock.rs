@@ -15,7 +15,7 @@ use anyhow::{bail, Context, Result};
 use std::fs::{File, OpenOptions, TryLockError};
 use std::io::{Read, Seek, Write};
 use std::path::Path;
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// The lock's file name in the output folder.
 pub(super) const LOCK_FILE: &str = ".mdpipe-run.lock";
@@ -35,7 +35,7 @@ pub(super) fn take(out: &Path) -> Result<RunLock> {
         .truncate(false)
         .open(&path)
         .with_context(|| format!("opening {}", path.display()))?;
-    match file.try_lock() {
+    match try_lock_patiently(&file) {
         Ok(()) => {
             // Who holds it, then when it started (unix seconds, for its age).
             let holder = format!("pid {} on {}: {}\n{}\n", std::process::id(), host(), command(), now());
@@ -56,6 +56,26 @@ pub(super) fn take(out: &Path) -> Result<RunLock> {
         }
         // No advisory locks here (some network file systems): run unlocked.
         Err(TryLockError::Error(_)) => Ok(RunLock { _file: None }),
+    }
+}
+
+/// How long a held lock is retried before the run stops and names its holder.
+const PATIENCE: Duration = Duration::from_secs(2);
+
+/// `try_lock`, retried for [`PATIENCE`] while the lock is held.
+///
+/// A process that spawns a child copies every open file into it until the
+/// child's `exec` closes them, and a copy keeps an `flock` held: a lock just
+/// released by one run can be held for a moment by a child another thread of
+/// the same program is starting (the test harness runs pipelines side by side).
+/// A real second run holds the folder for far longer than the wait.
+fn try_lock_patiently(file: &File) -> std::result::Result<(), TryLockError> {
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        match file.try_lock() {
+            Err(TryLockError::WouldBlock) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
+            other => return other,
+        }
     }
 }
 
@@ -99,6 +119,23 @@ mod tests {
         let again = take(&dir);
         assert!(again.is_ok(), "the folder stays locked after its run ended");
         drop(again);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_lock_held_a_moment_by_a_copy_of_the_released_file_is_waited_for() {
+        let dir = std::env::temp_dir().join(format!("mdpipe-lock-copy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = take(&dir).unwrap();
+        // A spawned child holds a copy of the open file until its exec: a dup stands for it.
+        let copy = first._file.as_ref().unwrap().try_clone().unwrap();
+        drop(first);
+        let child = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(300));
+            drop(copy);
+        });
+        assert!(take(&dir).is_ok(), "a lock released a moment later stopped the run");
+        child.join().unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
