@@ -214,6 +214,7 @@ fn observable_blocks(
         }
         let block = ObservableBlock::new(name, idx, &rows).with_context(|| data_path.display().to_string())?;
         simulator.check_inputs(idx, &block.x).with_context(|| data_path.display().to_string())?;
+        simulator.note_measurements(idx, &block.y, &block.error);
         blocks.push(block);
     }
     Ok(blocks)

@@ -129,6 +129,10 @@ impl Simulator for CorrectedModel {
         self.inner.check_inputs(observable, x)
     }
 
+    fn note_measurements(&self, observable: usize, values: &[f64], errors: &[f64]) {
+        self.inner.note_measurements(observable, values, errors)
+    }
+
     fn predicts_any_x(&self) -> bool {
         self.inner.predicts_any_x()
     }

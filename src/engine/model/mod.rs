@@ -32,6 +32,10 @@ pub trait Simulator: Send + Sync {
     fn check_inputs(&self, _observable: usize, _x: &[f64]) -> anyhow::Result<()> {
         Ok(())
     }
+    /// Tells the model one observable's measured values and errors before a
+    /// fit, so that it computes no more precisely than they can tell apart
+    /// (an ODE integrator's tolerance). Nothing by default.
+    fn note_measurements(&self, _observable: usize, _values: &[f64], _errors: &[f64]) {}
     /// Whether `predict` works at any x (false for emulators: no prediction grid).
     fn predicts_any_x(&self) -> bool {
         true

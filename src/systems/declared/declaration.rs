@@ -61,32 +61,27 @@ pub struct UnitsTable {
     pub observables: BTreeMap<String, String>,
 }
 
-/// Error control of the ODE integrator (Dormand–Prince 5(4)).
+/// Error control of the ODE integrator. Tolerances left unset follow the
+/// data's precision (`ode::tolerance`).
 #[derive(Clone, Copy, Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SolverSettings {
-    #[serde(default = "default_rtol")]
-    pub rtol: f64,
-    #[serde(default = "default_atol")]
-    pub atol: f64,
+    #[serde(default)]
+    pub rtol: Option<f64>,
+    #[serde(default)]
+    pub atol: Option<f64>,
     /// Steps before an integration is given up (and its θ given zero likelihood).
     #[serde(default = "default_max_steps")]
     pub max_steps: u32,
 }
 
-fn default_rtol() -> f64 {
-    1e-8
-}
-fn default_atol() -> f64 {
-    1e-10
-}
 fn default_max_steps() -> u32 {
     20_000
 }
 
 impl Default for SolverSettings {
     fn default() -> Self {
-        SolverSettings { rtol: default_rtol(), atol: default_atol(), max_steps: default_max_steps() }
+        SolverSettings { rtol: None, atol: None, max_steps: default_max_steps() }
     }
 }
 
@@ -366,11 +361,14 @@ fn states(file: &str, table: &ModelTable) -> Result<Vec<State>> {
 }
 
 fn check_solver(file: &str, s: &SolverSettings) -> Result<()> {
-    if !(s.rtol > 0.0 && s.rtol < 1.0 && s.atol > 0.0 && s.atol.is_finite()) {
+    let rtol_ok = s.rtol.is_none_or(|r| r > 0.0 && r < 1.0);
+    let atol_ok = s.atol.is_none_or(|a| a > 0.0 && a.is_finite());
+    if !(rtol_ok && atol_ok) {
+        let shown = |v: Option<f64>| v.map_or("unset".to_string(), |v| v.to_string());
         bail!(
             "{file}: [model.solver]: rtol must be in (0, 1) and atol positive (got rtol = {}, atol = {})",
-            s.rtol,
-            s.atol
+            shown(s.rtol),
+            shown(s.atol)
         );
     }
     if s.max_steps == 0 {

@@ -379,6 +379,9 @@ impl<'a> Context<'a> {
         if self.data.blocks.iter().any(|b| simulator.check_inputs(b.model_index, b.x).is_err()) {
             return None;
         }
+        for b in &self.data.blocks {
+            simulator.note_measurements(b.model_index, b.y, b.error);
+        }
         let mut bounds = self.data.bounds.clone();
         bounds.extend(table.parameters.values().map(|p| (p.min, p.max)));
         let ls = LeastSquares { blocks: &self.data.blocks, model: simulator.as_ref(), bounds };

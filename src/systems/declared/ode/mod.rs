@@ -32,6 +32,7 @@ mod dense;
 mod grid;
 mod linear;
 mod rhs;
+mod tolerance;
 
 use super::declaration::{check_parameters_used, corners, describe, Declared, SolverSettings, Variables, MAX_NAMES};
 use crate::engine::formula::Formula;
@@ -44,6 +45,7 @@ use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
 use ode_solvers::continuous_output_model::ContinuousOutputModel;
 use ode_solvers::{Dop853, Dopri5, OutputType};
 use rhs::{Checks, Rhs, Watch};
+use tolerance::Precision;
 use std::cell::{Cell, RefCell};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
@@ -71,6 +73,8 @@ pub struct OdeModel {
     bounds: Vec<(f64, f64)>,
     t0: f64,
     solver: SolverSettings,
+    /// The data's finest relative error, which unset tolerances follow.
+    precision: Precision,
     /// The latest time any data asked for, so one integration serves every observable.
     horizon: AtomicU64,
     /// Every data time seen by `check_inputs`, and the grid that holds them.
@@ -86,6 +90,8 @@ pub struct OdeModel {
 /// observable in turn at the same θ.
 struct Solved {
     model: u64,
+    /// The tolerance it was integrated to (the data's notes may change it).
+    rtol: f64,
     theta: Vec<f64>,
     t_end: f64,
     /// None when the integration failed.
@@ -107,6 +113,7 @@ impl Solved {
     fn empty() -> Solved {
         Solved {
             model: 0,
+            rtol: f64::NAN,
             theta: Vec::new(),
             t_end: f64::NAN,
             dense: None,
@@ -178,6 +185,7 @@ impl OdeModel {
             bounds: d.bounds.clone(),
             t0: d.t0,
             solver: d.solver,
+            precision: Precision::unseen(),
             horizon: AtomicU64::new(d.t0.to_bits()),
             data_times: Mutex::new(Vec::new()),
             grid: RwLock::new(None),
@@ -194,6 +202,7 @@ impl OdeModel {
     /// integration stops once the points passed exceed the limit.
     fn solve(&self, solved: &mut Solved, theta: &[f64], t_end: f64, grid: Option<Grid>, watch: Option<(&Checks, f64)>) {
         solved.model = self.id;
+        solved.rtol = self.precision.tolerances(&self.solver).0;
         solved.theta.clear();
         solved.theta.extend_from_slice(theta);
         solved.t_end = t_end;
@@ -264,7 +273,7 @@ impl OdeModel {
         OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
     {
         let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
-        let s = &self.solver;
+        let (rtol, atol) = self.precision.tolerances(&self.solver);
         // Half a grid step past the last point: the crate's interpolation
         // at the very end of an integration is off (1e-5 where 1e-8 was
         // asked, measured on the oscillator), inside a step it is right.
@@ -281,15 +290,15 @@ impl OdeModel {
             t_end,
             grid.dx,
             y,
-            s.rtol,
-            s.atol,
+            rtol,
+            atol,
             0.9,
             0.0,
             0.333,
             6.0,
             span,
             0.0,
-            s.max_steps,
+            self.solver.max_steps,
             1000,
             OutputType::Dense,
         );
@@ -311,7 +320,8 @@ impl OdeModel {
     /// or else the least recently used slot, whose buffers a new solution
     /// reuses (false).
     fn to_front(&self, kept: &mut Vec<Solved>, theta: &[f64]) -> bool {
-        let found = kept.iter().position(|s| s.model == self.id && s.theta == theta);
+        let rtol = self.precision.tolerances(&self.solver).0;
+        let found = kept.iter().position(|s| s.model == self.id && s.rtol == rtol && s.theta == theta);
         let slot = found.unwrap_or_else(|| {
             if kept.len() < KEPT {
                 kept.push(Solved::empty());
@@ -366,7 +376,7 @@ impl OdeModel {
         OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
     {
         let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
-        let s = &self.solver;
+        let (rtol, atol) = self.precision.tolerances(&self.solver);
         let span = t_end - self.t0;
         let rhs = Rhs { model: self, values: RefCell::new(values), clock: false, watch: None };
         let mut stepper = Dopri5::from_param(
@@ -375,15 +385,15 @@ impl OdeModel {
             t_end,
             span,
             y,
-            s.rtol,
-            s.atol,
+            rtol,
+            atol,
             0.9,
             0.04,
             0.2,
             10.0,
             span,
             0.0,
-            s.max_steps,
+            self.solver.max_steps,
             1000,
             OutputType::Dense,
         );
@@ -487,6 +497,10 @@ impl Simulator for OdeModel {
     /// observable) and checks that the initial values and rates are finite
     /// at t0 at every corner of the prior box: a division by zero there is a
     /// declaration error. Later failures only cost their θ its likelihood.
+    fn note_measurements(&self, _observable: usize, values: &[f64], errors: &[f64]) {
+        self.precision.note(values, errors);
+    }
+
     fn check_inputs(&self, _observable: usize, x: &[f64]) -> Result<()> {
         if let Some(t) = x.iter().find(|t| **t < self.t0) {
             bail!("a data point at t = {t} lies before t0 = {} of the ODE model, where it has no state", self.t0);

@@ -1,0 +1,101 @@
+//! How precisely an integration must follow the solution: no more than the
+//! data can tell apart.
+//!
+//! An integrator's error is a bias in every prediction; it is harmless once
+//! it is a small share of the measurements' errors, and each tenfold in
+//! precision costs DOP853 another third in steps (work ∝ tol^(−1/8)). So a
+//! model whose `[model.solver]` leaves `rtol` unset integrates with a local
+//! tolerance of a thousandth of the data's finest relative error (the
+//! smallest error over the largest |value| of an observable), never looser
+//! than 1e-6, the default of Stan's ODE solvers; `atol` defaults to
+//! `rtol / 100`. Before any data are seen it is 1e-8, as it always was. A
+//! declared tolerance is used as written.
+
+use crate::systems::declared::declaration::SolverSettings;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The tolerance before any data are seen.
+const UNSEEN_RTOL: f64 = 1e-8;
+/// The loosest tolerance the data may ask for.
+const LOOSEST_RTOL: f64 = 1e-6;
+/// The tightest: DOP853 in double precision gains nothing below it.
+const TIGHTEST_RTOL: f64 = 1e-13;
+/// The integrator's local error as a share of the data's relative error.
+const SHARE_OF_ERROR: f64 = 1e-3;
+/// `atol` as a share of `rtol` when neither is declared.
+const ATOL_PER_RTOL: f64 = 1e-2;
+
+/// The finest relative error of the data a model has seen (only falls).
+pub(super) struct Precision(AtomicU64);
+
+impl Precision {
+    pub fn unseen() -> Precision {
+        Precision(AtomicU64::new(f64::INFINITY.to_bits()))
+    }
+
+    /// Notes one observable's measurements: their smallest positive error
+    /// over their largest |value|. Nothing when either is missing.
+    pub fn note(&self, values: &[f64], errors: &[f64]) {
+        let largest = values.iter().fold(0.0_f64, |m, y| m.max(y.abs()));
+        let smallest = errors.iter().copied().filter(|e| *e > 0.0).fold(f64::INFINITY, f64::min);
+        let relative = smallest / largest;
+        if !(relative.is_finite() && relative > 0.0) {
+            return;
+        }
+        let _ = self.0.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |old| {
+            (relative < f64::from_bits(old)).then_some(relative.to_bits())
+        });
+    }
+
+    fn get(&self) -> f64 {
+        f64::from_bits(self.0.load(Ordering::Relaxed))
+    }
+
+    /// (rtol, atol): the declared ones, else as precise as the data need.
+    pub fn tolerances(&self, declared: &SolverSettings) -> (f64, f64) {
+        let rtol = declared.rtol.unwrap_or_else(|| rtol_for(self.get()));
+        let atol = declared.atol.unwrap_or(rtol * ATOL_PER_RTOL);
+        (rtol, atol)
+    }
+}
+
+/// The relative tolerance for data of this finest relative error.
+fn rtol_for(relative_error: f64) -> f64 {
+    if !relative_error.is_finite() {
+        return UNSEEN_RTOL;
+    }
+    (SHARE_OF_ERROR * relative_error).clamp(TIGHTEST_RTOL, LOOSEST_RTOL)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unset() -> SolverSettings {
+        SolverSettings { rtol: None, atol: None, max_steps: 1 }
+    }
+
+    #[test]
+    fn the_tolerance_follows_the_finest_data_and_a_declared_one_wins() {
+        let p = Precision::unseen();
+        assert_eq!(p.tolerances(&unset()), (1e-8, 1e-10), "before data: as before");
+        // 1% data: a thousandth of it is 1e-5, looser than the loosest.
+        p.note(&[2.0, -10.0], &[0.1, 0.3]);
+        assert_eq!(p.tolerances(&unset()), (1e-6, 1e-8));
+        // Data ten thousand times finer tighten it; coarser data later do not loosen it.
+        p.note(&[5.0, 1.0], &[5e-6, 0.0]);
+        let (rtol, atol) = p.tolerances(&unset());
+        assert!((rtol - 1e-9).abs() < 1e-22 && (atol - 1e-11).abs() < 1e-24, "{rtol} {atol}");
+        p.note(&[1.0], &[0.5]);
+        assert!((p.tolerances(&unset()).0 - 1e-9).abs() < 1e-22);
+        // Values all zero or no positive error say nothing.
+        p.note(&[0.0, 0.0], &[1e-30]);
+        p.note(&[1.0], &[0.0]);
+        assert!((p.tolerances(&unset()).0 - 1e-9).abs() < 1e-22);
+        let declared = SolverSettings { rtol: Some(1e-4), atol: None, max_steps: 1 };
+        let (rtol, atol) = p.tolerances(&declared);
+        assert!(rtol == 1e-4 && (atol - 1e-6).abs() < 1e-19, "{rtol} {atol}");
+        let both = SolverSettings { rtol: None, atol: Some(1e-3), max_steps: 1 };
+        assert!((p.tolerances(&both).0 - 1e-9).abs() < 1e-22 && p.tolerances(&both).1 == 1e-3);
+    }
+}
