@@ -272,6 +272,9 @@ pub fn print_summary(s: &Summary) {
         "  {} draws, {:.1} s, {:.0} likelihood evals/s, min ESS/s {:.0}, chi2/dof (model alone) {:.2}",
         d.draws, d.wall_seconds, d.likelihood_evaluations_per_second, d.min_ess_per_second, s.fit.chi2_per_dof
     );
+    if let Some(numerics) = &s.numerics {
+        println!("  {numerics}");
+    }
     if s.fit.emulator_dominates() {
         eprintln!(
             "  WARNING: the emulator's uncertainty is {:.1}% of the predictive variance at the data in its worst observable: it, not the physics, absorbs the mismatch there; add design points where the posterior lies (mdpipe refine)",

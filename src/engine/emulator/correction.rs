@@ -133,6 +133,10 @@ impl Simulator for CorrectedModel {
         self.inner.note_measurements(observable, values, errors)
     }
 
+    fn numerics(&self) -> Option<String> {
+        self.inner.numerics()
+    }
+
     fn predicts_any_x(&self) -> bool {
         self.inner.predicts_any_x()
     }

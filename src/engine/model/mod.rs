@@ -36,6 +36,11 @@ pub trait Simulator: Send + Sync {
     /// fit, so that it computes no more precisely than they can tell apart
     /// (an ODE integrator's tolerance). Nothing by default.
     fn note_measurements(&self, _observable: usize, _values: &[f64], _errors: &[f64]) {}
+    /// How the model computes where it chose from the data (a declared
+    /// ODE's integrator tolerances), for the fit's record. None by default.
+    fn numerics(&self) -> Option<String> {
+        None
+    }
     /// Whether `predict` works at any x (false for emulators: no prediction grid).
     fn predicts_any_x(&self) -> bool {
         true

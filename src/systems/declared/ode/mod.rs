@@ -45,10 +45,10 @@ use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
 use ode_solvers::continuous_output_model::ContinuousOutputModel;
 use ode_solvers::{Dop853, Dopri5, OutputType};
 use rhs::{Checks, Rhs, Watch};
-use tolerance::Precision;
 use std::cell::{Cell, RefCell};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
+use tolerance::Precision;
 
 pub struct OdeModel {
     /// Tells this model's solutions apart in the per-thread cache.
@@ -499,6 +499,15 @@ impl Simulator for OdeModel {
     /// declaration error. Later failures only cost their θ its likelihood.
     fn note_measurements(&self, _observable: usize, values: &[f64], errors: &[f64]) {
         self.precision.note(values, errors);
+    }
+
+    fn numerics(&self) -> Option<String> {
+        let tolerances = self.precision.describe(&self.solver);
+        Some(if self.affine.is_some() {
+            format!("ODE affine in its state: solved exactly on the data's time grid, else integrated at {tolerances}")
+        } else {
+            format!("ODE integrated by DOP853 on the data's time grid, else Dormand–Prince 5(4), at {tolerances}")
+        })
     }
 
     fn check_inputs(&self, _observable: usize, x: &[f64]) -> Result<()> {

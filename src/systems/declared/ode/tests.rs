@@ -102,21 +102,27 @@ fn a_rate_with_time_matches_its_closed_form_on_and_off_the_grid() {
 }
 
 /// A driven pendulum, x₀' = x₁, x₁' = c₀ − sin x₀ − c·x₁ (ODEBench's
-/// Josephson junction), with data at 40 times, their values the model's own
-/// at c₀ = 1.67, c = 0.64 (this tests the watch, not a fit).
-fn pendulum_and_data() -> (std::sync::Arc<dyn Simulator>, ObservedData) {
-    let dir = std::env::temp_dir().join(format!("mdpipe-ode-watch-{}", std::process::id()));
+/// Josephson junction), with `solver` as its `[model.solver]` table.
+fn pendulum(solver: &str) -> std::sync::Arc<dyn Simulator> {
+    let dir = std::env::temp_dir().join(format!("mdpipe-ode-pendulum-{}-{}", std::process::id(), solver.len()));
     std::fs::create_dir_all(&dir).unwrap();
-    let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
-    let rows: String =
-        times.iter().flat_map(|t| [format!("x0,{t},1.0,0.19\n"), format!("x1,{t},1.0,0.03\n")]).collect();
-    std::fs::write(dir.join("data.csv"), format!("observable,x,value,error\n{rows}")).unwrap();
-    let config = "name = \"pendulum\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\nx0 = \"1.47\"\nx1 = \"-0.2\"\n\
+    let config = format!(
+        "name = \"pendulum\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\nx0 = \"1.47\"\nx1 = \"-0.2\"\n\
         [model.rates]\nx0 = \"x1\"\nx1 = \"c0 - sin(x0) - c*x1\"\n[model.observables]\nx0 = \"x0\"\nx1 = \"x1\"\n\
-        [data]\nmeasurements = \"data.csv\"\n[parameters.c0]\nmin = 0.8\nmax = 3.4\n[parameters.c]\nmin = -6.6\nmax = 6.6\n";
+        [model.solver]\n{solver}\n[data]\nmeasurements = \"data.csv\"\n[parameters.c0]\nmin = 0.8\nmax = 3.4\n\
+        [parameters.c]\nmin = -6.6\nmax = 6.6\n"
+    );
     std::fs::write(dir.join("pendulum.toml"), config).unwrap();
     let model = crate::systems::load(&dir.join("pendulum.toml")).expect("the pendulum").simulator;
     std::fs::remove_dir_all(&dir).ok();
+    model
+}
+
+/// The pendulum with data at 40 times, their values the model's own at
+/// c₀ = 1.67, c = 0.64 (this tests the watch, not a fit).
+fn pendulum_and_data() -> (std::sync::Arc<dyn Simulator>, ObservedData) {
+    let model = pendulum("");
+    let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
     let series = (0..2)
         .map(|o| {
             model.check_inputs(o, &times).unwrap();
@@ -127,6 +133,37 @@ fn pendulum_and_data() -> (std::sync::Arc<dyn Simulator>, ObservedData) {
         })
         .collect();
     (model, ObservedData::new(series))
+}
+
+/// Told data of 1% errors, a model with no declared tolerance integrates at
+/// rtol 1e-6, says so, and its predictions stay within a hundredth of the
+/// data's errors of an integration at 1e-12 (the claim is a thousandth
+/// locally; the margin is for the error's growth along the trajectory).
+#[test]
+fn an_integration_to_the_datas_precision_stays_far_inside_their_errors() {
+    let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
+    let (loose, tight) = (pendulum(""), pendulum("rtol = 1e-12\natol = 1e-14"));
+    assert!(loose.numerics().unwrap().contains("rtol 1e-8, atol 1e-10 (no data seen)"), "{:?}", loose.numerics());
+    let errors = [0.02, 0.03];
+    for (o, e) in errors.iter().enumerate() {
+        for model in [&loose, &tight] {
+            model.check_inputs(o, &times).unwrap();
+            model.note_measurements(o, &[2.0, -1.5], &[*e; 2]);
+        }
+    }
+    let said = loose.numerics().unwrap();
+    assert!(said.contains("rtol 1e-6, atol 1e-8 (from the data's finest relative error, 1.00e-2)"), "{said}");
+    assert!(tight.numerics().unwrap().contains("rtol 1e-12, atol 1e-14 (as declared)"));
+    let mut worst: f64 = 0.0;
+    for theta in [[1.67, 0.64], [1.0, 0.0], [2.5, -0.5], [3.3, 1.5], [0.9, 0.05]] {
+        for (o, e) in errors.iter().enumerate() {
+            let (mut a, mut b) = (vec![0.0; times.len()], vec![0.0; times.len()]);
+            loose.predict(o, &times, &theta, &mut a);
+            tight.predict(o, &times, &theta, &mut b);
+            worst = a.iter().zip(&b).map(|(a, b)| (a - b).abs() / e).fold(worst, f64::max);
+        }
+    }
+    assert!(worst < 1e-2, "the integration's error reached {worst} of the data's errors");
 }
 
 /// The watch never claims a χ² above the limit that the predictions do not

@@ -59,6 +59,19 @@ impl Precision {
     }
 }
 
+impl Precision {
+    /// The tolerances in words, with where they came from.
+    pub fn describe(&self, declared: &SolverSettings) -> String {
+        let (rtol, atol) = self.tolerances(declared);
+        let source = match (declared.rtol, self.get()) {
+            (Some(_), _) => "as declared".to_string(),
+            (None, p) if p.is_finite() => format!("from the data's finest relative error, {p:.2e}"),
+            (None, _) => "no data seen".to_string(),
+        };
+        format!("rtol {rtol:.0e}, atol {atol:.0e} ({source})")
+    }
+}
+
 /// The relative tolerance for data of this finest relative error.
 fn rtol_for(relative_error: f64) -> f64 {
     if !relative_error.is_finite() {

@@ -256,6 +256,10 @@ pub struct Summary {
     /// (`edges`): the box, not the data, ends the posterior there.
     #[serde(default)]
     pub piled_at_bounds: Vec<PiledAtBound>,
+    /// How the model computed where it chose from the data (a declared
+    /// ODE's tolerances), so that a fit says what it was made with.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub numerics: Option<String>,
     pub provenance: Provenance,
 }
 
@@ -323,6 +327,7 @@ pub fn summarize(
             adaptation: Vec::new(),
         },
         piled_at_bounds: piled_at_bounds(chains, &problem.prior, problem.likelihood.n_theta),
+        numerics: problem.simulator.numerics(),
         provenance: problem.provenance(seed, "calibrate"),
     }
 }
