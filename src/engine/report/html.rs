@@ -52,8 +52,10 @@ pub fn build(dirs: &[PathBuf], title: &str, systems: &[&dyn SystemFigures]) -> R
     emulator_section(&mut html, dirs)?;
     if let Some(r) = runs.first() {
         let p = &r.summary.provenance;
+        // What the model chose from the data (an ODE's tolerances) belongs with how the run was made.
+        let numerics = r.summary.numerics.as_deref().map(|n| format!(" · {}", html_escape(n))).unwrap_or_default();
         html.push_str(&format!(
-            "<p style=\"font-size:12px;color:#666\">mdpipe {} · config {} · seed {}</p>",
+            "<p style=\"font-size:12px;color:#666\">mdpipe {} · config {} · seed {}{numerics}</p>",
             p.mdpipe_version,
             &p.config_hash.get(..12).unwrap_or(""),
             p.seed
