@@ -7,9 +7,9 @@
 //! model whose `[model.solver]` leaves `rtol` unset integrates with a local
 //! tolerance of a thousandth of the data's finest relative error (the
 //! smallest error over the largest |value| of an observable), never looser
-//! than 1e-6, the default of Stan's ODE solvers; `atol` defaults to
-//! `rtol / 100`. Before any data are seen it is 1e-8, as it always was. A
-//! declared tolerance is used as written.
+//! than 1e-6, the default of Stan's ODE solvers, nor tighter than 1e-12;
+//! `atol` defaults to `rtol / 100`. Before any data are seen it is 1e-8, as
+//! it always was. A declared tolerance is used as written.
 
 use crate::systems::declared::declaration::SolverSettings;
 use std::sync::atomic::{AtomicU64, Ordering};
