@@ -75,6 +75,8 @@ pub struct OdeModel {
     solver: SolverSettings,
     /// The data's finest relative error, which unset tolerances follow.
     precision: Precision,
+    /// Whether each observable is a state itself (its formula the state's name).
+    observed_states: Vec<bool>,
     /// The latest time any data asked for, so one integration serves every observable.
     horizon: AtomicU64,
     /// Every data time seen by `check_inputs`, and the grid that holds them.
@@ -186,6 +188,11 @@ impl OdeModel {
             t0: d.t0,
             solver: d.solver,
             precision: Precision::unseen(),
+            observed_states: d
+                .observables
+                .iter()
+                .map(|(_, w)| d.states.iter().any(|s| s.name == w.text.trim()))
+                .collect(),
             horizon: AtomicU64::new(d.t0.to_bits()),
             data_times: Mutex::new(Vec::new()),
             grid: RwLock::new(None),
@@ -497,8 +504,9 @@ impl Simulator for OdeModel {
     /// observable) and checks that the initial values and rates are finite
     /// at t0 at every corner of the prior box: a division by zero there is a
     /// declaration error. Later failures only cost their θ its likelihood.
-    fn note_measurements(&self, _observable: usize, values: &[f64], errors: &[f64]) {
-        self.precision.note(values, errors);
+    fn note_measurements(&self, observable: usize, values: &[f64], errors: &[f64]) {
+        let state = self.observed_states.get(observable).copied().unwrap_or(false);
+        self.precision.note(values, errors, state);
     }
 
     fn numerics(&self) -> Option<String> {
