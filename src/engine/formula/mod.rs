@@ -6,6 +6,7 @@
 mod closures;
 pub mod notation;
 mod ops;
+pub mod polynomial;
 pub mod tape;
 
 use anyhow::{bail, Result};

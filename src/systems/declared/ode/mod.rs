@@ -29,6 +29,7 @@
 //! bounded by `[model.solver] max_steps`).
 
 mod dense;
+mod expanded;
 mod grid;
 mod linear;
 mod rhs;
@@ -66,6 +67,8 @@ pub struct OdeModel {
     /// The rates are affine in the state (sinusoids of t allowed): solved
     /// exactly on a grid (`linear`).
     affine: Option<linear::Affine>,
+    /// The rates that are polynomials in the state, expanded for the integrator.
+    expanded: Option<expanded::ExpandedRates>,
     /// Where each initial value and each rate was written, for errors.
     initial_places: Vec<String>,
     rate_places: Vec<String>,
@@ -170,10 +173,12 @@ impl OdeModel {
         let autonomous = !rates.iter().any(|f| f.uses(0));
         let states: Vec<String> = d.states.iter().map(|s| s.name.clone()).collect();
         let affine = linear::Affine::of(&rates, &variables, &states, &d.input);
+        let expanded = expanded::ExpandedRates::of(&rates, &states, &with_state);
         Ok(OdeModel {
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
             autonomous,
             affine,
+            expanded,
             parameters: d.parameters.clone(),
             observables: d.observables.iter().map(|(o, _)| o.clone()).collect(),
             states,
@@ -288,7 +293,7 @@ impl OdeModel {
         let span = t_end - self.t0;
         let exceeded = Cell::new(false);
         let watch = watch.map(|(checks, limit)| Watch::new(checks, limit, &exceeded));
-        let rhs = Rhs { model: self, values: RefCell::new(values), clock: !self.autonomous, watch };
+        let rhs = Rhs::new(self, values, !self.autonomous, watch);
         // Hairer's defaults for DOP853: safety 0.9, no PI term, step factors
         // in [0.333, 6], stiffness tested every 1000 steps.
         let mut stepper = Dop853::from_param(
@@ -385,7 +390,7 @@ impl OdeModel {
         let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
         let (rtol, atol) = self.precision.tolerances(&self.solver);
         let span = t_end - self.t0;
-        let rhs = Rhs { model: self, values: RefCell::new(values), clock: false, watch: None };
+        let rhs = Rhs::new(self, values, false, None);
         let mut stepper = Dopri5::from_param(
             rhs,
             self.t0,

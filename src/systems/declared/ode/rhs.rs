@@ -3,8 +3,10 @@
 //! has passed, so that it can stop once a θ misses the data by more than a
 //! sampler could notice (`Simulator::chi_square_exceeds`).
 
+use super::expanded::{ExpandedRates, MAX_COEFFICIENTS};
 use super::grid::Grid;
 use super::OdeModel;
+use crate::engine::formula::polynomial::{fill_powers, MAX_DEGREE, MAX_VARIABLES};
 use crate::engine::model::ObservedData;
 use crate::systems::declared::declaration::MAX_NAMES;
 use nalgebra::allocator::Allocator;
@@ -20,6 +22,25 @@ pub(super) struct Rhs<'a> {
     /// t is the last state (dt/dt = 1) rather than the solver's time.
     pub clock: bool,
     pub watch: Option<Watch<'a>>,
+    /// The expanded rates' coefficients at this θ, and a buffer of the
+    /// state's powers (`expanded`).
+    expanded: Option<(&'a ExpandedRates, [f64; MAX_COEFFICIENTS])>,
+    powers: RefCell<[[f64; MAX_DEGREE]; MAX_VARIABLES]>,
+}
+
+impl<'a> Rhs<'a> {
+    /// The rates at the θ and constants in `values`.
+    pub fn new(model: &'a OdeModel, values: [f64; MAX_NAMES], clock: bool, watch: Option<Watch<'a>>) -> Rhs<'a> {
+        let expanded = model.expanded.as_ref().map(|e| (e, e.coefficients(&values)));
+        Rhs {
+            model,
+            values: RefCell::new(values),
+            clock,
+            watch,
+            expanded,
+            powers: RefCell::new([[0.0; MAX_DEGREE]; MAX_VARIABLES]),
+        }
+    }
 }
 
 /// The data points at each point of a grid: (observable, value, 1/error),
@@ -91,8 +112,23 @@ where
     DefaultAllocator: Allocator<D>,
 {
     fn system(&self, t: f64, y: &OVector<f64, D>, dy: &mut OVector<f64, D>) {
-        let mut v = self.values.borrow_mut();
         let n = self.model.rates.len();
+        if let Some((expanded, c)) = &self.expanded {
+            let mut powers = self.powers.borrow_mut();
+            fill_powers(&y.as_slice()[..n], expanded.degree, &mut powers[..n]);
+            for (k, rate) in expanded.rates.iter().enumerate() {
+                if let Some((p, at)) = rate {
+                    dy[k] = p.eval(&c[*at..], &powers[..n]);
+                }
+            }
+            if expanded.all {
+                if self.clock {
+                    dy[n] = 1.0;
+                }
+                return;
+            }
+        }
+        let mut v = self.values.borrow_mut();
         v[0] = if self.clock { y[n] } else { t };
         let at = self.model.variables.state_at;
         // A loop, not copy_from_slice: n is a handful and memcpy's call cost
@@ -100,8 +136,11 @@ where
         for (slot, y) in v[at..at + n].iter_mut().zip(y.iter()) {
             *slot = *y;
         }
+        let expanded = self.expanded.as_ref().map(|(e, _)| &e.rates);
         for (k, rate) in self.model.rates.iter().enumerate() {
-            dy[k] = rate.eval(&v[..]);
+            if expanded.is_none_or(|e| e[k].is_none()) {
+                dy[k] = rate.eval(&v[..]);
+            }
         }
         if self.clock {
             dy[n] = 1.0;

@@ -202,3 +202,47 @@ fn the_watch_stops_only_where_the_chi_square_exceeds_its_limit() {
     assert!(model.chi_square_exceeds(&[1.67, -3.0], &data, 1e4), "a pendulum driven off the data stops");
     assert_eq!(model.failures(), failures, "a stop is not a failure");
 }
+
+/// Logistic growth y' = r·y·(1 − y/K), a rate polynomial in the state and
+/// so integrated through its expansion (`expanded`), against its closed
+/// form K / (1 + (K/y₀ − 1)·e^{−rt}) on the data's grid, within 1e-6 of
+/// K = 10 (the default tolerances with no data noted: 1e-8).
+#[test]
+fn a_polynomial_rate_expanded_matches_its_closed_form() {
+    let dir = std::env::temp_dir().join(format!("mdpipe-ode-logistic-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = "name = \"logistic\"\n[model]\nkind = \"ode\"\nt0 = 0.0\nconstants = { K = 10.0 }\n\
+        [model.initial]\ny = \"y0\"\n[model.rates]\ny = \"r*y*(1 - y/K)\"\n[model.observables]\ny = \"y\"\n\
+        [data]\nmeasurements = \"data.csv\"\n[parameters.r]\nmin = 0.1\nmax = 3.0\n[parameters.y0]\nmin = 0.1\nmax = 5.0\n";
+    std::fs::write(dir.join("logistic.toml"), config).unwrap();
+    let declared = crate::systems::load(&dir.join("logistic.toml")).expect("the logistic model");
+    std::fs::remove_dir_all(&dir).ok();
+    let model = declared.simulator;
+    let times: Vec<f64> = (1..=40).map(|k| 0.25 * k as f64).collect();
+    model.check_inputs(0, &times).unwrap();
+    for (r, y0) in [(0.1, 0.1), (1.3, 2.0), (3.0, 5.0), (2.2, 0.4)] {
+        let mut got = vec![0.0; times.len()];
+        model.predict(0, &times, &[r, y0], &mut got);
+        assert!(solved_on_grid());
+        for (t, g) in times.iter().zip(&got) {
+            let want = 10.0 / (1.0 + (10.0 / y0 - 1.0) * (-r * t).exp());
+            assert!((g - want).abs() < 1e-6, "r = {r}, y0 = {y0}, t = {t}: {g} vs {want}");
+        }
+    }
+    assert_eq!(model.failures(), 0);
+}
+
+/// Which rates are expanded: polynomials in the state, not a sine of one
+/// nor a rate that reads t.
+#[test]
+fn only_rates_polynomial_in_the_state_are_expanded() {
+    let scope = crate::engine::formula::Scope::new(["t", "c", "x", "v"].map(String::from));
+    let states: Vec<String> = ["x", "v"].map(String::from).to_vec();
+    let rate = |text: &str| Formula::parse(text, &scope, "test").unwrap();
+    let e = expanded::ExpandedRates::of(&[rate("v"), rate("c - sin(x) - c*v*x^2")], &states, &scope);
+    let e = e.expect("the first rate expands");
+    assert!(e.rates[0].is_some() && e.rates[1].is_none() && !e.all);
+    assert!(expanded::ExpandedRates::of(&[rate("v*t"), rate("sin(x)")], &states, &scope).is_none());
+    let e = expanded::ExpandedRates::of(&[rate("v"), rate("c*(1 - x^2)*v - x")], &states, &scope).unwrap();
+    assert!(e.all && e.degree == 2);
+}
