@@ -20,10 +20,13 @@ pub(super) struct ExpandedRates {
 }
 
 impl ExpandedRates {
-    /// The rates (each a formula of t, θ, constants and `states`, in
-    /// `scope`) that expand; None when none does or there are too many
-    /// states for it.
+    /// The rates (each a formula of the input, θ, constants and `states`,
+    /// in `scope`, whose first name is the input: t, or what `[model] input`
+    /// calls it) that expand; None when none does or there are too many
+    /// states for it. A rate that reads the input is never expanded: its
+    /// coefficients would be frozen at t0.
     pub fn of(rates: &[Formula], states: &[String], scope: &Scope) -> Option<ExpandedRates> {
+        let input = scope.names().first()?.as_str();
         if states.len() > MAX_VARIABLES {
             return None;
         }
@@ -31,7 +34,7 @@ impl ExpandedRates {
         let expanded: Vec<Option<(Polynomial, usize)>> = rates
             .iter()
             .map(|r| {
-                let p = Polynomial::expand(r.expr(), states, &["t"], scope, r.text())?;
+                let p = Polynomial::expand(r.expr(), states, &[input], scope, r.text())?;
                 let at = used;
                 (at + p.len() <= MAX_COEFFICIENTS).then(|| {
                     used += p.len();

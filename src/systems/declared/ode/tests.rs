@@ -245,4 +245,8 @@ fn only_rates_polynomial_in_the_state_are_expanded() {
     assert!(expanded::ExpandedRates::of(&[rate("v*t"), rate("sin(x)")], &states, &scope).is_none());
     let e = expanded::ExpandedRates::of(&[rate("v"), rate("c*(1 - x^2)*v - x")], &states, &scope).unwrap();
     assert!(e.all && e.degree == 2);
+    // The input under the name a config gives it is read as the input, not a constant.
+    let named = crate::engine::formula::Scope::new(["time", "c", "x", "v"].map(String::from));
+    let rate = |text: &str| Formula::parse(text, &named, "test").unwrap();
+    assert!(expanded::ExpandedRates::of(&[rate("c*time*x"), rate("sin(x)")], &states, &named).is_none());
 }
