@@ -18,7 +18,9 @@ pub struct Config {
     /// `kind = "<family>"` and that family's settings.
     pub model: toml::Table,
     pub data: DataConfig,
-    /// Calibration parameters θ with uniform prior bounds.
+    /// Calibration parameters θ with uniform prior bounds; a model with
+    /// none (every constant known) is calibrated in its discrepancy alone.
+    #[serde(default)]
     pub parameters: BTreeMap<String, ParamSpec>,
     #[serde(default)]
     pub discrepancy: DiscrepancyConfig,

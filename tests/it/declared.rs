@@ -643,3 +643,44 @@ fn bench_reports_the_declared_models_likelihood_rates() {
         }
     }
 }
+
+#[test]
+fn a_model_with_nothing_to_calibrate_has_its_likelihood_as_evidence() {
+    // Every constant known: the prior is one point, the posterior that
+    // point, and the evidence the Gaussian likelihood of the data there.
+    let dir = tmpdir("no-parameters");
+    let config = line_config(&dir, "1 + 2*x");
+    let text = std::fs::read_to_string(&config).unwrap();
+    let start = text.find("[parameters.a]").unwrap();
+    let end = text.find("[discrepancy]").unwrap();
+    let path = dir.join("fixed.toml");
+    std::fs::write(&path, format!("{}{}", &text[..start], &text[end..])).unwrap();
+    let mut expected = 0.0;
+    for line in std::fs::read_to_string(dir.join("line.csv")).unwrap().lines().skip(1) {
+        let f: Vec<f64> = line.split(',').skip(1).map(|v| v.parse().unwrap()).collect();
+        let z = (f[1] - (1.0 + 2.0 * f[0])) / f[2];
+        expected += -0.5 * z * z - f[2].ln() - 0.5 * (2.0 * std::f64::consts::PI).ln();
+    }
+    let out = dir.join("out");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+        .args(["calibrate", &path.display().to_string(), "--kernel", "none", "--out", &out.display().to_string()])
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let z = summary["log_evidence"].as_f64().unwrap();
+    assert!((z - expected).abs() < 1e-9 * expected.abs().max(1.0), "log Z {z} against the closed form {expected}");
+    assert_eq!(summary["log_evidence_err"].as_f64(), Some(0.0));
+    assert_eq!(summary["diagnostics"]["converged"], serde_json::Value::Bool(true));
+
+    // diagnose weighs it against the model + δ (whose φ is sampled) and says so.
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mdpipe"))
+        .args(["diagnose", &path.display().to_string(), "--discover", "--out", &dir.join("diag").display().to_string()])
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let diagnosis: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("diag/diagnosis.json")).unwrap()).unwrap();
+    assert_eq!(diagnosis["verdict"]["best"], "none", "{}", diagnosis["verdict"]["statement"]);
+}

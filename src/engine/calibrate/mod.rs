@@ -107,6 +107,8 @@ fn sample(
         problem.observables().join("+")
     );
     let sampled = match problem.sampler {
+        // Nothing to sample: SMC's one point and its exact evidence, whichever sampler was asked for.
+        _ if problem.prior.dim() == 0 => run_smc_until_converged(problem, seed, observer, checkpoint, &label, matters)?,
         SamplerKind::Smc => run_smc_until_converged(problem, seed, observer, checkpoint, &label, matters)?,
         SamplerKind::Ensemble => run_ensemble(problem, seed, observer, checkpoint, &label)?,
     };
@@ -233,7 +235,7 @@ pub fn write_outputs(dir: &Path, problem: &Problem, cal: &Calibration) -> Result
         .chains
         .iter()
         .enumerate()
-        .flat_map(|(k, c)| std::iter::repeat_n(k as f64, c.len() / cal.chains.dim))
+        .flat_map(|(k, c)| std::iter::repeat_n(k as f64, cal.chains.draws_in(c)))
         .collect();
     cols.push(("chain".into(), chain_ids));
     cols.extend(summary::log_density_columns(problem, &cal.chains));

@@ -65,6 +65,7 @@ fn read_chains(path: &Path, names: &[String]) -> Result<Chains> {
     let columns = names.iter().map(|n| f64_column(&df, path, n)).collect::<Result<Vec<_>>>()?;
     let chain = f64_column(&df, path, "chain")?;
     let mut chains: Vec<Vec<f64>> = Vec::new();
+    let mut points = 0;
     for (row, &c) in chain.iter().enumerate() {
         let c = c as usize;
         if c > chains.len() {
@@ -73,10 +74,15 @@ fn read_chains(path: &Path, names: &[String]) -> Result<Chains> {
         }
         if c == chains.len() {
             chains.push(Vec::new());
+            points = 0;
         }
+        points += 1;
         chains[c].extend(columns.iter().map(|col| col[row]));
     }
-    Ok(Chains { names: names.to_vec(), dim: names.len(), chains })
+    if names.is_empty() {
+        return Ok(Chains::of_a_point(chains.len(), points));
+    }
+    Ok(Chains::new(names.to_vec(), names.len(), chains))
 }
 
 fn read_predictions(path: &Path) -> Result<Vec<PredictionRow>> {

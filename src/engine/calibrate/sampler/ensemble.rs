@@ -180,11 +180,7 @@ impl SamplingAlgorithm for Stretch<'_> {
         let n = st.walkers.len();
         let acceptance =
             st.walkers.iter().map(|w| w.accepted).sum::<u64>() as f64 / (n * self.settings.steps.max(1)) as f64;
-        let chains = Chains {
-            names: self.prior.names.clone(),
-            dim: self.dim,
-            chains: st.walkers.into_iter().map(|w| w.trace).collect(),
-        };
+        let chains = Chains::new(self.prior.names.clone(), self.dim, st.walkers.into_iter().map(|w| w.trace).collect());
         EnsembleOutput { chains, acceptance, likelihood_evaluations: st.evaluations }
     }
 

@@ -74,7 +74,7 @@ mod tests {
         let dim = columns.len();
         let n = columns[0].len();
         let rows: Vec<f64> = (0..n).flat_map(|i| columns.iter().map(move |c| c[i])).collect();
-        Chains { names: (0..dim).map(|k| format!("p{k}")).collect(), dim, chains: vec![rows] }
+        Chains::new((0..dim).map(|k| format!("p{k}")).collect(), dim, vec![rows])
     }
 
     #[test]

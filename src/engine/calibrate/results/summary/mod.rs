@@ -125,7 +125,7 @@ impl SamplerDetails {
     pub fn from_smc(out: &SmcOutput) -> Self {
         SamplerDetails::Smc {
             replicates: out.replicates.len(),
-            particles_per_replicate: out.chains.chains.first().map(|c| c.len() / out.chains.dim).unwrap_or(0),
+            particles_per_replicate: out.chains.n_draws() / out.chains.chains.len().max(1),
             replicate_log_evidence: out.replicates.iter().map(|r| r.log_evidence).collect(),
             tempering_steps: out.replicates.iter().map(|r| r.steps.len()).collect(),
             schedule: out
@@ -295,7 +295,11 @@ pub fn summarize(
     if jitter_events > 0 {
         warnings.push(format!("{jitter_events} covariance matrices needed diagonal jitter to factorize"));
     }
-    let min_ess = per_param.iter().map(|d| d.ess_bulk.min(d.ess_tail)).fold(f64::INFINITY, f64::min);
+    // With no parameters every draw is the one point: as good as independent.
+    let min_ess = match per_param.iter().map(|d| d.ess_bulk.min(d.ess_tail)).reduce(f64::min) {
+        Some(ess) => ess,
+        None => chains.n_draws() as f64,
+    };
     let theta_median: Vec<f64> = problem.simulator.parameter_names().iter().map(|n| parameters[n].median).collect();
     Summary {
         name: problem.analysis.name.clone(),

@@ -87,7 +87,7 @@ pub fn replicates_frame(problem: &Problem, chains: &Chains, seed: u64) -> Result
 /// `(chain, draw)` of about `total` draws, the same number from every chain,
 /// evenly spaced within each, so that ArviZ sees a chain × draw array.
 fn thinned_draws(chains: &Chains, total: usize) -> Vec<(usize, usize)> {
-    let lengths: Vec<usize> = chains.chains.iter().map(|c| c.len() / chains.dim).collect();
+    let lengths: Vec<usize> = chains.chains.iter().map(|c| chains.draws_in(c)).collect();
     let shortest = lengths.iter().copied().min().unwrap_or(0);
     let per_chain = total.div_ceil(lengths.len().max(1)).max(1).min(shortest);
     let mut picks = Vec::with_capacity(per_chain * lengths.len());

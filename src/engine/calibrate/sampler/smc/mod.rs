@@ -182,6 +182,9 @@ impl Smc {
         ck: Option<&Checkpointing>,
     ) -> Result<SmcOutput, Stopped> {
         let k = self.settings.replicates.max(1);
+        if prior.dim() == 0 {
+            return Ok(self.point_posterior(likelihood, k));
+        }
         let algorithm = Tempered::new(&self.settings, prior, likelihood);
         let started = std::time::Instant::now();
         let results: Vec<End<ReplicateOutput>> = (0..k)
@@ -201,12 +204,37 @@ impl Smc {
         let logs: Vec<f64> = replicates.iter().map(|r| r.log_evidence).collect();
         let variances: Vec<f64> = replicates.iter().map(|r| r.relative_variance).collect();
         let (log_evidence, log_evidence_err) = pooled::pool(&logs, &variances);
-        let chains = Chains {
-            names: prior.names.clone(),
-            dim: prior.dim(),
-            chains: replicates.iter().map(|r| r.particles.clone()).collect(),
-        };
+        let chains =
+            Chains::new(prior.names.clone(), prior.dim(), replicates.iter().map(|r| r.particles.clone()).collect());
         Ok(SmcOutput { chains, log_evidence, log_evidence_err, replicates })
+    }
+}
+
+impl Smc {
+    /// A model with nothing to calibrate (every constant known, no
+    /// discrepancy): the prior is one point, so the posterior is that point
+    /// and the evidence its likelihood, exactly; each replicate holds
+    /// `particles` empty draws so that the chains keep their shape.
+    fn point_posterior(&self, likelihood: &dyn LogLikelihood, k: usize) -> SmcOutput {
+        let log_l = likelihood.log_likelihood(&[]);
+        let step = SmcStep {
+            beta: 1.0,
+            mcmc_steps: 0,
+            acceptance: 0.0,
+            group_acceptance: Vec::new(),
+            mixture_acceptance: 0.0,
+        };
+        let replicate = ReplicateOutput {
+            particles: Vec::new(),
+            log_evidence: log_l,
+            relative_variance: 0.0,
+            steps: vec![step],
+            likelihood_evaluations: 1,
+            term_evaluations: 0,
+            unique_fraction: 1.0,
+        };
+        let chains = Chains::of_a_point(k, self.settings.particles.max(2));
+        SmcOutput { chains, log_evidence: log_l, log_evidence_err: 0.0, replicates: vec![replicate; k] }
     }
 }
 
