@@ -15,6 +15,7 @@ pub(super) fn members(name: &str) -> std::collections::BTreeSet<&str> {
 pub(super) fn within(inner: &CandidateResult, outer: &CandidateResult) -> bool {
     let (i, o) = (members(&inner.name), members(&outer.name));
     (i.len() < o.len() && i.is_subset(&o))
+        || simpler_reading(inner, outer)
         || inner
             .special_case_of
             .iter()
@@ -94,13 +95,46 @@ pub(super) fn decisive_lead(a: &CandidateResult, b: &CandidateResult, settings: 
     settings.strong_log_bf + 2.0 * if err.is_finite() { err } else { 0.0 }
 }
 
-/// Readings of one fit (`same_fit_as`) that no measurement in reach tells
-/// apart are one explanation, not rivals; those a measurement can separate
-/// stay rivals, so that the verdict proposes it.
-pub(super) fn drop_inseparable(best: &CandidateResult, rivals: &mut Vec<&CandidateResult>, separable: bool) {
-    if !separable && rivals.iter().all(|r| best.same_fit_as.contains(&r.name)) {
-        rivals.clear();
+/// Whether `rival` is another reading of `best`'s fit (`same_fit_as`)
+/// rather than another explanation. Two discovered terms that fit alike are
+/// one explanation: the prior over forms, which the data then leave as it
+/// was, already ranks them, and the verdict names the more probable and
+/// reads the other beside it ("here equal to ..."). A declared candidate is
+/// the user's own alternative at even prior odds: fitting alike, it stays a
+/// rival while a measurement in reach (`separating`: one within the
+/// prediction range and `MAX_REPEATS`) would tell the two apart, so that the
+/// verdict is `ambiguous` and proposes that measurement (the simple
+/// machine's saturation and quadratic loss).
+pub(super) fn one_explanation(
+    best: &CandidateResult,
+    rival: &CandidateResult,
+    separating: impl FnOnce() -> Option<Suggestion>,
+) -> bool {
+    if !best.same_fit_as.contains(&rival.name) {
+        return false;
     }
+    (discovered(best) && discovered(rival)) || separating().is_none_or(|s| s.repeats.is_none())
+}
+
+/// Whether `inner` is a simpler reading of `outer`'s fit: both discovered,
+/// the same fit on these data, `inner` with no more parameters and fewer
+/// operations (higher prior odds over forms). Then `outer` must earn its
+/// place by Occam's margin, as a form that contains `inner` must: on one
+/// fall of a ball `c*h^2*v^2` is the same fit as the drag `c*v^2` (the
+/// height is a function of the speed there), and leading it by less than
+/// the margin it is the drag that is named, with the other read beside it.
+fn simpler_reading(inner: &CandidateResult, outer: &CandidateResult) -> bool {
+    discovered(inner)
+        && discovered(outer)
+        && inner.same_fit_as.contains(&outer.name)
+        && inner.parameters.len() <= outer.parameters.len()
+        && inner.prior_log_odds > outer.prior_log_odds
+}
+
+/// A discovered term pays the search's prior odds (`prior_log_odds` < 0);
+/// a declared candidate pays none.
+pub(super) fn discovered(c: &CandidateResult) -> bool {
+    c.prior_log_odds < 0.0
 }
 
 /// The verdict: a named candidate, "ambiguous", "unexplained" or "none" (see

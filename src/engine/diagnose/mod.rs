@@ -77,13 +77,22 @@ fn p_value(chi2: f64, dof: usize) -> f64 {
     ChiSquared::new(dof.max(1) as f64).map(|d| 1.0 - d.cdf(chi2)).unwrap_or(f64::NAN)
 }
 
-/// Two fits are one explanation when their model predictions at the
-/// measured points differ by less than this χ² (in the data's errors): the
-/// data cannot tell them apart by even one standard deviation in all.
-const SAME_FIT: f64 = 1.0;
+/// Two fits are readings of one fit when their model predictions at the
+/// measured points differ by less than `2 × strong_log_bf` in χ² (in the
+/// data's errors or covariance). Were either the truth, the data would
+/// favour it over the other by half that χ² in expectation (the divergence
+/// of their predictive distributions): below `strong_log_bf`, no data set
+/// like this one is expected to decide between them, whatever its noise.
+/// (Until this rule the bound was a χ² of 1, one standard deviation in all:
+/// `c*x_1` and `c*x_1*cos(x_2)` with x_2 near 0 along a Rössler flow's
+/// trajectory, 4.1 apart, were rivals that no measurement in the
+/// prediction range could separate.)
+fn same_fit_chi2(strong_log_bf: f64) -> f64 {
+    2.0 * strong_log_bf
+}
 
-/// Marks each run's fits that are the same on these data (`SAME_FIT`).
-fn mark_same_fits(runs: &mut [CandidateRun]) {
+/// Marks each run's fits that are the same on these data (`same_fit_chi2`).
+fn mark_same_fits(runs: &mut [CandidateRun], strong_log_bf: f64) {
     let at_data = |r: &CandidateRun| -> Vec<(String, f64, f64)> {
         r.calibration
             .predictions
@@ -105,7 +114,7 @@ fn mark_same_fits(runs: &mut [CandidateRun]) {
                 continue;
             }
             let chi2: f64 = pa.iter().zip(pb).map(|((_, ma, e), (_, mb, _))| ((ma - mb) / e).powi(2)).sum();
-            if chi2 < SAME_FIT {
+            if chi2 < same_fit_chi2(strong_log_bf) {
                 let other = runs[b].result.name.clone();
                 runs[a].result.same_fit_as.push(other);
             }
@@ -115,7 +124,7 @@ fn mark_same_fits(runs: &mut [CandidateRun]) {
 
 /// Best evidence first, then Occam's choice moved to the front.
 fn rank(mut runs: Vec<CandidateRun>, strong_log_bf: f64) -> Vec<CandidateRun> {
-    mark_same_fits(&mut runs);
+    mark_same_fits(&mut runs, strong_log_bf);
     // A stable sort keeps the library's order among equal evidences.
     runs.sort_by(|a, b| b.result.log_evidence.total_cmp(&a.result.log_evidence));
     if runs.is_empty() {
@@ -138,17 +147,18 @@ fn judge(
     let candidates: Vec<CandidateResult> = runs.iter().map(|r| r.result.clone()).collect();
     let named = named_candidate(&candidates, settings, z_md);
     let mut rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
-    let suggestion = rivals.first().and_then(|r| {
-        let other = runs.iter().find(|run| run.result.name == r.name)?;
+    let separating = |name: &str| {
+        let other = runs.iter().find(|run| run.result.name == name)?;
         let goal = suggest::Goal {
             lead: runs[0].result.log_evidence - other.result.log_evidence,
             decisive: decisive_lead(&runs[0].result, &other.result, settings),
         };
         suggest::suggest(&runs[0].fit(), &other.fit(), goal)
-    });
+    };
     if let Some(c) = named {
-        decide::drop_inseparable(c, &mut rivals, suggestion.is_some());
+        rivals.retain(|r| !decide::one_explanation(c, r, || separating(&r.name)));
     }
+    let suggestion = rivals.first().and_then(|r| separating(&r.name));
     let verdict = decide(&candidates, named, (&rivals, suggestion), runs, mismatch, base, settings, (z_base, z_md));
     // Only a named candidate is repaired: not one that is ambiguous or rests on its emulator.
     let named_alone = named.is_some_and(|c| rivals.is_empty() && !rests_on_emulator(c));
@@ -476,6 +486,59 @@ mod tests {
         r[0].parameters.insert("p".into(), p(2.2, 2.9));
         assert_eq!(order(&r), 0);
         assert_eq!(rival_names(&r), ["signed_square_v_on_v"]);
+    }
+
+    #[test]
+    fn readings_of_one_fit_are_one_explanation_unless_declared_and_separable() {
+        let suggestion = |repeats: Option<usize>| Suggestion {
+            observable: "y".into(),
+            x: 5.0,
+            error: 0.1,
+            candidates: ["a".into(), "b".into()],
+            predicted_mean: [1.0, 1.3],
+            predicted_sd: [0.05, 0.05],
+            repeats,
+            expected_gain: [4.0, 4.0],
+        };
+        let mut r = ranked(&[("a", 0.0), ("b", -1.9)]);
+        // Not the same fit: another explanation, whatever the measurements.
+        assert!(!decide::one_explanation(&r[0], &r[1], || None));
+        r[0].same_fit_as = vec!["b".into()];
+        // Declared alternatives that fit alike: rivals while a measurement in reach separates them.
+        assert!(!decide::one_explanation(&r[0], &r[1], || Some(suggestion(Some(12)))));
+        assert!(decide::one_explanation(&r[0], &r[1], || Some(suggestion(None))));
+        assert!(decide::one_explanation(&r[0], &r[1], || None));
+        // Discovered readings: the prior over forms ranks them; one explanation either way.
+        r[0].prior_log_odds = -4.4;
+        r[1].prior_log_odds = -6.7;
+        assert!(decide::one_explanation(&r[0], &r[1], || Some(suggestion(Some(12)))));
+        // A declared candidate beside a discovered one is still the user's alternative.
+        r[1].prior_log_odds = 0.0;
+        assert!(!decide::one_explanation(&r[0], &r[1], || Some(suggestion(Some(12)))));
+    }
+
+    #[test]
+    fn of_two_discovered_readings_of_one_fit_the_simpler_is_named_unless_the_other_leads_by_the_margin() {
+        // The ball drop's case: c*h^2*v^2 leads the drag c*v^2 by 1.8 on one fall.
+        let mut r = ranked(&[("square_h_square_v_on_v", 0.0), ("square_v_on_v", -1.8), ("periodic_on_v", -40.0)]);
+        let odds = [-7.9, -5.2, -6.0];
+        for (c, o) in r.iter_mut().zip(odds) {
+            c.prior_log_odds = o;
+            c.parameters.insert("c".into(), ParamSummary::from_draws(&[1.0, 2.0, 3.0]));
+        }
+        r[0].same_fit_as = vec!["square_v_on_v".into()];
+        r[1].same_fit_as = vec!["square_h_square_v_on_v".into()];
+        let order = |r: &[CandidateResult]| occam(&r.iter().collect::<Vec<_>>(), 3.0);
+        assert_eq!(order(&r), 1, "the simpler reading is named");
+        assert!(rivals(&r[1], &r, &DiagnoseSettings::default()).is_empty(), "the other reading is no rival");
+        // Leading by more than the margin, the richer reading is named.
+        r[1].log_evidence = -3.5;
+        assert_eq!(order(&r), 0);
+        // Not the same fit: two explanations, and the better leads.
+        r[1].log_evidence = -1.8;
+        r[0].same_fit_as.clear();
+        r[1].same_fit_as.clear();
+        assert_eq!(order(&r), 0);
     }
 
     fn rival_names(r: &[CandidateResult]) -> Vec<&str> {

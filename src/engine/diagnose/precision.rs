@@ -114,6 +114,12 @@ pub(super) fn needed(
         let c = &r.result;
         for &s in standing.iter().filter(|&&s| s != i) {
             let l = &runs[s].result;
+            // Another reading of a standing fit that the verdict did not keep
+            // as a rival is the same explanation: its precision decides at
+            // most which reading is named first, never the verdict.
+            if l.same_fit_as.contains(&c.name) && !verdict.standing.contains(&c.name) {
+                continue;
+            }
             let (el, ec) = (l.log_evidence_err, c.log_evidence_err);
             // A candidate that contains the leader, or is within it, is
             // weighed against it by Occam's margin, in one direction only:

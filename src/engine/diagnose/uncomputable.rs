@@ -72,7 +72,7 @@ fn verdict(candidates: &[CandidateResult], runs: &[CandidateRun], settings: &Dia
     let mut rivals = named.map(|c| rivals(c, candidates, settings)).unwrap_or_default();
     if let Some(c) = named {
         // No measurement is proposed here: readings of one fit are one explanation.
-        super::decide::drop_inseparable(c, &mut rivals, false);
+        rivals.retain(|r| !super::decide::one_explanation(c, r, || None));
     }
     let mut v = Verdict::uncomputable();
     match named {
