@@ -235,6 +235,46 @@ impl DeclaredDiscoverer {
 /// `c*abs(v/S)^p` in dv/dt at p = 2), where the symbol keeps one sign.
 fn special_cases(parts: &[Candidate], all: &[Candidate], context: &candidate::Context) -> Vec<SpecialCase> {
     let [term] = parts else { return Vec::new() };
+    let mut out = saturation_limits(term, all);
+    out.extend(whole_power_cases(term, all, context));
+    out
+}
+
+/// Where a saturating form s/(K + |s|), or a Hill form s²/(K² + s²), has
+/// its scale K this share of the way up its range (27 times the largest |s|
+/// on the data: the range ends at 30), it is s/K within 4% over the data,
+/// or s²/K² within 0.2%: the linear term or the square it holds. Where the
+/// data leave K's 95% interval reaching that far, the two are one
+/// explanation and the simpler is named (Occam): along a Rössler flow,
+/// c*x_1 and c*x_1/(K + |x_1|) with K = 52 [38, 59] were rivals 2.0 nats
+/// apart, the saturation never reached on the data.
+const SATURATION_OUT_OF_REACH: f64 = 0.9;
+
+fn saturation_limits(term: &Candidate, all: &[Candidate]) -> Vec<SpecialCase> {
+    let held = match term.library_unary {
+        Some(Unary::Id) => Unary::Saturating,
+        Some(Unary::Square) => Unary::Hill,
+        _ => return Vec::new(),
+    };
+    let same_place = |f: &&Candidate| f.to == term.to && f.target == term.target && f.symbols == term.symbols;
+    all.iter()
+        .filter(same_place)
+        .filter(|f| f.library_unary == Some(held))
+        .filter_map(|f| {
+            f.parameters.iter().find_map(|(name, range, _)| match range {
+                candidate::Range::Span(_, hi, _) if name.starts_with('K') => Some(SpecialCase {
+                    of: f.name.clone(),
+                    parameter: name.clone(),
+                    value: SATURATION_OUT_OF_REACH * hi,
+                }),
+                _ => None,
+            })
+        })
+        .collect()
+}
+
+/// A whole power of a one-signed symbol is the free power |s/S|^p at that p.
+fn whole_power_cases(term: &Candidate, all: &[Candidate], context: &candidate::Context) -> Vec<SpecialCase> {
     let (Some(Power::Fixed(k)), Some(symbol)) = (&term.power, term.symbols.first()) else {
         return Vec::new();
     };
@@ -300,6 +340,29 @@ fn with_states_observed(base: &Declared, file: &str) -> Declared {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_whole_power_is_the_saturating_form_whose_scale_is_out_of_reach() {
+        use crate::engine::discover::library::{Scale, Symbol};
+        let values: Vec<f64> = (0..20).map(|i| -1.0 + 0.15 * i as f64).collect();
+        let symbols = vec![Symbol { name: "x".into(), scale: Scale::of(&values).unwrap(), values }];
+        let terms = library::terms(&symbols);
+        let pick = |u: Unary| {
+            let term = terms.iter().find(|t| matches!(t.factors.as_slice(), [f] if f.unary == u)).unwrap();
+            Candidate::from_term(term, &symbols, To::Rates, "y")
+        };
+        let all: Vec<Candidate> = [Unary::Id, Unary::Saturating, Unary::Square, Unary::Hill].map(pick).into();
+        let linear = saturation_limits(&all[0], &all);
+        assert_eq!(linear.len(), 1, "{linear:?}");
+        assert_eq!((linear[0].of.as_str(), linear[0].parameter.as_str()), (all[1].name.as_str(), "K"));
+        // K's range ends at 30 times the largest |x| (1.85).
+        assert!((linear[0].value - 0.9 * 30.0 * 1.85).abs() < 1e-9, "{}", linear[0].value);
+        assert_eq!(saturation_limits(&all[2], &all)[0].of, all[3].name);
+        // The saturating form holds no saturating form; nor does the linear term of another place.
+        assert!(saturation_limits(&all[1], &all).is_empty());
+        let elsewhere = Candidate::from_term(&terms[1], &symbols, To::Rates, "z");
+        assert!(saturation_limits(&elsewhere, &all).is_empty());
+    }
 
     #[test]
     fn bounds_round_up_to_two_significant_figures() {
