@@ -39,10 +39,13 @@ pub(super) fn occam(ranked: &[&CandidateResult], strong: f64) -> usize {
 }
 
 /// The best alternative to `winner` among `ranked`: a candidate that does not
-/// contain it (a+b is the winner a with more, not another explanation).
+/// contain it (a+b is the winner a with more, not another explanation) and
+/// is not another reading of its fit (those are read beside it).
 pub(super) fn runner_up<'c>(winner: &CandidateResult, ranked: &'c [CandidateResult]) -> Option<&'c CandidateResult> {
     let mine = members(&winner.name);
-    ranked.iter().find(|c| c.name != winner.name && !mine.is_subset(&members(&c.name)))
+    ranked
+        .iter()
+        .find(|c| c.name != winner.name && !mine.is_subset(&members(&c.name)) && !winner.same_fit_as.contains(&c.name))
 }
 
 /// The best candidate, when it beats the base model by more than
