@@ -79,8 +79,8 @@ fn p_value(chi2: f64, dof: usize) -> f64 {
 
 /// Two fits are readings of one fit when their model predictions at the
 /// measured points differ by less than `2 × strong_log_bf` in χ² (in the
-/// data's errors or covariance). Were either the truth, the data would
-/// favour it over the other by half that χ² in expectation (the divergence
+/// data's errors). Were either the truth, the data would favour it over
+/// the other by half that χ² in expectation (the divergence
 /// of their predictive distributions): below `strong_log_bf`, no data set
 /// like this one is expected to decide between them, whatever its noise.
 /// (Until this rule the bound was a χ² of 1, one standard deviation in all:

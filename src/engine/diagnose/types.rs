@@ -114,8 +114,9 @@ pub struct CandidateResult {
     #[serde(default)]
     pub own_emulator: bool,
     /// Other candidates whose fits are the same on these data (their
-    /// predictions at the measured points within one standard deviation of
-    /// the data in all): one explanation read two ways.
+    /// predictions at the measured points within a χ² of twice the decisive
+    /// log BF of each other, in the data's errors): one explanation read
+    /// two ways.
     #[serde(default)]
     pub same_fit_as: Vec<String>,
     /// Sampled only as a scout (a quarter of the particles): far enough
