@@ -412,6 +412,50 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
     }
 }
 
+/// A candidate stopped while it tempers (`smc::Abandon`): on the bundled
+/// ball drop (four candidates and their pairs), the candidates far behind
+/// quadratic drag stop before β = 1, and the verdict is the one every fit
+/// tempered to the end gives. Each stopped candidate is behind the leader
+/// by more than the decisive margin in the full run too, and the upper
+/// estimate it stopped at lies above the log evidence the full run found
+/// for it (within 1 nat: the estimates' errors are ±0.1–0.2). The named
+/// candidate is the very fit the full run makes.
+#[test]
+fn a_candidate_stopped_while_tempering_leaves_the_verdict_unchanged() {
+    let path = crate::declared::root().join("pipeline/ball_drop.toml");
+    let mut analysis = mdpipe::systems::load(&path).unwrap();
+    analysis.sampler.adapt = false;
+    analysis.sampler.smc.particles = 800;
+    let run = |stop_hopeless| {
+        let settings = DiagnoseSettings { repair: false, stop_hopeless, ..Default::default() };
+        diagnose::run(&analysis, &Overrides::default(), 1, &settings, None, &Silent).unwrap().diagnosis
+    };
+    let (quick, full) = (run(true), run(false));
+    assert_eq!(quick.verdict.best, full.verdict.best, "{}\n{}", quick.verdict.statement, full.verdict.statement);
+    assert_eq!(quick.verdict.standing, full.verdict.standing);
+    let stopped: Vec<_> = quick.candidates.iter().filter(|c| c.stopped_at_beta.is_some()).collect();
+    assert!(!stopped.is_empty(), "no candidate was stopped: {:?}", quick.candidates);
+    assert!(full.candidates.iter().all(|c| c.stopped_at_beta.is_none()));
+    let in_full = |name: &str| full.candidates.iter().find(|c| c.name == name).unwrap();
+    let leader = full.candidates[0].log_evidence;
+    for s in stopped {
+        let beta = s.stopped_at_beta.unwrap();
+        assert!(beta > 0.0 && beta < 1.0, "{}: stopped at β = {beta}", s.name);
+        let whole = in_full(&s.name).log_evidence;
+        assert!(leader - whole > 3.0, "{} was stopped {:.1} behind the leader", s.name, leader - whole);
+        assert!(
+            s.log_evidence > whole - 1.0,
+            "{}: stopped at {:.1}, below its full {whole:.1}",
+            s.name,
+            s.log_evidence
+        );
+    }
+    let named = quick.candidates.iter().find(|c| c.name == quick.verdict.best).expect("a candidate is named");
+    assert!(named.stopped_at_beta.is_none());
+    assert_eq!(named.log_evidence, in_full(&named.name).log_evidence, "the same fit, same settings and seed");
+    assert_eq!(named.parameters, in_full(&named.name).parameters);
+}
+
 /// Evidence as precise as the verdict needs (`diagnose::precision`): on the
 /// bundled oscillator (three candidates and their pairs), a candidate far
 /// behind keeps its scout's fit (a quarter of the particles, no reruns for

@@ -200,6 +200,7 @@ fn seed_input(name: &str, dir: &Path) -> Vec<u8> {
                 likelihood_evaluations: 10,
                 term_evaluations: 0,
                 unique_fraction: 0.5,
+                abandoned_at: None,
             };
             c.save("seed", &out);
             std::fs::read(dir.join("seed.json")).unwrap()

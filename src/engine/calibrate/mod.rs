@@ -44,10 +44,24 @@ pub fn run(problem: &Problem, seed: u64, observer: &dyn Observer) -> Result<Cali
 /// sampled again to chase R̂ and ESS (`run_smc_until_converged`).
 pub type Matters<'a> = &'a (dyn Fn(f64, f64) -> bool + Sync);
 
-/// As `run`, sampling again for convergence only while `matters` says the
-/// answer can still change a decision.
-pub fn run_judged(problem: &Problem, seed: u64, observer: &dyn Observer, matters: Matters) -> Result<Calibration> {
-    sample(problem, seed, observer, None, matters)
+/// How far a calibration's answer can still matter to whoever asked for
+/// it: whether to sample again for convergence (`matters`), and whether to
+/// stop tempering once the final log evidence cannot reach what is asked
+/// (`abandon`, given an upper estimate of it; `smc::Abandon`).
+#[derive(Clone, Copy)]
+pub struct Judge<'a> {
+    pub matters: Matters<'a>,
+    pub abandon: Option<smc::Abandon<'a>>,
+}
+
+impl Judge<'_> {
+    /// Every answer matters: sampled to the end, and again until converged.
+    pub const ALWAYS: Judge<'static> = Judge { matters: &|_, _| true, abandon: None };
+}
+
+/// As `run`, as far as `judge` says the answer can still change a decision.
+pub fn run_judged(problem: &Problem, seed: u64, observer: &dyn Observer, judge: Judge) -> Result<Calibration> {
+    sample(problem, seed, observer, None, judge)
 }
 
 /// What a sampler returns, in the form the summary needs.
@@ -86,7 +100,7 @@ pub fn run_checkpointed(
     observer: &dyn Observer,
     checkpoint: Option<&checkpoint::Checkpointing>,
 ) -> Result<Calibration> {
-    sample(problem, seed, observer, checkpoint, &|_, _| true)
+    sample(problem, seed, observer, checkpoint, Judge::ALWAYS)
 }
 
 fn sample(
@@ -94,7 +108,7 @@ fn sample(
     seed: u64,
     observer: &dyn Observer,
     checkpoint: Option<&checkpoint::Checkpointing>,
-    matters: Matters,
+    judge: Judge,
 ) -> Result<Calibration> {
     let start = std::time::Instant::now();
     let jitter_before = problem.likelihood.jitter_events();
@@ -108,8 +122,8 @@ fn sample(
     );
     let sampled = match problem.sampler {
         // Nothing to sample: SMC's one point and its exact evidence, whichever sampler was asked for.
-        _ if problem.prior.dim() == 0 => run_smc_until_converged(problem, seed, observer, checkpoint, &label, matters)?,
-        SamplerKind::Smc => run_smc_until_converged(problem, seed, observer, checkpoint, &label, matters)?,
+        _ if problem.prior.dim() == 0 => run_smc_until_converged(problem, seed, observer, checkpoint, &label, judge)?,
+        SamplerKind::Smc => run_smc_until_converged(problem, seed, observer, checkpoint, &label, judge)?,
         SamplerKind::Ensemble => run_ensemble(problem, seed, observer, checkpoint, &label)?,
     };
     let wall = start.elapsed().as_secs_f64();
@@ -138,10 +152,17 @@ fn run_smc_until_converged(
     observer: &dyn Observer,
     checkpoint: Option<&checkpoint::Checkpointing>,
     label: &str,
-    matters: Matters,
+    judge: Judge,
 ) -> Result<Sampled> {
     let mut settings = problem.analysis.sampler.smc.clone();
-    let mut sampled = run_smc(problem, &settings, seed, observer, checkpoint, label)?;
+    let mut sampled = run_smc(problem, &settings, seed, observer, checkpoint, label, judge.abandon)?;
+    if let Some(beta) = sampled.details.abandoned_at() {
+        crate::base::messages::note!(
+            "  {label}: stopped at β = {beta:.2e}, its log evidence at most {:.1}: behind any decision",
+            sampled.evidence.map_or(f64::NAN, |e| e.0)
+        );
+        return Ok(sampled);
+    }
     let (first, mut spent) = (sampled.evaluations, sampled.evaluations);
     let mut attempts = Vec::new();
     for rerun in 1..=adapt::MAX_RERUNS + 1 {
@@ -152,7 +173,7 @@ fn run_smc_until_converged(
         }
         let (next, growth) = adapt::escalate(&settings, &c);
         let said = format!("{label}: not converged (largest R̂ {:.3}, smallest ESS {:.0})", c.max_rhat, c.min_ess);
-        if let Some((z, e)) = sampled.evidence.filter(|(z, e)| !matters(*z, *e)) {
+        if let Some((z, e)) = sampled.evidence.filter(|(z, e)| !(judge.matters)(*z, *e)) {
             crate::base::messages::note!(
                 "  {said}; not sampled again: the decision weighs its log evidence {z:.1} ± {e:.1} as it is"
             );
@@ -170,7 +191,7 @@ fn run_smc_until_converged(
         );
         settings = next;
         let ck = checkpoint.map(|c| adapt::rerun_checkpoint(c, rerun));
-        sampled = run_smc(problem, &settings, seed, observer, ck.as_ref(), label)?;
+        sampled = run_smc(problem, &settings, seed, observer, ck.as_ref(), label, None)?;
         spent += sampled.evaluations;
     }
     sampled.evaluations = spent;
@@ -187,10 +208,18 @@ fn run_smc(
     observer: &dyn Observer,
     checkpoint: Option<&checkpoint::Checkpointing>,
     label: &str,
+    abandon: Option<smc::Abandon>,
 ) -> Result<Sampled> {
     let settings = settings.clone();
     observer.begin(&format!("SMC {label}"), 1000 * settings.replicates as u64);
-    let out = smc::Smc::new(settings).run_checkpointed(&problem.prior, &problem.likelihood, seed, observer, checkpoint);
+    let out = smc::Smc::new(settings).run_abandoning(
+        &problem.prior,
+        &problem.likelihood,
+        seed,
+        observer,
+        checkpoint,
+        abandon,
+    );
     observer.end();
     let out = out?;
     let evaluations = out.likelihood_evaluations();

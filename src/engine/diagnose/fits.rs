@@ -57,6 +57,8 @@ pub(super) struct Diagnoser<'a> {
     pub(super) out: Option<&'a Path>,
     pub(super) observer: &'a dyn Observer,
     pub(super) reuse: &'a Reuse,
+    /// Whether a candidate far behind stops tempering (`explain`).
+    pub(super) stop_hopeless: bool,
     /// Each fit's wall time, for `Diagnosis::profile`.
     pub(super) times: std::sync::Mutex<Vec<FitTime>>,
 }
@@ -70,7 +72,7 @@ impl Diagnoser<'_> {
         seed: u64,
         name: &str,
     ) -> Result<(Problem, Calibration)> {
-        self.calibrate_judged(analysis, kernel, seed, name, &|_, _| true)
+        self.calibrate_judged(analysis, kernel, seed, name, calibrate::Judge::ALWAYS)
     }
 
     fn record(&self, name: &str, analysis: &Analysis, seconds: f64, cal: &Calibration) {
@@ -84,14 +86,16 @@ impl Diagnoser<'_> {
         self.times.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
-    /// As `calibrate`, sampling again for convergence only while `matters`.
+    /// As `calibrate`, as far as `judge` says the answer can matter. A fit
+    /// abandoned while tempering is not kept for reuse: what it was too far
+    /// behind belongs to this diagnosis.
     pub(super) fn calibrate_judged(
         &self,
         analysis: &Analysis,
         kernel: Option<DiscrepancyKernel>,
         seed: u64,
         name: &str,
-        matters: calibrate::Matters,
+        judge: calibrate::Judge,
     ) -> Result<(Problem, Calibration)> {
         let problem = Problem::new(
             analysis,
@@ -104,8 +108,10 @@ impl Diagnoser<'_> {
             }
             None => {
                 let started = std::time::Instant::now();
-                let cal = calibrate::run_judged(&problem, seed, self.observer, matters)?;
-                self.reuse.keep(name, &problem, seed, &cal);
+                let cal = calibrate::run_judged(&problem, seed, self.observer, judge)?;
+                if cal.summary.diagnostics.sampler.abandoned_at().is_none() {
+                    self.reuse.keep(name, &problem, seed, &cal);
+                }
                 self.record(name, analysis, started.elapsed().as_secs_f64(), &cal);
                 cal
             }
@@ -120,7 +126,8 @@ impl Diagnoser<'_> {
     /// log odds (paying for the search) join its log evidence. A candidate
     /// that trails the best so far (`leader`, and each run here) by more
     /// than any verdict could turn on is not sampled again for convergence
-    /// (`hopeless`).
+    /// (`hopeless`), and stops tempering once an upper estimate of its
+    /// final log evidence (`smc::Abandon`) is that far behind.
     pub(super) fn explain(
         &self,
         analysis: &Analysis,
@@ -133,10 +140,11 @@ impl Diagnoser<'_> {
         for (k, (candidate, prior_log_odds)) in candidates.into_iter().enumerate() {
             let best = runs.iter().map(|r| r.result.log_evidence).fold(leader, f64::max);
             let matters = |z: f64, e: f64| !hopeless(z + prior_log_odds, e, best, strong_log_bf);
+            let abandon = |reach: f64| hopeless(reach + prior_log_odds, 0.0, best, strong_log_bf);
+            let judge =
+                calibrate::Judge { matters: &matters, abandon: Some(&abandon as _).filter(|_| self.stop_hopeless) };
             let seed = seed.wrapping_add(10 + k as u64);
-            if let Some(run) =
-                self.fit_candidate(analysis, candidate, prior_log_odds, seed, (z_base, e_base), &matters)?
-            {
+            if let Some(run) = self.fit_candidate(analysis, candidate, prior_log_odds, seed, (z_base, e_base), judge)? {
                 runs.push(run);
             }
         }
@@ -152,14 +160,14 @@ impl Diagnoser<'_> {
         prior_log_odds: f64,
         seed: u64,
         (z_base, e_base): (f64, f64),
-        matters: calibrate::Matters,
+        judge: calibrate::Judge,
     ) -> Result<Option<CandidateRun>> {
         let fitted = self.calibrate_judged(
             &analysis.with_candidate(&candidate),
             None,
             seed,
             &format!("candidate_{}", candidate.name),
-            matters,
+            judge,
         );
         let (problem, calibration) = match fitted {
             Err(e) if e.downcast_ref::<calibrate::guard::NotComputable>().is_some() => {
@@ -193,6 +201,7 @@ impl Diagnoser<'_> {
             own_emulator: candidate.own_emulator,
             same_fit_as: Vec::new(),
             scout: false,
+            stopped_at_beta: calibration.summary.diagnostics.sampler.abandoned_at(),
         };
         Ok(Some(CandidateRun { result, candidate, problem, calibration, seed }))
     }
@@ -213,7 +222,8 @@ pub(super) fn refit(
 ) -> Result<Option<CandidateRun>> {
     let answer = verdict.named() == Some(run.result.name.as_str());
     let (candidate, odds) = (run.candidate.clone(), run.result.prior_log_odds);
-    d.fit_candidate(analysis, candidate, odds, run.seed, base, &|_, _| answer)
+    let matters = |_: f64, _: f64| answer;
+    d.fit_candidate(analysis, candidate, odds, run.seed, base, calibrate::Judge { matters: &matters, abandon: None })
 }
 
 /// Whether a candidate of log evidence `z` (± `e`) trails `leader` by more

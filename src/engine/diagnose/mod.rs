@@ -188,7 +188,8 @@ pub fn run_reusing(
     observer: &dyn Observer,
     reuse: &Reuse,
 ) -> Result<DiagnoseRun> {
-    let d = Diagnoser { overrides, out, observer, reuse, times: Default::default() };
+    let d =
+        Diagnoser { overrides, out, observer, reuse, stop_hopeless: settings.stop_hopeless, times: Default::default() };
     // Every fit first as a scout; those the verdict turns on again in full (`precision`).
     let scouting = precision::scout(analysis).filter(|_| settings.scouts);
     let first = scouting.as_ref().unwrap_or(analysis);
@@ -390,6 +391,7 @@ mod tests {
                 own_emulator: true,
                 same_fit_as: Vec::new(),
                 scout: false,
+                stopped_at_beta: None,
             })
             .collect()
     }

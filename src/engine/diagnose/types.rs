@@ -16,6 +16,11 @@ pub struct DiagnoseSettings {
     /// turns on it (`precision`); false samples every fit in full, the
     /// check that a scout left behind could not have changed the verdict.
     pub scouts: bool,
+    /// Stop a candidate's tempering once an upper estimate of its final log
+    /// evidence trails the leader by more than any verdict could turn on
+    /// (`calibrate::smc::Abandon`); false tempers every fit to β = 1, the
+    /// check that no stopped fit could have changed the verdict.
+    pub stop_hopeless: bool,
 }
 
 /// When `diagnose` searches for a term nobody declared.
@@ -36,6 +41,7 @@ impl Default for DiagnoseSettings {
             repair: true,
             discover: Discover::WhenUnexplained,
             scouts: true,
+            stop_hopeless: true,
         }
     }
 }
@@ -123,6 +129,12 @@ pub struct CandidateResult {
     /// from every decision that more precision could not change the verdict.
     #[serde(default)]
     pub scout: bool,
+    /// The β at which its calibration stopped tempering, its final log
+    /// evidence estimated at most `log_evidence` (an upper estimate, not an
+    /// estimate), behind the leader by more than any verdict turns on
+    /// (`smc::Abandon`); absent for a fit sampled to β = 1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stopped_at_beta: Option<f64>,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

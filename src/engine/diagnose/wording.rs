@@ -104,7 +104,11 @@ pub(super) fn named_statement(
     let fitted = if fitted.is_empty() { "with no free parameter of its own".to_string() } else { fitted.join(", ") };
     let trend = mismatch_phrase(mismatch);
     let runner = runner_up
-        .map(|r| format!(" over {} by log BF = {:.1}", r.name, c.log_evidence - r.log_evidence))
+        .map(|r| {
+            // A runner-up stopped early carries an upper estimate of its evidence.
+            let relation = if r.stopped_at_beta.is_some() { "≥" } else { "=" };
+            format!(" over {} by log BF {relation} {:.1}", r.name, c.log_evidence - r.log_evidence)
+        })
         .unwrap_or_default();
     format!(
         "{trend}the data favour {} ({}), {fitted}{runner}; against the model as it is, log BF = {:.1}.",
@@ -160,23 +164,29 @@ pub fn print(d: &Diagnosis) {
         } else {
             String::new()
         };
-        let flag = match (c.converged, c.scout) {
-            (false, _) => "   not converged",
-            (true, true) => "   (scout: far from any decision)",
-            _ => "",
+        let flag = match (c.stopped_at_beta, c.converged, c.scout) {
+            (Some(beta), ..) => format!("   (stopped at β = {beta:.1e}: behind any decision)"),
+            (None, false, _) => "   not converged".to_string(),
+            (None, true, true) => "   (scout: far from any decision)".to_string(),
+            _ => String::new(),
         };
         let (what, z, e) = if d.base_log_evidence.is_finite() {
             ("log BF", c.log_bayes_factor, c.log_bayes_factor_err)
         } else {
             ("log Z ", c.log_evidence, c.log_evidence_err)
         };
+        // A stopped fit's evidence is an upper estimate: at most, not about.
+        let (relation, error) = match c.stopped_at_beta {
+            Some(_) => ("≤", "     ".to_string()),
+            None => ("=", format!("± {e:.1}")),
+        };
         crate::base::messages::say!(
-            "  {} {what} = {z:>8.1} ± {e:.1}   χ²/dof = {:>6.2}{share}{flag}",
+            "  {} {what} {relation} {z:>8.1} {error}   χ²/dof = {:>6.2}{share}{flag}",
             name_column(&c.name, width),
             c.chi2_per_dof
         );
     }
-    if d.candidates.iter().any(|c| !c.converged) {
+    if d.candidates.iter().any(|c| !c.converged && c.stopped_at_beta.is_none()) {
         crate::base::messages::say!("  (not converged: its ESS or R̂ failed the check in its summary.json, so its log BF is less certain than the ± says;");
         crate::base::messages::say!("   parameters the data cannot tell apart keep a fit from converging; otherwise more particles or more final");
         crate::base::messages::say!(

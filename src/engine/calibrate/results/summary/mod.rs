@@ -89,6 +89,12 @@ pub enum SamplerDetails {
         /// `likelihood_evaluations` counts whole-likelihood evaluations only.
         #[serde(default)]
         term_evaluations: u64,
+        /// The highest β at which a replicate stopped because its final log
+        /// evidence could not reach what was asked (`smc::Abandon`): the
+        /// draws are then of the tempered posterior at β and the log
+        /// evidence an upper estimate.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        abandoned_at: Option<f64>,
     },
     Ensemble {
         walkers: usize,
@@ -135,6 +141,15 @@ impl SamplerDetails {
                 .unwrap_or_default(),
             unique_fraction: out.replicates.iter().map(|r| r.unique_fraction).collect(),
             term_evaluations: out.replicates.iter().map(|r| r.term_evaluations).sum(),
+            abandoned_at: out.abandoned_at(),
+        }
+    }
+
+    /// Where an SMC run was abandoned (`smc::Abandon`), if it was.
+    pub fn abandoned_at(&self) -> Option<f64> {
+        match self {
+            SamplerDetails::Smc { abandoned_at, .. } => *abandoned_at,
+            SamplerDetails::Ensemble { .. } => None,
         }
     }
 }
@@ -294,6 +309,11 @@ pub fn summarize(
     }
     if jitter_events > 0 {
         warnings.push(format!("{jitter_events} covariance matrices needed diagonal jitter to factorize"));
+    }
+    if let Some(beta) = sampler.abandoned_at() {
+        warnings.push(format!(
+            "stopped tempering at β = {beta:.2e}: its final log evidence could not reach what was asked, so the draws are of the tempered posterior and the log evidence an upper estimate"
+        ));
     }
     // With no parameters every draw is the one point: as good as independent.
     let min_ess = match per_param.iter().map(|d| d.ess_bulk.min(d.ess_tail)).reduce(f64::min) {

@@ -40,10 +40,12 @@ mod copies;
 mod mixture;
 mod moves;
 mod pooled;
+mod reach;
 mod tempering;
 
 use mixture::Mixture;
 use moves::*;
+pub use reach::Abandon;
 pub use tempering::log_sum_exp;
 use tempering::*;
 
@@ -134,6 +136,11 @@ pub struct ReplicateOutput {
     /// Fraction of distinct particles after the final resampling.
     #[serde(with = "f64_bit")]
     pub unique_fraction: f64,
+    /// The β at which the replicate stopped because its final log evidence
+    /// could not reach what was asked (`Abandon`): its particles are then
+    /// drawn from π_β and `log_evidence` is the upper estimate it stopped at.
+    #[serde(default)]
+    pub abandoned_at: Option<f64>,
 }
 
 #[derive(Clone, Debug)]
@@ -147,6 +154,12 @@ pub struct SmcOutput {
 impl SmcOutput {
     pub fn likelihood_evaluations(&self) -> u64 {
         self.replicates.iter().map(|r| r.likelihood_evaluations).sum()
+    }
+
+    /// The highest β at which a replicate was abandoned, if any was: the
+    /// log evidence is then an upper estimate, not an estimate.
+    pub fn abandoned_at(&self) -> Option<f64> {
+        self.replicates.iter().filter_map(|r| r.abandoned_at).reduce(f64::max)
     }
 }
 
@@ -181,11 +194,25 @@ impl Smc {
         observer: &dyn Observer,
         ck: Option<&Checkpointing>,
     ) -> Result<SmcOutput, Stopped> {
+        self.run_abandoning(prior, likelihood, seed, observer, ck, None)
+    }
+
+    /// As `run_checkpointed`, each replicate stopping early once `abandon`
+    /// says its final log evidence cannot reach what was asked of it.
+    pub fn run_abandoning(
+        &self,
+        prior: &UniformPrior,
+        likelihood: &dyn LogLikelihood,
+        seed: u64,
+        observer: &dyn Observer,
+        ck: Option<&Checkpointing>,
+        abandon: Option<Abandon>,
+    ) -> Result<SmcOutput, Stopped> {
         let k = self.settings.replicates.max(1);
         if prior.dim() == 0 {
             return Ok(self.point_posterior(likelihood, k));
         }
-        let algorithm = Tempered::new(&self.settings, prior, likelihood);
+        let algorithm = Tempered::new(&self.settings, prior, likelihood, abandon);
         let started = std::time::Instant::now();
         let results: Vec<End<ReplicateOutput>> = (0..k)
             .into_par_iter()
@@ -232,6 +259,7 @@ impl Smc {
             likelihood_evaluations: 1,
             term_evaluations: 0,
             unique_fraction: 1.0,
+            abandoned_at: None,
         };
         let chains = Chains::of_a_point(k, self.settings.particles.max(2));
         SmcOutput { chains, log_evidence: log_l, log_evidence_err: 0.0, replicates: vec![replicate; k] }
@@ -282,6 +310,10 @@ struct ReplicateState {
     /// The largest log-likelihood a particle has had (`tempering::floor_at`).
     #[serde(default = "nothing_seen", with = "f64_bit")]
     best: f64,
+    /// Where the replicate was abandoned (`Abandon`): β and the upper
+    /// estimate of the final log evidence it stopped at.
+    #[serde(default)]
+    abandoned: Option<(f64, f64)>,
 }
 
 fn nothing_seen() -> f64 {
@@ -303,6 +335,7 @@ struct Tempered<'a> {
     max_steps: usize,
     final_steps: usize,
     target_ess: f64,
+    abandon: Option<Abandon<'a>>,
 }
 
 impl SamplingAlgorithm for Tempered<'_> {
@@ -325,7 +358,10 @@ impl SamplingAlgorithm for Tempered<'_> {
 
     fn finish(&self, mut st: ReplicateState) -> ReplicateOutput {
         let weights = std::mem::take(&mut st.final_weights);
-        self.finish_replicate(st, &weights)
+        match st.abandoned {
+            Some(at) => self.abandon_replicate(st, &weights, at),
+            None => self.finish_replicate(st, &weights),
+        }
     }
 
     fn progress_units(&self) -> u64 {
@@ -334,7 +370,12 @@ impl SamplingAlgorithm for Tempered<'_> {
 }
 
 impl<'a> Tempered<'a> {
-    fn new(settings: &'a SmcSettings, prior: &'a UniformPrior, likelihood: &'a dyn LogLikelihood) -> Self {
+    fn new(
+        settings: &'a SmcSettings,
+        prior: &'a UniformPrior,
+        likelihood: &'a dyn LogLikelihood,
+        abandon: Option<Abandon<'a>>,
+    ) -> Self {
         let dim = prior.dim();
         let n = settings.particles.max(2);
         let structure = likelihood.term_structure();
@@ -360,6 +401,7 @@ impl<'a> Tempered<'a> {
             max_steps: (settings.max_steps_per_dim * sweep_dim as f64).ceil().max(base_steps) as usize,
             final_steps: (settings.final_steps_per_dim * sweep_dim as f64).ceil() as usize,
             target_ess: settings.ess_fraction * n as f64,
+            abandon,
         }
     }
 
@@ -403,6 +445,7 @@ impl<'a> Tempered<'a> {
             term_evaluations: 0,
             final_weights: Vec::new(),
             best: f64::NEG_INFINITY,
+            abandoned: None,
         }
     }
 
@@ -437,6 +480,14 @@ impl<'a> Tempered<'a> {
         observer.advance(((next * 1000.0) as u64).saturating_sub((st.beta * 1000.0) as u64));
         if next >= 1.0 {
             return Ok(Some(w));
+        }
+        if let Some(abandon) = self.abandon {
+            let reach = reach::final_log_evidence_at_most(st.log_z, next, &st.cloud.loglik, &w);
+            if abandon(reach) {
+                observer.advance(1000u64.saturating_sub((next * 1000.0) as u64));
+                st.abandoned = Some((next, reach));
+                return Ok(Some(w));
+            }
         }
         let ancestors = multinomial_ancestors(&w, &mut st.master);
         st.cloud.resample(&ancestors);
@@ -488,13 +539,7 @@ impl<'a> Tempered<'a> {
     /// separate the copies that resampling made.
     fn finish_replicate(&self, mut st: ReplicateState, weights: &[f64]) -> ReplicateOutput {
         let nf = self.n as f64;
-        // Lee & Whiteley (2018): Var(Ẑ)/Z² ≈ 1 - (n/(n-1))^T Σ_{i,j: E_i≠E_j} W_i W_j.
-        let mut eve_mass = vec![0.0; self.n];
-        for (e, w) in st.eve.iter().zip(weights) {
-            eve_mass[*e] += w;
-        }
-        let same_eve: f64 = eve_mass.iter().map(|s| s * s).sum();
-        let relative_variance = 1.0 - (nf / (nf - 1.0)).powi(st.stages as i32) * (1.0 - same_eve);
+        let relative_variance = relative_variance(&st.eve, st.stages, weights);
 
         let ancestors = multinomial_ancestors(weights, &mut st.master);
         let mut unique = ancestors.clone();
@@ -543,33 +588,7 @@ impl<'a> Tempered<'a> {
             likelihood_evaluations: st.evaluations + counts.full_evaluations,
             term_evaluations: st.term_evaluations + counts.term_evaluations,
             unique_fraction,
+            abandoned_at: None,
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn multinomial_ancestors_are_sorted_and_follow_weights() {
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
-        let w = [0.1, 0.0, 0.6, 0.3];
-        let mut counts = [0usize; 4];
-        let reps = 2000;
-        for _ in 0..reps {
-            let a = multinomial_ancestors(&w, &mut rng);
-            assert!(a.windows(2).all(|p| p[0] <= p[1]));
-            for i in a {
-                counts[i] += 1;
-            }
-        }
-        let total = (reps * 4) as f64;
-        for k in 0..4 {
-            let p = counts[k] as f64 / total;
-            // Binomial standard error of p over 8000 draws is below 0.006; allow 4σ.
-            assert!((p - w[k]).abs() < 0.024, "k={k}: {p} vs {}", w[k]);
-        }
-        assert_eq!(counts[1], 0);
     }
 }

@@ -107,3 +107,43 @@ pub(super) fn reindex(x: &[f64], dim: usize, ancestors: &[usize]) -> Vec<f64> {
     }
     out
 }
+
+/// Lee & Whiteley (2018): Var(Ẑ)/Z² ≈ 1 - (n/(n-1))^T Σ_{i,j: E_i≠E_j} W_i W_j,
+/// with E_i particle i's ancestor at β = 0 (`eve`) after T tempering steps.
+pub(super) fn relative_variance(eve: &[usize], stages: usize, weights: &[f64]) -> f64 {
+    let nf = eve.len() as f64;
+    let mut eve_mass = vec![0.0; eve.len()];
+    for (e, w) in eve.iter().zip(weights) {
+        eve_mass[*e] += w;
+    }
+    let same_eve: f64 = eve_mass.iter().map(|s| s * s).sum();
+    1.0 - (nf / (nf - 1.0)).powi(stages as i32) * (1.0 - same_eve)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn multinomial_ancestors_are_sorted_and_follow_weights() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        let w = [0.1, 0.0, 0.6, 0.3];
+        let mut counts = [0usize; 4];
+        let reps = 2000;
+        for _ in 0..reps {
+            let a = multinomial_ancestors(&w, &mut rng);
+            assert!(a.windows(2).all(|p| p[0] <= p[1]));
+            for i in a {
+                counts[i] += 1;
+            }
+        }
+        let total = (reps * 4) as f64;
+        for k in 0..4 {
+            let p = counts[k] as f64 / total;
+            // Binomial standard error of p over 8000 draws is below 0.006; allow 4σ.
+            assert!((p - w[k]).abs() < 0.024, "k={k}: {p} vs {}", w[k]);
+        }
+        assert_eq!(counts[1], 0);
+    }
+}
