@@ -87,8 +87,9 @@ impl Diagnoser<'_> {
     }
 
     /// As `calibrate`, as far as `judge` says the answer can matter. A fit
-    /// abandoned while tempering is not kept for reuse: what it was too far
-    /// behind belongs to this diagnosis.
+    /// that was abandoned while tempering is reused only where `judge` would
+    /// abandon it too at the estimate it stopped at: what it was too far
+    /// behind belonged to the diagnosis that made it.
     pub(super) fn calibrate_judged(
         &self,
         analysis: &Analysis,
@@ -101,7 +102,11 @@ impl Diagnoser<'_> {
             analysis,
             &Overrides { kernel: Some(DiscrepancyKernel::choice(kernel)), ..self.overrides.clone() },
         )?;
-        let cal = match self.reuse.get(name, &problem, seed) {
+        let still_behind = |cal: &Calibration| match cal.summary.diagnostics.sampler.abandoned_at() {
+            None => true,
+            Some(_) => judge.abandon.is_some_and(|stop| stop(evidence(&cal.summary).0)),
+        };
+        let cal = match self.reuse.get(name, &problem, seed).filter(|(cal, _)| still_behind(cal)) {
             Some((cal, whence)) => {
                 crate::base::messages::say!("  {name}: the same problem was fitted in {whence}; that fit is used");
                 cal
@@ -109,9 +114,7 @@ impl Diagnoser<'_> {
             None => {
                 let started = std::time::Instant::now();
                 let cal = calibrate::run_judged(&problem, seed, self.observer, judge)?;
-                if cal.summary.diagnostics.sampler.abandoned_at().is_none() {
-                    self.reuse.keep(name, &problem, seed, &cal);
-                }
+                self.reuse.keep(name, &problem, seed, &cal);
                 self.record(name, analysis, started.elapsed().as_secs_f64(), &cal);
                 cal
             }
