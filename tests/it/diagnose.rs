@@ -419,7 +419,8 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
 /// by more than the decisive margin in the full run too, and the upper
 /// estimate it stopped at lies above the log evidence the full run found
 /// for it (within 1 nat: the estimates' errors are ±0.1–0.2). The named
-/// candidate is the very fit the full run makes.
+/// candidate is the very fit the full run makes, though it was calibrated
+/// first (most promising first) where the full run met it second.
 #[test]
 fn a_candidate_stopped_while_tempering_leaves_the_verdict_unchanged() {
     let path = crate::declared::root().join("pipeline/ball_drop.toml");
@@ -454,6 +455,14 @@ fn a_candidate_stopped_while_tempering_leaves_the_verdict_unchanged() {
     assert!(named.stopped_at_beta.is_none());
     assert_eq!(named.log_evidence, in_full(&named.name).log_evidence, "the same fit, same settings and seed");
     assert_eq!(named.parameters, in_full(&named.name).parameters);
+    // Most promising first (`promise`): the candidate the data hold is
+    // calibrated before any other, and the forces that cannot bend the
+    // velocity's fall (a constant force, a field gradient, the pair) last.
+    let order: Vec<&str> =
+        quick.profile.iter().filter_map(|f| f.fit.strip_prefix("candidate_")).take(full.candidates.len()).collect();
+    assert_eq!(order.len(), full.candidates.len(), "{:?}", quick.profile);
+    assert_eq!(order[0], "quadratic_drag", "order {order:?}");
+    assert!(order[order.len() - 3..].iter().all(|n| !n.contains("drag")), "order {order:?}");
 }
 
 /// Evidence as precise as the verdict needs (`diagnose::precision`): on the

@@ -139,8 +139,26 @@ impl Diagnoser<'_> {
         (z_base, e_base): (f64, f64),
         (leader, strong_log_bf): (f64, f64),
     ) -> Result<Vec<CandidateRun>> {
+        let order = (0..candidates.len()).collect();
+        self.explain_in_order(analysis, candidates, order, seed, (z_base, e_base), (leader, strong_log_bf))
+    }
+
+    /// As `explain`, calibrating `candidates[order[0]]` first, and so on
+    /// (`promise`); each keeps the seed of its position in `candidates`, so
+    /// the order decides which fits stop early, not what a fit is.
+    pub(super) fn explain_in_order(
+        &self,
+        analysis: &Analysis,
+        candidates: Vec<(CandidateModel, f64)>,
+        order: Vec<usize>,
+        seed: u64,
+        (z_base, e_base): (f64, f64),
+        (leader, strong_log_bf): (f64, f64),
+    ) -> Result<Vec<CandidateRun>> {
+        let mut queue: Vec<Option<(CandidateModel, f64)>> = candidates.into_iter().map(Some).collect();
         let mut runs: Vec<CandidateRun> = Vec::new();
-        for (k, (candidate, prior_log_odds)) in candidates.into_iter().enumerate() {
+        for k in order {
+            let Some((candidate, prior_log_odds)) = queue.get_mut(k).and_then(Option::take) else { continue };
             let best = runs.iter().map(|r| r.result.log_evidence).fold(leader, f64::max);
             let matters = |z: f64, e: f64| !hopeless(z + prior_log_odds, e, best, strong_log_bf);
             let abandon = |reach: f64| hopeless(reach + prior_log_odds, 0.0, best, strong_log_bf);

@@ -48,6 +48,7 @@ mod fits;
 mod locate;
 mod partial;
 mod precision;
+mod promise;
 mod reuse;
 mod suggest;
 mod types;
@@ -203,9 +204,16 @@ pub fn run_reusing(
     let (mut z_base, mut e_base) = evidence(&base.summary);
     let (mut z_md, mut e_md) = evidence(&md.summary);
     let mut mismatch = locate(&md_problem, &md, &base_problem, &base);
-    let declared = analysis.candidates()?.into_iter().map(|c| (c, 0.0)).collect();
+    let declared: Vec<_> = analysis.candidates()?.into_iter().map(|c| (c, 0.0)).collect();
     let strong = settings.strong_log_bf;
-    let mut runs = rank(d.explain(first, declared, seed, (z_base, e_base), (f64::NEG_INFINITY, strong))?, strong);
+    let order = if settings.order_by_promise {
+        let medians = base.summary.parameters.iter().map(|(n, p)| (n.clone(), p.median)).collect();
+        promise::order(first, overrides, &declared, &medians)
+    } else {
+        (0..declared.len()).collect()
+    };
+    let explained = d.explain_in_order(first, declared, order, seed, (z_base, e_base), (f64::NEG_INFINITY, strong))?;
+    let mut runs = rank(explained, strong);
     let (mut candidates, mut verdict, mut named_alone) =
         judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
     let mut discovery = None;

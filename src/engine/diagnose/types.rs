@@ -21,6 +21,10 @@ pub struct DiagnoseSettings {
     /// (`calibrate::smc::Abandon`); false tempers every fit to β = 1, the
     /// check that no stopped fit could have changed the verdict.
     pub stop_hopeless: bool,
+    /// Calibrate the declared candidates most promising first (`promise`),
+    /// so the leader is known before the candidates far behind it; false
+    /// keeps the declared order. Either way each keeps its seed.
+    pub order_by_promise: bool,
 }
 
 /// When `diagnose` searches for a term nobody declared.
@@ -42,6 +46,7 @@ impl Default for DiagnoseSettings {
             discover: Discover::WhenUnexplained,
             scouts: true,
             stop_hopeless: true,
+            order_by_promise: true,
         }
     }
 }
