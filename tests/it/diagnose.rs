@@ -420,7 +420,8 @@ fn a_second_diagnosis_reuses_exactly_the_fits_whose_problems_did_not_change() {
 /// estimate it stopped at lies above the log evidence the full run found
 /// for it (within 1 nat: the estimates' errors are ±0.1–0.2). The named
 /// candidate is the very fit the full run makes, though it was calibrated
-/// first (most promising first) where the full run met it second.
+/// first (most promising first) and the full run, in the declared order,
+/// met it second.
 #[test]
 fn a_candidate_stopped_while_tempering_leaves_the_verdict_unchanged() {
     let path = crate::declared::root().join("pipeline/ball_drop.toml");
@@ -428,7 +429,9 @@ fn a_candidate_stopped_while_tempering_leaves_the_verdict_unchanged() {
     analysis.sampler.adapt = false;
     analysis.sampler.smc.particles = 800;
     let run = |stop_hopeless| {
-        let settings = DiagnoseSettings { repair: false, stop_hopeless, ..Default::default() };
+        // The full run also keeps the declared order: the order moves no fit.
+        let order_by_promise = stop_hopeless;
+        let settings = DiagnoseSettings { repair: false, stop_hopeless, order_by_promise, ..Default::default() };
         diagnose::run(&analysis, &Overrides::default(), 1, &settings, None, &Silent).unwrap().diagnosis
     };
     let (quick, full) = (run(true), run(false));
