@@ -13,15 +13,7 @@
 //! and says so: its answer could not have changed the verdict.
 
 use super::*;
-use crate::engine::calibrate::SamplerKind;
 
-/// A scout takes this fraction of the configured particles.
-const SCOUT_SHARE: usize = 4;
-/// A scout's final sweeps per dimension (the configured default is 15).
-const SCOUT_FINAL_STEPS_PER_DIM: f64 = 2.0;
-/// The fewest particles per replicate worth scouting with: below them a
-/// scout's evidence is too rough to rule anything out.
-const SCOUT_MIN_PARTICLES: usize = 200;
 /// A comparison within this many of its standard errors of a threshold
 /// (and within `CLOSE_NATS` besides) is remade at full precision: a scout's
 /// error of a few tenths leaves its side of the line uncertain.
@@ -32,22 +24,11 @@ const CLOSE_NATS: f64 = 2.0;
 /// its error (a χ² of 2.0 per point over 80 points has p ≈ 1e-7).
 const CLEAR_P_SHARE: f64 = 0.01;
 
-/// The analysis as a scout samples it; None where scouting does not apply
-/// (the ensemble sampler, or too few particles to divide).
+/// The analysis as a scout samples it (`SamplerConfig::scout`); None where
+/// scouting does not apply.
 pub(super) fn scout(analysis: &Analysis) -> Option<Analysis> {
-    let s = &analysis.sampler;
-    if s.kind != SamplerKind::Smc || s.smc.particles / SCOUT_SHARE < SCOUT_MIN_PARTICLES {
-        return None;
-    }
-    let mut a = analysis.clone();
-    let smc = &mut a.sampler.smc;
-    smc.particles /= SCOUT_SHARE;
-    // The final sweeps decorrelate the draws a reported posterior needs;
-    // a scout's evidence is made before them.
-    smc.final_steps_per_dim = smc.final_steps_per_dim.min(SCOUT_FINAL_STEPS_PER_DIM);
-    smc.final_mixture_proposals = smc.final_mixture_proposals.min(smc.mixture_proposals);
-    a.sampler.adapt = false;
-    Some(a)
+    let sampler = analysis.sampler.scout()?;
+    Some(Analysis { sampler, ..analysis.clone() })
 }
 
 /// The fits a verdict turns on.

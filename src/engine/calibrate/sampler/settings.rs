@@ -46,7 +46,34 @@ impl Default for SamplerConfig {
     }
 }
 
+/// A scout takes this fraction of the configured particles.
+const SCOUT_SHARE: usize = 4;
+/// A scout's final sweeps per dimension (the configured default is 15).
+const SCOUT_FINAL_STEPS_PER_DIM: f64 = 2.0;
+/// The fewest particles per replicate worth scouting with: below them a
+/// scout's evidence is too rough to rule anything out.
+const SCOUT_MIN_PARTICLES: usize = 200;
+
 impl SamplerConfig {
+    /// The settings of a scout, a fit that needs to know roughly where the
+    /// posterior lies and what its evidence is, not a reported posterior: a
+    /// quarter of the particles, few final sweeps, no reruns for
+    /// convergence. None where scouting does not apply (the ensemble
+    /// sampler, or too few particles to divide).
+    pub fn scout(&self) -> Option<SamplerConfig> {
+        if self.kind != SamplerKind::Smc || self.smc.particles / SCOUT_SHARE < SCOUT_MIN_PARTICLES {
+            return None;
+        }
+        let mut s = self.clone();
+        s.smc.particles /= SCOUT_SHARE;
+        // The final sweeps decorrelate the draws a reported posterior needs;
+        // a scout's evidence is made before them.
+        s.smc.final_steps_per_dim = s.smc.final_steps_per_dim.min(SCOUT_FINAL_STEPS_PER_DIM);
+        s.smc.final_mixture_proposals = s.smc.final_mixture_proposals.min(s.smc.mixture_proposals);
+        s.adapt = false;
+        Some(s)
+    }
+
     /// Checks every setting a sampler would trip on; the message names the field.
     pub fn validate(&self) -> Result<(), BadSetting> {
         let s = &self.smc;

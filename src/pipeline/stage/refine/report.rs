@@ -42,7 +42,7 @@ impl Rounds {
             "# Adaptive design\n\nStopped: {}. The calibrations use `refine/{}`.\n\n",
             self.stopped, self.emulator
         );
-        md.push_str(&format!("Emulator sd over data error where the pilot posteriors live (root mean square over draws and bins). {SD_PARTS} Refinement stops when the predictive ratio is below 1 in every observable.\n\n"));
+        md.push_str(&format!("Emulator sd over data error where the pilot posteriors live (root mean square over draws and bins; the pilots are scouts, a quarter of the particles). {SD_PARTS} Refinement stops when the predictive ratio is below 1 in every observable.\n\n"));
         md.push_str("| round | training runs | observable | latent | latent, worst bin | floor | predictive |\n|---|---|---|---|---|---|---|\n");
         for r in &self.rounds {
             for o in &r.ratios {

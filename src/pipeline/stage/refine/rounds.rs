@@ -4,7 +4,9 @@
 //!
 //! A round: calibrate pilots (the largest observable set, without MD and
 //! with the last MD kernel: the emulator must be good wherever either fit
-//! puts its mass), pool their draws, measure the emulator's error there
+//! puts its mass) as scouts (`SamplerConfig::scout`: where the posterior
+//! lies is all a round needs; the reported calibrations are the calibrate
+//! stage's, in full), pool their draws, measure the emulator's error there
 //! (`engine::refine::ratios`), stop if every observable's predictive ratio
 //! is below 1, else choose `points_per_round` runs (`engine::refine::select`),
 //! write them as a design (parameter files and a SLURM array script, like the
@@ -119,8 +121,8 @@ fn pilot_data(study: &Study<'_>) -> Result<Vec<artifacts::Measurement>> {
     Ok(data.into_iter().filter(|m| set.contains(&m.observable)).collect())
 }
 
-/// Calibrates the pilots with this round's emulator; their pooled draws
-/// (half from each) and their parameter summaries.
+/// Calibrates the pilots, as scouts, with this round's emulator; their
+/// pooled draws (half from each) and their parameter summaries.
 fn pilot_draws(
     study: &Study<'_>,
     emulator: &Path,
@@ -130,7 +132,10 @@ fn pilot_draws(
     round: usize,
 ) -> Result<(Vec<f64>, std::collections::BTreeMap<String, std::collections::BTreeMap<String, [f64; 3]>>)> {
     let config = study.study_config_with(emulator);
-    let analysis = study.analysis(&config)?;
+    let mut analysis = study.analysis(&config)?;
+    if let Some(sampler) = analysis.sampler.scout() {
+        analysis.sampler = sampler;
+    }
     let md_kernel = study.run.kernels.iter().rev().find_map(|k| DiscrepancyKernel::of(*k));
     let mut kernels = vec![None];
     kernels.extend(md_kernel.map(Some));
