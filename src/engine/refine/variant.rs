@@ -1,7 +1,9 @@
 //! Refining a diagnose candidate's variant emulator, so that a verdict rests
 //! on the data and not on a coarse emulator (`diagnose`'s "emulator_limited").
 //!
-//! A round: calibrate the variant without MD on the diagnosis' data, measure
+//! A round: calibrate the variant without MD on the diagnosis' data (as a
+//! scout, `SamplerConfig::scout`: a round needs where the posterior lies,
+//! and the fit diagnose reports is its own), measure
 //! its emulator's error over the data error at the posterior draws
 //! (`ratios`), stop when the latent ratio is below 1 in every observable
 //! and the emulator's share of the fit's predictive variance is at most one
@@ -100,8 +102,12 @@ pub fn refine_variant(
         let round_dir = out.join(format!("round_{r}"));
         let model = Arc::new(EmulatedModel::load(&dir).with_context(|| format!("refining {}", candidate.name))?);
         let variant = CandidateModel { simulator: model.clone(), ..candidate.clone() };
+        let mut pilot = analysis.with_candidate(&variant);
+        if let Some(sampler) = pilot.sampler.scout() {
+            pilot.sampler = sampler;
+        }
         let problem = Problem::new(
-            &analysis.with_candidate(&variant),
+            &pilot,
             &Overrides { kernel: Some(crate::base::choices::Kernel::None), ..overrides.clone() },
         )?;
         let round_seed = seed.wrapping_add(r as u64);
