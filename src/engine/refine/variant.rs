@@ -106,10 +106,8 @@ pub fn refine_variant(
         if let Some(sampler) = pilot.sampler.scout() {
             pilot.sampler = sampler;
         }
-        let problem = Problem::new(
-            &pilot,
-            &Overrides { kernel: Some(crate::base::choices::Kernel::None), ..overrides.clone() },
-        )?;
+        let problem =
+            Problem::new(&pilot, &Overrides { kernel: Some(crate::base::choices::Kernel::None), ..overrides.clone() })?;
         let round_seed = seed.wrapping_add(r as u64);
         let cal = calibrate::run(&problem, round_seed, observer)?;
         calibrate::write_outputs(&round_dir.join("pilot"), &problem, &cal)?;
