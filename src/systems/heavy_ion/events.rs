@@ -12,7 +12,10 @@
 //! Like iEBE-MUSIC's Cooper–Frye sampler, each event (one fluid evolution) is
 //! sampled `oversample` times: the count and v_n columns sum every sample
 //! (so Q-vectors have the statistics of all of them), while the yield
-//! columns are per sample.
+//! columns are per sample. Since only the sums are written, a bin's count
+//! over all samples is drawn at once: `oversample` independent
+//! Poisson(μ) counts sum to one Poisson(`oversample`·μ), and the particles
+//! are independent given the event, so the written tables have the same law.
 
 use super::{yield_and_flow, DeltaF, FreezeOut, HeavyIonParams, Quadrature, Species, ECCENTRICITY, SPECIES};
 use crate::engine::ingest::layout::{Event, EventFile, FileKind, Window, CHARGED_PID};
@@ -239,13 +242,13 @@ fn interpolate(
 }
 
 /// e^{inφ} of one particle for n = 1 … ORDER_MAX_CHARGED − 1, by rotation
-/// from one sin_cos; worked out once and added to both the identified and the
+/// from e^{iφ}; worked out once and added to both the identified and the
 /// charged tables.
 struct Harmonics([(f64, f64); ORDER_MAX_CHARGED - 1]);
 
 impl Harmonics {
-    fn of(phi: f64) -> Harmonics {
-        let (s1, c1) = phi.sin_cos();
+    /// From e^{iφ} = (c1, s1).
+    fn of_direction(c1: f64, s1: f64) -> Harmonics {
         let mut h = [(0.0, 0.0); ORDER_MAX_CHARGED - 1];
         let (mut c, mut s) = (c1, s1);
         for slot in h.iter_mut() {
@@ -256,50 +259,76 @@ impl Harmonics {
     }
 }
 
-/// One event's flow geometry: v_n scale factors |ε_n| / ε_n,rms and event-plane angles.
+/// One event's flow geometry: v_n scale factors |ε_n| / ε_n,rms and the
+/// event planes as (cos nψ_n, sin nψ_n) for n = 2, 3.
 struct Geometry {
     scale: [f64; 2],
-    psi: [f64; 2],
+    planes: [(f64, f64); 2],
 }
 
-/// φ from `1 + 2 v2 cos 2(φ − ψ2) + 2 v3 cos 3(φ − ψ3)` by rejection under
-/// `bound`. A draw below the density's floor `1 − 2(|v2| + |v3|)` is
-/// accepted without the cosines (a squeeze): the same draws and the same
-/// decisions as evaluating the density every time, since the margin is far
-/// above the density's rounding error.
-fn draw_phi(rng: &mut impl Rng, v2: f64, v3: f64, psi: &[f64; 2]) -> f64 {
-    let reach = 2.0 * (v2.abs() + v3.abs());
-    let bound = 1.0 + reach;
-    let sure = (1.0 - reach) - 1e-12;
+/// A uniform direction e^{iφ} by the polar method: a point uniform in the
+/// unit disc, scaled to the circle (one square root instead of a sin_cos).
+fn draw_direction(rng: &mut impl Rng) -> (f64, f64) {
     loop {
-        let phi = rng.random::<f64>() * std::f64::consts::TAU;
-        let u = rng.random::<f64>() * bound;
-        if u < sure {
-            return phi;
-        }
-        let density = 1.0 + 2.0 * v2 * (2.0 * (phi - psi[0])).cos() + 2.0 * v3 * (3.0 * (phi - psi[1])).cos();
-        if u < density {
-            return phi;
+        let (x, y) = (rng.random::<f64>() * 2.0 - 1.0, rng.random::<f64>() * 2.0 - 1.0);
+        let r2 = x * x + y * y;
+        if r2 > 1e-300 && r2 <= 1.0 {
+            let r = r2.sqrt();
+            return (x / r, y / r);
         }
     }
 }
 
-/// Whether a particle of rapidity y lies in |η| < WINDOW, with
-/// η = asinh(mT sinh y / pT). asinh is worked out only within a relative
-/// 1e-9 of the edge sinh(WINDOW); elsewhere the comparison of its argument
-/// decides, with a margin far above asinh's rounding error (NaN falls
-/// through to asinh, which is NaN, so outside, as before).
-fn in_eta_window(pt: f64, m: f64, y: f64) -> bool {
-    let edge = WINDOW.sinh();
-    let mt = (pt * pt + m * m).sqrt();
-    let x = mt * y.sinh() / pt;
-    let ax = x.abs();
-    if ax < edge * (1.0 - 1e-9) {
-        true
-    } else if ax > edge * (1.0 + 1e-9) {
-        false
-    } else {
-        x.asinh().abs() < WINDOW
+/// e^{inφ} of a φ drawn from `1 + 2 v2 cos 2(φ − ψ2) + 2 v3 cos 3(φ − ψ3)`
+/// by rejection under `1 + 2(|v2| + |v3|)`. A draw below the density's
+/// floor `1 − 2(|v2| + |v3|)` is accepted without evaluating it (a
+/// squeeze); otherwise cos n(φ − ψ_n) = Re(e^{inφ} e^{−inψ_n}) from the
+/// harmonics the accepted particle needs anyway, so no trigonometric call.
+fn draw_harmonics(rng: &mut impl Rng, v2: f64, v3: f64, planes: &[(f64, f64); 2]) -> Harmonics {
+    let reach = 2.0 * (v2.abs() + v3.abs());
+    let bound = 1.0 + reach;
+    let sure = 1.0 - reach;
+    loop {
+        let (c, s) = draw_direction(rng);
+        let harmonics = Harmonics::of_direction(c, s);
+        let u = rng.random::<f64>() * bound;
+        if u < sure {
+            return harmonics;
+        }
+        let [_, (c2, s2), (c3, s3), ..] = harmonics.0;
+        let density =
+            1.0 + 2.0 * v2 * (c2 * planes[0].0 + s2 * planes[0].1) + 2.0 * v3 * (c3 * planes[1].0 + s3 * planes[1].1);
+        if u < density {
+            return harmonics;
+        }
+    }
+}
+
+/// Whether a particle uniform in |y| < WINDOW falls in |η| < WINDOW: a
+/// Bernoulli draw with the acceptance at its pT (y is used for nothing
+/// else). Over one fine bin the acceptance rises with pT, so a uniform draw
+/// below the bin's lowest acceptance or above its highest decides without
+/// the asinh.
+#[derive(Clone, Copy)]
+struct EtaWindow {
+    mass: f64,
+    low: f64,
+    high: f64,
+}
+
+impl EtaWindow {
+    fn new(lo: f64, mass: f64) -> EtaWindow {
+        EtaWindow { mass, low: eta_acceptance(lo, mass), high: eta_acceptance(lo + FINE_PT_WIDTH, mass) }
+    }
+
+    fn admits(&self, u: f64, pt: f64) -> bool {
+        if u < self.low {
+            true
+        } else if u >= self.high {
+            false
+        } else {
+            u < eta_acceptance(pt, self.mass)
+        }
     }
 }
 
@@ -318,30 +347,27 @@ pub fn sample_event(tables: &SmoothTables, seed: u64, index: usize, oversample: 
         let kind = FileKind::diff(table.species.pid, Window::Y, -WINDOW, WINDOW);
         let mut identified = Accumulator::new(ORDER_MAX_IDENTIFIED);
         let mut identified_pt2 = 0.0;
-        let bins = species_bins(table, lambda);
-        // Particles, then antiparticles; each `oversample` times over the same event geometry.
+        let bins = species_bins(table, lambda, oversample);
+        // Particles, then antiparticles, of all `oversample` samples of this event.
         for sign in [1, -1] {
-            for _sample in 0..oversample {
-                for (b, (nodes, (count, pt_sampler))) in table.nodes.iter().zip(&bins).enumerate() {
-                    let Some(count) = count else { continue };
-                    for _ in 0..count.sample(&mut rng) as usize {
-                        let pt = pt_sampler.sample(&mut rng);
-                        let v2 = geometry.scale[0] * interpolate(nodes, pt, |n| n.3);
-                        let v3 = geometry.scale[1] * interpolate(nodes, pt, |n| n.4);
-                        let phi = draw_phi(&mut rng, v2, v3, &geometry.psi);
-                        let y = (rng.random::<f64>() * 2.0 - 1.0) * WINDOW;
-                        let in_eta = in_eta_window(pt, table.species.mass, y);
-                        if sign == 1 || in_eta {
-                            let harmonics = Harmonics::of(phi);
-                            if sign == 1 {
-                                identified.add(b, pt, &harmonics);
-                                identified_pt2 += pt * pt;
-                            }
-                            if in_eta {
-                                charged.add(b, pt, &harmonics);
-                                charged_pt2 += pt * pt;
-                            }
-                        }
+            for (b, (nodes, bin)) in table.nodes.iter().zip(&bins).enumerate() {
+                let Some(count) = &bin.count else { continue };
+                for _ in 0..count.sample(&mut rng) as usize {
+                    let pt = bin.pt.sample(&mut rng);
+                    let in_eta = bin.eta.admits(rng.random(), pt);
+                    if sign == -1 && !in_eta {
+                        continue;
+                    }
+                    let v2 = geometry.scale[0] * interpolate(nodes, pt, |n| n.3);
+                    let v3 = geometry.scale[1] * interpolate(nodes, pt, |n| n.4);
+                    let harmonics = draw_harmonics(&mut rng, v2, v3, &geometry.planes);
+                    if sign == 1 {
+                        identified.add(b, pt, &harmonics);
+                        identified_pt2 += pt * pt;
+                    }
+                    if in_eta {
+                        charged.add(b, pt, &harmonics);
+                        charged_pt2 += pt * pt;
                     }
                 }
             }
@@ -363,25 +389,37 @@ fn draw_geometry(rng: &mut impl Rng) -> Geometry {
     let psi_rp = rng.random::<f64>() * std::f64::consts::TAU;
     let (ex, ey) = (eps_rp + EPS2_FLUCTUATION * normal.sample(rng), EPS2_FLUCTUATION * normal.sample(rng));
     let (e3x, e3y) = (sigma3 * normal.sample(rng), sigma3 * normal.sample(rng));
+    let psi = [ey.atan2(ex) / 2.0 + psi_rp, e3y.atan2(e3x) / 3.0 + psi_rp];
+    let plane = |angle: f64| (angle.cos(), angle.sin());
     Geometry {
         scale: [ex.hypot(ey) / ECCENTRICITY[0], e3x.hypot(e3y) / ECCENTRICITY[1]],
-        psi: [ey.atan2(ex) / 2.0 + psi_rp, e3y.atan2(e3x) / 3.0 + psi_rp],
+        planes: [plane(2.0 * psi[0]), plane(3.0 * psi[1])],
     }
 }
 
-/// Per fine bin of one species in one event: the Poisson law of its count
-/// (None when the bin holds no particles), made once rather than per sample,
-/// and its pT sampler.
-fn species_bins(table: &SpeciesTable, lambda: f64) -> Vec<(Option<Poisson<f64>>, PtSampler)> {
+/// One fine bin of one species in one event.
+struct Bin {
+    /// The law of its count over all samples (None when it holds no particles).
+    count: Option<Poisson<f64>>,
+    pt: PtSampler,
+    eta: EtaWindow,
+}
+
+/// The species' fine bins in one event, made once per event.
+fn species_bins(table: &SpeciesTable, lambda: f64, oversample: usize) -> Vec<Bin> {
     table
         .nodes
         .iter()
         .enumerate()
         .map(|(b, nodes)| {
             let weight = nodes.iter().map(|n| n.1 * n.2).sum::<f64>();
-            let mean = lambda * 2.0 * WINDOW * weight;
-            let count = (mean > 0.0).then(|| Poisson::new(mean).expect("positive mean"));
-            (count, PtSampler::new(b as f64 * FINE_PT_WIDTH, nodes))
+            let mean = oversample as f64 * lambda * 2.0 * WINDOW * weight;
+            let lo = b as f64 * FINE_PT_WIDTH;
+            Bin {
+                count: (mean > 0.0).then(|| Poisson::new(mean).expect("positive mean")),
+                pt: PtSampler::new(lo, nodes),
+                eta: EtaWindow::new(lo, table.species.mass),
+            }
         })
         .collect()
 }
