@@ -477,3 +477,53 @@ pub fn write_point(dir: &std::path::Path, events: &[Event], layout: Layout) -> a
     std::fs::rename(&staging, dir).with_context(|| format!("moving {} to {}", staging.display(), dir.display()))?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// φ drawn about given event planes has ⟨cos n(φ − ψ_n)⟩ = v_n for
+    /// n = 2, 3, no other harmonic, and no sine about the planes: the
+    /// orientation, which v_n{2} (a correlation of pairs) cannot check.
+    /// Tolerance: 5 standard errors of a mean of cosines (sd ≤ 1/√2).
+    #[test]
+    fn flow_harmonics_are_drawn_about_their_event_planes() {
+        let (v2, v3, psi) = (0.15, 0.08, [0.7f64, -1.9f64]);
+        let planes = [((2.0 * psi[0]).cos(), (2.0 * psi[0]).sin()), ((3.0 * psi[1]).cos(), (3.0 * psi[1]).sin())];
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+        let n = 400_000;
+        let mut sums = [0.0; 5];
+        for _ in 0..n {
+            let h = draw_harmonics(&mut rng, v2, v3, &planes).0;
+            let about = |k: usize, (c, s): (f64, f64)| (h[k].0 * c + h[k].1 * s, h[k].1 * c - h[k].0 * s);
+            let (c2, s2) = about(1, planes[0]);
+            let (c3, s3) = about(2, planes[1]);
+            for (sum, v) in sums.iter_mut().zip([c2, s2, c3, s3, h[0].0]) {
+                *sum += v;
+            }
+        }
+        let tolerance = 5.0 * (0.5 / n as f64).sqrt();
+        let wanted = [("cos2", v2), ("sin2", 0.0), ("cos3", v3), ("sin3", 0.0), ("cos1", 0.0)];
+        for (sum, (what, want)) in sums.iter().zip(wanted) {
+            let mean = sum / n as f64;
+            assert!((mean - want).abs() < tolerance, "<{what}> = {mean}, want {want} ± {tolerance}");
+        }
+    }
+
+    /// The |η| window admits a particle with the acceptance at its pT, the
+    /// fraction of |y| < WINDOW inside |η| < WINDOW, whichever branch
+    /// decides (5 binomial standard errors).
+    #[test]
+    fn the_eta_window_admits_at_the_acceptance() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        for (lo, mass) in [(0.0, 0.13957), (0.3, 0.938272), (2.0, 0.493677)] {
+            let window = EtaWindow::new(lo, mass);
+            let pt = lo + 0.37 * FINE_PT_WIDTH;
+            let n = 200_000;
+            let admitted = (0..n).filter(|_| window.admits(rng.random(), pt)).count() as f64 / n as f64;
+            let p = eta_acceptance(pt, mass);
+            let tolerance = 5.0 * (p * (1.0 - p) / n as f64).sqrt();
+            assert!((admitted - p).abs() < tolerance, "pT {pt}, m {mass}: {admitted} against {p} ± {tolerance}");
+        }
+    }
+}
