@@ -296,6 +296,20 @@ fn cases() -> Vec<Case> {
             "m.csv",
         ),
         c(
+            "simulate heavy-ion: eta_s NaN",
+            vec![],
+            "simulate heavy-ion --point eta_s=NaN,e_sw=0.2 --events 5 --out {d}/runs",
+            "must be finite and >= 0",
+            "runs",
+        ),
+        c(
+            "simulate heavy-ion: eta_s < 0",
+            vec![],
+            "simulate heavy-ion --point eta_s=-5,e_sw=0.2 --events 5 --out {d}/runs",
+            "must be finite and >= 0",
+            "runs",
+        ),
+        c(
             "simulate heavy-ion: --errors-from lacks a point",
             vec![("e.csv", "observable,x,value,error\nch_spectrum,0.1,1,0.5\n".into())],
             "simulate heavy-ion --point eta_s=0.1,e_sw=0.2 --errors-from {d}/e.csv --out {d}/m.csv",

@@ -336,8 +336,8 @@ impl HeavyIonParams {
             anyhow::bail!("unknown heavy-ion parameter '{k}' (use eta_s, e_sw, or T_kink, a_low, a_high, eta_s_kink, e_sw; candidates add zeta_s, p_survival)");
         }
         let e_sw = get("e_sw").ok_or_else(|| anyhow::anyhow!("missing parameter e_sw (GeV/fm^3)"))?;
-        if !(e_sw > 0.0) {
-            anyhow::bail!("e_sw = {e_sw}: the switching energy density must be positive");
+        if !(e_sw > 0.0 && e_sw.is_finite()) {
+            anyhow::bail!("e_sw = {e_sw}: the switching energy density must be positive and finite");
         }
         let eta_s = match (get("eta_s"), get("T_kink"), get("a_low"), get("a_high"), get("eta_s_kink")) {
             (Some(v), None, None, None, None) => EtaOverS::Constant(v),
@@ -346,6 +346,21 @@ impl HeavyIonParams {
             }
             _ => anyhow::bail!("give either eta_s, or all four of T_kink, a_low, a_high, eta_s_kink"),
         };
+        // A negative shear viscosity breaks the second law; NaN would pass every
+        // later comparison and yield meaningless events.
+        match eta_s {
+            EtaOverS::Constant(v) if !(v >= 0.0 && v.is_finite()) => {
+                anyhow::bail!("eta_s = {v}: the shear viscosity to entropy ratio must be finite and >= 0")
+            }
+            EtaOverS::Kink { t_kink, a_low, a_high, eta_s_kink }
+                if ![t_kink, a_low, a_high, eta_s_kink].iter().all(|v| v.is_finite()) || !(eta_s_kink >= 0.0) =>
+            {
+                anyhow::bail!(
+                    "T_kink = {t_kink}, a_low = {a_low}, a_high = {a_high}, eta_s_kink = {eta_s_kink}: need finite values and eta_s_kink >= 0"
+                )
+            }
+            _ => {}
+        }
         let zeta_s = get("zeta_s").unwrap_or(0.0);
         let p_survival = get("p_survival").unwrap_or(1.0);
         if !(zeta_s >= 0.0) || !(p_survival > 0.0) {
