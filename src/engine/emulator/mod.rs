@@ -98,6 +98,9 @@ struct FittedGp {
 pub struct Emulator {
     pub parts: EmulatorParts,
     unit_inputs: Vec<f64>,
+    /// The same, column-major d × n: one input's values over the design
+    /// side by side, for the vectorized cross kernel.
+    unit_columns: Vec<f64>,
     gps: Vec<FittedGp>,
     /// `σ_k = S_k/√n`, the standard deviation of component k's scores.
     component_sd: Vec<f64>,
@@ -201,9 +204,12 @@ impl Emulator {
             *t += v;
         }
         let run_noise = removed[..parts.n_components].to_vec();
+        let unit_columns =
+            (0..d).flat_map(|p| (0..n).map(move |i| (p, i))).map(|(p, i)| unit_inputs[i * d + p]).collect();
         Ok(Emulator {
             parts,
             unit_inputs,
+            unit_columns,
             gps,
             component_sd,
             truncation_cov,
@@ -232,14 +238,10 @@ impl Emulator {
 
     /// Mean and variance of every kept component's (whitened) score at θ.
     pub fn predict_components(&self, theta: &[f64], means: &mut [f64], vars: &mut [f64], scratch: &mut PredictScratch) {
-        let d = self.n_parameters();
         let n = self.parts.design_ids.len();
         scale_to_unit(&self.parts.input_lo, &self.parts.input_hi, theta, &mut scratch.unit);
         for (c, gp) in self.gps.iter().enumerate() {
-            for i in 0..n {
-                let r2 = scaled_sq_dist(&scratch.unit, &self.unit_inputs[i * d..(i + 1) * d], &gp.inv_l2);
-                scratch.k[i] = gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
-            }
+            self.cross_kernel_column(gp, &scratch.unit, &mut scratch.k[..n]);
             // The same sum, in the same order, as the batched path: αᵀk
             // cancels between large terms for a near-interpolating GP, so two
             // summation orders can differ by more than 1e-10 of the mean.
@@ -292,11 +294,27 @@ impl Emulator {
         let n = self.parts.design_ids.len();
         for (q, u) in unit.chunks(d).enumerate() {
             let col = &mut kstar[q * n..(q + 1) * n];
-            for i in 0..n {
-                let r2 = scaled_sq_dist(u, &self.unit_inputs[i * d..(i + 1) * d], &gp.inv_l2);
-                col[i] = gp.signal_var * self.parts.kernel.corr(r2) + gp.constant;
-            }
+            self.cross_kernel_column(gp, u, col);
             mean_at(q, dot(&gp.alpha, col));
+        }
+    }
+
+    /// `k(X, u)` of one component (signal and constant, no noise) at one unit
+    /// point into `col` (length n): the squared distances input by input
+    /// over the inputs stored column by column (the order of
+    /// `scaled_sq_dist`), then every correlation four at a time.
+    fn cross_kernel_column(&self, gp: &FittedGp, u: &[f64], col: &mut [f64]) {
+        let n = col.len();
+        col.fill(0.0);
+        for (p, (&up, &w)) in u.iter().zip(&gp.inv_l2).enumerate() {
+            for (c, &x) in col.iter_mut().zip(&self.unit_columns[p * n..(p + 1) * n]) {
+                let t = up - x;
+                *c += t * t * w;
+            }
+        }
+        self.parts.kernel.corr_in_place(col);
+        for c in col.iter_mut() {
+            *c = gp.signal_var * *c + gp.constant;
         }
     }
 

@@ -46,6 +46,39 @@ impl ArdKernel {
         }
     }
 
+    /// `corr` of every value of `r2`, in place: four at a time with `wide`'s
+    /// vector exponential (already built, through nalgebra), which is within
+    /// a few ulps of libm's but several times faster; an emulator's cross
+    /// kernel is one exponential per design point and component per θ, a
+    /// sixth of a heavy-ion calibration when it called libm. Every value,
+    /// the last ones too, goes through the same vector code, so the
+    /// correlation of a point does not depend on its place in the slice.
+    pub fn corr_in_place(self, r2: &mut [f64]) {
+        let mut chunks = r2.chunks_exact_mut(4);
+        for chunk in &mut chunks {
+            let out = self.corr4(wide::f64x4::new([chunk[0], chunk[1], chunk[2], chunk[3]]));
+            chunk.copy_from_slice(&out.to_array());
+        }
+        let tail = chunks.into_remainder();
+        if !tail.is_empty() {
+            let mut padded = [0.0; 4];
+            padded[..tail.len()].copy_from_slice(tail);
+            let out = self.corr4(wide::f64x4::new(padded)).to_array();
+            tail.copy_from_slice(&out[..tail.len()]);
+        }
+    }
+
+    #[inline(always)]
+    fn corr4(self, r2: wide::f64x4) -> wide::f64x4 {
+        match self {
+            ArdKernel::SquaredExponential => (r2 * wide::f64x4::splat(-0.5)).exp(),
+            ArdKernel::Matern52 => {
+                let r = (r2 * wide::f64x4::splat(5.0)).sqrt();
+                (wide::f64x4::ONE + r + r * r / wide::f64x4::splat(3.0)) * (-r).exp()
+            }
+        }
+    }
+
     /// `corr` and `d corr / d r²` together (one exponential).
     #[inline]
     pub fn corr_and_derivative(self, r2: f64) -> (f64, f64) {
@@ -194,4 +227,36 @@ pub fn ard_log_marginal_likelihood(
     grad[1 + d] = g_c;
     grad[2 + d] = g_n;
     Ok(lml)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The vector correlations are libm's to a few ulps, over lengths that
+    /// leave every tail size, at distances from 0 to where they underflow.
+    #[test]
+    fn vector_correlations_equal_the_scalar_ones() {
+        for kernel in [ArdKernel::Matern52, ArdKernel::SquaredExponential] {
+            for len in [1usize, 2, 3, 4, 5, 7, 8, 161] {
+                let r2: Vec<f64> =
+                    (0..len).map(|i| if i == 0 { 0.0 } else { 1e-12 * 1.7f64.powi(i as i32 % 70) }).collect();
+                let mut vector = r2.clone();
+                kernel.corr_in_place(&mut vector);
+                for (&q, &v) in r2.iter().zip(&vector) {
+                    let scalar = kernel.corr(q);
+                    assert!((v - scalar).abs() <= 8.0 * f64::EPSILON * scalar, "{kernel:?}, r² = {q}: {v} vs {scalar}");
+                }
+            }
+            // Far apart, down to where exp(−r) underflows, as the scalar one.
+            let far = [700.0, 2e3, 5e4, 1e6, 1e300];
+            let mut vector = far;
+            kernel.corr_in_place(&mut vector);
+            for (&q, &v) in far.iter().zip(&vector) {
+                let scalar = kernel.corr(q);
+                let close = (v - scalar).abs() <= 8.0 * f64::EPSILON * scalar || (v == 0.0 && scalar < 1e-300);
+                assert!(close, "{kernel:?}, r² = {q}: {v} vs {scalar}");
+            }
+        }
+    }
 }
