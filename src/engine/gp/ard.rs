@@ -71,7 +71,9 @@ impl ArdKernel {
     #[inline(always)]
     fn corr4(self, r2: wide::f64x4) -> wide::f64x4 {
         match self {
-            ArdKernel::SquaredExponential => (r2 * wide::f64x4::splat(-0.5)).exp(),
+            // `wide`'s exp gives 0 for NaN: keep a NaN distance NaN, as libm's
+            // would, so that a NaN θ cannot predict a finite value.
+            ArdKernel::SquaredExponential => r2.is_nan().blend(r2, (r2 * wide::f64x4::splat(-0.5)).exp()),
             ArdKernel::Matern52 => {
                 let r = (r2 * wide::f64x4::splat(5.0)).sqrt();
                 (wide::f64x4::ONE + r + r * r / wide::f64x4::splat(3.0)) * (-r).exp()
@@ -248,6 +250,10 @@ mod tests {
                     assert!((v - scalar).abs() <= 8.0 * f64::EPSILON * scalar, "{kernel:?}, r² = {q}: {v} vs {scalar}");
                 }
             }
+            let mut nan = [f64::NAN, 0.5];
+            kernel.corr_in_place(&mut nan);
+            let beside = (nan[1] - kernel.corr(0.5)).abs() <= 8.0 * f64::EPSILON;
+            assert!(nan[0].is_nan() && beside, "{kernel:?}: a NaN distance gives {nan:?}");
             // Far apart, down to where exp(−r) underflows, as the scalar one.
             let far = [700.0, 2e3, 5e4, 1e6, 1e300];
             let mut vector = far;
