@@ -156,11 +156,7 @@ pub(super) fn decide(
     let base_p = p_value(base.fit.chi2, base.fit.dof);
     let significant = z_md - z_base > settings.strong_log_bf || base_p < settings.min_p_value;
     let best = candidates.first();
-    // Posterior model probabilities with equal prior odds.
-    let mut all_z = vec![z_base, z_md];
-    all_z.extend(candidates.iter().map(|c| c.log_evidence));
-    let lse = crate::engine::calibrate::sampler::smc::log_sum_exp(&all_z);
-    let prob = |z: f64| (z - lse).exp();
+    let prob = probability(candidates, (z_base, z_md));
     let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
     let verdict = |best: &str, statement: String, confidence: f64| Verdict {
         best: best.into(),
@@ -204,13 +200,9 @@ pub(super) fn decide(
         Some(c) => {
             // What a reader means by confidence in "the data need c": the
             // probability of every model that contains c, pairs included,
-            // and of the other readings of the same fit.
-            let mine = members(&c.name);
-            let needed: f64 = candidates
-                .iter()
-                .filter(|k| mine.is_subset(&members(&k.name)) || c.same_fit_as.contains(&k.name))
-                .map(|k| prob(k.log_evidence))
-                .sum();
+            // and of the other readings of the same fit, δ's among them
+            // when the model-discrepancy fit draws c's curve.
+            let needed = explanation_probability(c, candidates, (z_base, z_md));
             if needed < MIN_NAMED_PROBABILITY {
                 // Ahead of every other candidate, but less probable than not:
                 // the model-discrepancy fit stays the more probable account.
@@ -230,6 +222,7 @@ pub(super) fn decide(
             }
             let mut statement = named_statement(c, &runs[0].candidate, runner_up(c, candidates), mismatch);
             statement.push_str(&same_fit_phrase(c, candidates));
+            statement.push_str(&same_as_md_phrase(c, z_md));
             let share = explained_share(c, base);
             statement.push_str(&share_phrase(share, c, base, " It", "."));
             Verdict { explained_share: share, ..verdict(&c.name, statement, needed) }
@@ -258,6 +251,35 @@ pub(super) fn decide(
             verdict("none", statement, prob(z_base))
         }
     }
+}
+
+/// Posterior model probability of a log evidence, with equal prior odds
+/// among the model as it is, the model + δ and the candidates.
+fn probability(candidates: &[CandidateResult], (z_base, z_md): (f64, f64)) -> impl Fn(f64) -> f64 {
+    let mut all_z = vec![z_base, z_md];
+    all_z.extend(candidates.iter().map(|k| k.log_evidence));
+    let lse = crate::engine::calibrate::sampler::smc::log_sum_exp(&all_z);
+    move |z: f64| (z - lse).exp()
+}
+
+/// The posterior probability, with equal prior odds among the model as it
+/// is, the model + δ and the candidates (a discovered term's prior odds in
+/// its evidence), of the models that hold `c`'s explanation: every model
+/// containing c, pairs included, the other readings of its fit, and the
+/// model + δ when it draws c's curve (`same_fit_as_md`).
+pub(super) fn explanation_probability(
+    c: &CandidateResult,
+    candidates: &[CandidateResult],
+    (z_base, z_md): (f64, f64),
+) -> f64 {
+    let prob = probability(candidates, (z_base, z_md));
+    let mine = members(&c.name);
+    let holding: f64 = candidates
+        .iter()
+        .filter(|k| mine.is_subset(&members(&k.name)) || c.same_fit_as.contains(&k.name))
+        .map(|k| prob(k.log_evidence))
+        .sum();
+    holding + if c.same_fit_as_md { prob(z_md) } else { 0.0 }
 }
 
 /// The share of the model's excess χ² (χ² over its degrees of freedom, at
@@ -313,6 +335,17 @@ pub(super) fn same_fit_phrase(c: &CandidateResult, candidates: &[CandidateResult
     )
 }
 
+/// " The model-discrepancy fit draws the same curve …" when it does.
+fn same_as_md_phrase(c: &CandidateResult, z_md: f64) -> String {
+    if !c.same_fit_as_md {
+        return String::new();
+    }
+    let lead = c.log_evidence - z_md;
+    format!(
+        " The model-discrepancy fit draws the same curve at the data (log BF {lead:+.1} of this term against it): δ is this term's effect read without a law, one explanation, whose probability counts for it."
+    )
+}
+
 /// Whether a fit rests on its emulator: the emulator's share of the
 /// predictive variance at the data is above one half.
 pub(super) fn rests_on_emulator(c: &CandidateResult) -> bool {
@@ -346,7 +379,32 @@ pub(super) fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
 
 #[cfg(test)]
 mod tests {
-    use super::share_of_excess;
+    use super::{explanation_probability, share_of_excess};
+    use crate::engine::diagnose::tests::ranked;
+
+    #[test]
+    fn delta_drawing_the_candidates_curve_counts_for_the_candidate() {
+        // The decay counter's background set 4 (log evidences as measured):
+        // the model as it is at -270.16, model + δ at -167.56, the
+        // discovered offset at -168.89 (its prior log odds -1.04 included)
+        // and the square loss at -176.44.
+        let mut c = ranked(&[("offset_of_rate", -168.89), ("square_loss_of_rate", -176.44)]);
+        let z = (-270.16, -167.56);
+        // δ a rival: the offset holds 0.209 of the probability, below one half.
+        let rival = explanation_probability(&c[0], &c, z);
+        let expected = 1.0 / (1.0 + (1.33f64).exp() + (-7.55f64).exp());
+        assert!((rival - expected).abs() < 1e-9 && rival < 0.5, "{rival} against {expected}");
+        // δ draws the offset's curve: one explanation, all but the square loss's share.
+        c[0].same_fit_as_md = true;
+        let one = explanation_probability(&c[0], &c, z);
+        let rest = (-7.55f64).exp() / (1.0 + (1.33f64).exp() + (-7.55f64).exp());
+        assert!((one - (1.0 - rest)).abs() < 1e-9, "{one}");
+        // A pair holding the candidate counts for it, an unrelated candidate never.
+        let mut with_pair = ranked(&[("a", 0.0), ("a+b", 0.0), ("b", 0.0)]);
+        with_pair[0].same_fit_as_md = false;
+        let p = explanation_probability(&with_pair[0], &with_pair, (f64::NEG_INFINITY, f64::NEG_INFINITY));
+        assert!((p - 2.0 / 3.0).abs() < 1e-12, "{p}");
+    }
 
     #[test]
     fn the_share_of_the_excess_chi2_a_candidate_removes() {

@@ -221,6 +221,7 @@ impl Diagnoser<'_> {
             special_case_of: candidate.special_case_of.clone(),
             own_emulator: candidate.own_emulator,
             same_fit_as: Vec::new(),
+            same_fit_as_md: false,
             scout: false,
             stopped_at_beta: calibration.summary.diagnostics.sampler.abandoned_at(),
         };

@@ -49,6 +49,7 @@ mod locate;
 mod partial;
 mod precision;
 mod promise;
+mod readings;
 mod reuse;
 mod suggest;
 mod types;
@@ -65,6 +66,7 @@ use anyhow::Result;
 use decide::*;
 use fits::*;
 use locate::{locate, mismatch_phrase};
+use readings::{mark_same_as_md, rank};
 pub use reuse::Reuse;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::BTreeMap;
@@ -78,74 +80,17 @@ fn p_value(chi2: f64, dof: usize) -> f64 {
     ChiSquared::new(dof.max(1) as f64).map(|d| 1.0 - d.cdf(chi2)).unwrap_or(f64::NAN)
 }
 
-/// Two fits are readings of one fit when their model predictions at the
-/// measured points differ by less than `2 × strong_log_bf` in χ² (in the
-/// data's errors). Were either the truth, the data would favour it over
-/// the other by half that χ² in expectation (the divergence
-/// of their predictive distributions): below `strong_log_bf`, no data set
-/// like this one is expected to decide between them, whatever its noise.
-/// (Until this rule the bound was a χ² of 1, one standard deviation in all:
-/// `c*x_1` and `c*x_1*cos(x_2)` with x_2 near 0 along a Rössler flow's
-/// trajectory, 4.1 apart, were rivals that no measurement in the
-/// prediction range could separate.)
-fn same_fit_chi2(strong_log_bf: f64) -> f64 {
-    2.0 * strong_log_bf
-}
-
-/// Marks each run's fits that are the same on these data (`same_fit_chi2`).
-fn mark_same_fits(runs: &mut [CandidateRun], strong_log_bf: f64) {
-    let at_data = |r: &CandidateRun| -> Vec<(String, f64, f64)> {
-        r.calibration
-            .predictions
-            .iter()
-            .filter(|p| p.kind == "data")
-            .filter_map(|p| {
-                let b = r.problem.likelihood.blocks.iter().find(|b| b.name == p.observable)?;
-                let i = b.x.iter().position(|v| *v == p.x)?;
-                Some((p.observable.clone(), p.model[2], b.error[i]))
-            })
-            .collect()
-    };
-    let predictions: Vec<Vec<(String, f64, f64)>> = runs.iter().map(at_data).collect();
-    runs.iter_mut().for_each(|r| r.result.same_fit_as.clear());
-    for a in 0..runs.len() {
-        for b in 0..runs.len() {
-            let (pa, pb) = (&predictions[a], &predictions[b]);
-            if a == b || pa.is_empty() || pa.len() != pb.len() {
-                continue;
-            }
-            let chi2: f64 = pa.iter().zip(pb).map(|((_, ma, e), (_, mb, _))| ((ma - mb) / e).powi(2)).sum();
-            if chi2 < same_fit_chi2(strong_log_bf) {
-                let other = runs[b].result.name.clone();
-                runs[a].result.same_fit_as.push(other);
-            }
-        }
-    }
-}
-
-/// Best evidence first, then Occam's choice moved to the front.
-fn rank(mut runs: Vec<CandidateRun>, strong_log_bf: f64) -> Vec<CandidateRun> {
-    mark_same_fits(&mut runs, strong_log_bf);
-    // A stable sort keeps the library's order among equal evidences.
-    runs.sort_by(|a, b| b.result.log_evidence.total_cmp(&a.result.log_evidence));
-    if runs.is_empty() {
-        return runs;
-    }
-    let preferred = occam(&runs.iter().map(|r| &r.result).collect::<Vec<_>>(), strong_log_bf);
-    let first = runs.remove(preferred);
-    runs.insert(0, first);
-    runs
-}
-
 /// The verdict on ranked candidate runs, and whether one is named alone.
 fn judge(
     runs: &[CandidateRun],
     mismatch: &[ObservableMismatch],
     base: &Summary,
+    md: (&Problem, &Calibration),
     settings: &DiagnoseSettings,
     (z_base, z_md): (f64, f64),
 ) -> (Vec<CandidateResult>, Verdict, bool) {
-    let candidates: Vec<CandidateResult> = runs.iter().map(|r| r.result.clone()).collect();
+    let mut candidates: Vec<CandidateResult> = runs.iter().map(|r| r.result.clone()).collect();
+    mark_same_as_md(&mut candidates, runs, md, settings.strong_log_bf);
     let named = named_candidate(&candidates, settings, z_md);
     let mut rivals = named.map(|c| rivals(c, &candidates, settings)).unwrap_or_default();
     let separating = |name: &str| {
@@ -215,7 +160,7 @@ pub fn run_reusing(
     let explained = d.explain_in_order(first, declared, order, seed, (z_base, e_base), (f64::NEG_INFINITY, strong))?;
     let mut runs = rank(explained, strong);
     let (mut candidates, mut verdict, mut named_alone) =
-        judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
+        judge(&runs, &mismatch, &base.summary, (&md_problem, &md), settings, (z_base, z_md));
     let mut discovery = None;
     if let Some(discoverer) = analysis.setup.discoverer().filter(|_| discover::wanted(settings.discover, &verdict)) {
         let names = base_problem.simulator.parameter_names();
@@ -225,7 +170,8 @@ pub fn run_reusing(
         let found = d.explain(first, proposals, seed.wrapping_add(500), (z_base, e_base), (leader, strong))?;
         runs.extend(found);
         runs = rank(runs, settings.strong_log_bf);
-        (candidates, verdict, named_alone) = judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
+        (candidates, verdict, named_alone) =
+            judge(&runs, &mismatch, &base.summary, (&md_problem, &md), settings, (z_base, z_md));
         discovery = Some(report);
     }
     if scouting.is_some() {
@@ -264,7 +210,8 @@ pub fn run_reusing(
             let order: Vec<String> = runs.iter().map(|r| r.result.name.clone()).collect();
             runs = rank(runs, strong);
             full = runs.iter().map(|r| full[order.iter().position(|n| *n == r.result.name).unwrap_or(0)]).collect();
-            (candidates, verdict, named_alone) = judge(&runs, &mismatch, &base.summary, settings, (z_base, z_md));
+            (candidates, verdict, named_alone) =
+                judge(&runs, &mismatch, &base.summary, (&md_problem, &md), settings, (z_base, z_md));
         }
         for (c, f) in candidates.iter_mut().zip(&full) {
             c.scout = !f;
@@ -398,6 +345,7 @@ mod tests {
                 special_case_of: Vec::new(),
                 own_emulator: true,
                 same_fit_as: Vec::new(),
+                same_fit_as_md: false,
                 scout: false,
                 stopped_at_beta: None,
             })

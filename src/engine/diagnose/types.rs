@@ -130,6 +130,11 @@ pub struct CandidateResult {
     /// two ways.
     #[serde(default)]
     pub same_fit_as: Vec<String>,
+    /// Its model alone draws at the measured points the curve the
+    /// model-discrepancy fit draws (model + δ, within the same χ²): δ is
+    /// this term's effect read without a law, one explanation with it.
+    #[serde(default)]
+    pub same_fit_as_md: bool,
     /// Sampled only as a scout (a quarter of the particles): far enough
     /// from every decision that more precision could not change the verdict.
     #[serde(default)]
