@@ -341,8 +341,9 @@ fn same_as_md_phrase(c: &CandidateResult, z_md: f64) -> String {
         return String::new();
     }
     let lead = c.log_evidence - z_md;
+    let (by, side) = if lead < 0.0 { (-lead, "above") } else { (lead, "below") };
     format!(
-        " The model-discrepancy fit draws the same curve at the data (log BF {lead:+.1} of this term against it): δ is this term's effect read without a law, one explanation, whose probability counts for it."
+        " The model-discrepancy fit draws the same curve at the data, log BF {by:.1} {side} this term: δ reads as this term's effect without a law, one explanation whose probability counts for it."
     )
 }
 
@@ -379,7 +380,7 @@ pub(super) fn to_refine(standing: &[&CandidateResult]) -> Vec<String> {
 
 #[cfg(test)]
 mod tests {
-    use super::{explanation_probability, share_of_excess};
+    use super::{explanation_probability, same_as_md_phrase, share_of_excess};
     use crate::engine::diagnose::tests::ranked;
 
     #[test]
@@ -399,6 +400,9 @@ mod tests {
         let one = explanation_probability(&c[0], &c, z);
         let rest = (-7.55f64).exp() / (1.0 + (1.33f64).exp() + (-7.55f64).exp());
         assert!((one - (1.0 - rest)).abs() < 1e-9, "{one}");
+        let phrase = same_as_md_phrase(&c[0], z.1);
+        assert!(phrase.contains("same curve") && phrase.contains("log BF 1.3 above this term"), "{phrase}");
+        assert_eq!(same_as_md_phrase(&c[1], z.1), "", "the square loss draws its own curve");
         // A pair holding the candidate counts for it, an unrelated candidate never.
         let mut with_pair = ranked(&[("a", 0.0), ("a+b", 0.0), ("b", 0.0)]);
         with_pair[0].same_fit_as_md = false;
