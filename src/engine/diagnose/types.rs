@@ -65,7 +65,9 @@ pub struct ObservableMismatch {
     /// x ranges (within the data) where the 95% band of δ excludes zero.
     pub regions: Vec<Region>,
     /// Largest |posterior-mean δ| at a data point, in units of its 1σ error.
+    #[serde(deserialize_with = "nan_if_null")]
     pub max_sigma: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub x_at_max: f64,
     /// "above", "below", "mixed" or "none".
     pub sign: String,
@@ -76,6 +78,7 @@ pub struct ObservableMismatch {
     /// Posterior-predictive check of the no-MD fit: residuals (y − η̂)
     /// standardized by the whole predictive sd (measurement error, posterior
     /// spread of η and, for an emulator, its own uncertainty), and χ².
+    #[serde(deserialize_with = "pairs_nan_if_null")]
     pub no_md_residuals: Vec<(f64, f64)>,
     /// Runs of consecutive data points whose no-MD residual exceeds 2 in
     /// size with one sign (kept if two or more points, or one beyond 3): where
@@ -83,9 +86,11 @@ pub struct ObservableMismatch {
     /// band wide (`regions` empty), this still locates the mismatch.
     #[serde(default)]
     pub residual_regions: Vec<Region>,
+    #[serde(deserialize_with = "nan_if_null")]
     pub no_md_chi2: f64,
     pub no_md_dof: usize,
     /// Posterior-mean δ/σ at each data point: one row of the mismatch map.
+    #[serde(deserialize_with = "pairs_nan_if_null")]
     pub map: Vec<(f64, f64)>,
 }
 
@@ -302,6 +307,15 @@ fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> 
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
+/// (x, value) pairs whose values JSON wrote as null (NaN: a δ that could not
+/// be computed at a point) read back as NaN. Before, such a diagnosis was
+/// written and then refused by its own report ("invalid type: null").
+fn pairs_nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<(f64, f64)>, D::Error> {
+    use serde::Deserialize;
+    let pairs = Vec::<(Option<f64>, Option<f64>)>::deserialize(d)?;
+    Ok(pairs.into_iter().map(|(x, v)| (x.unwrap_or(f64::NAN), v.unwrap_or(f64::NAN))).collect())
+}
+
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Diagnosis {
     pub mismatch: Vec<ObservableMismatch>,
@@ -393,5 +407,32 @@ mod tests {
         assert!(back.confidence.is_nan());
         let fitted = Verdict { confidence: 0.25, ..v };
         assert_eq!(fitted.confidence_phrase(), "posterior probability 0.250 of the model-discrepancy fit");
+    }
+
+    /// A mismatch whose δ could not be computed at some points (NaN, null in
+    /// JSON) reads back with NaN there (ODEBench case 48 wrote one and its
+    /// report refused it).
+    #[test]
+    fn a_mismatch_with_values_that_could_not_be_computed_round_trips() {
+        let m = ObservableMismatch {
+            observable: "x_0".into(),
+            regions: Vec::new(),
+            max_sigma: f64::NAN,
+            x_at_max: 0.25,
+            sign: "none".into(),
+            grows_with_x: false,
+            r: serde_json::from_str(r#"{"median":0.1,"q025":0.0,"q975":0.3,"q16":0.05,"q84":0.2,"mean":0.1,"sd":0.1}"#)
+                .unwrap(),
+            no_md_residuals: vec![(0.25, 1.5), (0.5, f64::NAN)],
+            residual_regions: Vec::new(),
+            no_md_chi2: f64::NAN,
+            no_md_dof: 40,
+            map: vec![(0.25, f64::NAN), (0.5, 2.0)],
+        };
+        let text = serde_json::to_string(&m).unwrap();
+        assert!(text.contains("[0.25,null]"), "{text}");
+        let back: ObservableMismatch = serde_json::from_str(&text).unwrap();
+        assert!(back.map[0].1.is_nan() && back.map[1] == (0.5, 2.0));
+        assert!(back.no_md_residuals[1].1.is_nan() && back.max_sigma.is_nan() && back.no_md_chi2.is_nan());
     }
 }
