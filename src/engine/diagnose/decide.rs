@@ -157,7 +157,9 @@ pub(super) fn decide(
     let significant = z_md - z_base > settings.strong_log_bf || base_p < settings.min_p_value;
     let best = candidates.first();
     let prob = probability(candidates, (z_base, z_md));
-    let worst = mismatch.iter().max_by(|a, b| a.max_sigma.total_cmp(&b.max_sigma));
+    // A δ not computed (NaN) is never the worst: total_cmp would rank it above every number.
+    let size = |m: &ObservableMismatch| if m.max_sigma.is_nan() { f64::NEG_INFINITY } else { m.max_sigma };
+    let worst = mismatch.iter().max_by(|a, b| size(a).total_cmp(&size(b)));
     let verdict = |best: &str, statement: String, confidence: f64| Verdict {
         best: best.into(),
         standing: Vec::new(),

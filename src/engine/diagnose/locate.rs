@@ -65,6 +65,8 @@ pub(super) fn locate(
                 .collect();
         let (x_at_max, max_sigma) =
             map.iter().fold((x_lo, 0.0f64), |acc, &(x, z)| if z.abs() > acc.1 { (x, z.abs()) } else { acc });
+        // δ's mean that could be computed nowhere is no evidence of a δ of zero.
+        let max_sigma = if map.iter().all(|p| p.1.is_nan()) { f64::NAN } else { max_sigma };
         let sign = match regions.first() {
             None => "none".to_string(),
             Some(first) if regions.iter().all(|r| r.sign == first.sign) => first.sign.clone(),

@@ -129,11 +129,14 @@ pub fn print(d: &Diagnosis) {
                 rs.iter().map(|r| format!("[{:.2}, {:.2}] {}", r.x_from, r.x_to, r.sign)).collect::<Vec<_>>().join(", ")
             }
         };
+        let largest = if m.max_sigma.is_nan() {
+            "not computed (the MD fit's posterior-mean δ)".to_string()
+        } else {
+            format!("{:>5.1}σ at x = {:.2}", m.max_sigma, m.x_at_max)
+        };
         crate::base::messages::say!(
-            "  {:<14} max |δ| = {:>5.1}σ at x = {:.2}; δ ≠ 0 in {}; r = {:.2} [{:.2}, {:.2}]; no-MD χ²/n = {:.1}, misses in {}",
+            "  {:<14} max |δ| = {largest}; δ ≠ 0 in {}; r = {:.2} [{:.2}, {:.2}]; no-MD χ²/n = {:.1}, misses in {}",
             m.observable,
-            m.max_sigma,
-            m.x_at_max,
             show(&m.regions),
             m.r.median,
             m.r.q025,
