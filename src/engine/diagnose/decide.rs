@@ -406,8 +406,7 @@ mod tests {
         assert!(phrase.contains("same curve") && phrase.contains("log BF 1.3 above this term"), "{phrase}");
         assert_eq!(same_as_md_phrase(&c[1], z.1), "", "the square loss draws its own curve");
         // A pair holding the candidate counts for it, an unrelated candidate never.
-        let mut with_pair = ranked(&[("a", 0.0), ("a+b", 0.0), ("b", 0.0)]);
-        with_pair[0].same_fit_as_md = false;
+        let with_pair = ranked(&[("a", 0.0), ("a+b", 0.0), ("b", 0.0)]);
         let p = explanation_probability(&with_pair[0], &with_pair, (f64::NEG_INFINITY, f64::NEG_INFINITY));
         assert!((p - 2.0 / 3.0).abs() < 1e-12, "{p}");
     }

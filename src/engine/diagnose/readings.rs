@@ -59,8 +59,8 @@ fn mark_same_fits(runs: &mut [CandidateRun], strong_log_bf: f64) {
 /// Marks the candidates whose model alone draws the curve the
 /// model-discrepancy fit (`md`) draws with δ, within `same_fit_chi2`.
 /// Such a candidate and δ are one explanation: when they fit alike, a
-/// flexible δ is no rival to the law that says what δ was (the module
-/// docs of `decide::named_candidate`). A background of 1400 counts/s on a
+/// flexible δ is no rival to the law that says what δ was (as
+/// `decide::named_candidate` weighs it). A background of 1400 counts/s on a
 /// decaying source (the decay counter's discovery campaign) is fitted as
 /// well by Kernel II's δ, growing with t, as by the offset (χ²/dof 0.64),
 /// log evidence 1.3 apart: before this rule the offset, with δ its only
