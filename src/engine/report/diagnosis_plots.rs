@@ -6,13 +6,18 @@ use super::*;
 pub fn mismatch_map(d: &Diagnosis, x_units: &str) -> Result<String> {
     let rows = &d.mismatch;
     let max = rows.iter().flat_map(|m| m.map.iter().map(|p| p.1.abs())).fold(1.0, f64::max);
+    let caption = if rows.iter().any(|m| m.map.iter().any(|p| p.1.is_nan())) {
+        "mismatch map: posterior-mean δ / σ (grey: not computed)"
+    } else {
+        "mismatch map: posterior-mean δ / σ"
+    };
     svg(
         |root| {
             let (main, bar) = root.split_horizontally(W + 40);
             let n = rows.len();
             let xr = range_of(rows.iter().flat_map(|m| m.map.iter().map(|p| p.0)));
             let mut chart = p!(ChartBuilder::on(&main)
-                .caption("mismatch map: posterior-mean δ / σ", ("sans-serif", 16))
+                .caption(caption, ("sans-serif", 16))
                 .margin(8)
                 .x_label_area_size(40)
                 .y_label_area_size(110)
@@ -77,8 +82,15 @@ pub(super) fn category_label(names: &[String], v: f64) -> String {
     }
 }
 
-/// Blue (negative) – white – red (positive).
+/// Grey: a value that could not be computed (NaN). Cast to u8, NaN gave 0
+/// and painted such a cell the deepest blue, a strong negative δ.
+const NOT_COMPUTED: RGBColor = RGBColor(170, 170, 170);
+
+/// Blue (negative) – white – red (positive); grey where not computed.
 pub(super) fn diverging(t: f64) -> RGBColor {
+    if t.is_nan() {
+        return NOT_COMPUTED;
+    }
     let t = t.clamp(-1.0, 1.0);
     if t >= 0.0 {
         RGBColor(255, (255.0 * (1.0 - t)) as u8, (255.0 * (1.0 - t)) as u8)
@@ -193,4 +205,19 @@ fn short_name(name: &str) -> String {
         return name.to_string();
     }
     format!("{} + {} more", members[0], members.len() - 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_value_not_computed_is_grey_never_a_colour_of_the_scale() {
+        let grey = diverging(f64::NAN);
+        assert_eq!((grey.0, grey.1, grey.2), (170, 170, 170));
+        // The scale's ends and middle: deep blue, white, deep red.
+        let ends = [diverging(-1.0), diverging(0.0), diverging(1.0)].map(|c| (c.0, c.1, c.2));
+        assert_eq!(ends, [(0, 0, 255), (255, 255, 255), (255, 0, 0)]);
+        assert!(!ends.contains(&(grey.0, grey.1, grey.2)));
+    }
 }
