@@ -64,6 +64,11 @@ const UNOBSERVED_BUDGET: usize = 24;
 /// 0.60 and 0.93 nats), the forms a quadratic polynomial holds; the next
 /// cheapest (a saturation, 1.69) is already a guess at the physics.
 const CHEAPEST_NATS: f64 = 1.0;
+/// At most this many of them, cheapest first: their number grows steeply
+/// with the states (products of two and of three states and reciprocals,
+/// in every law), and each is a fit through the model. 64 holds every one
+/// of a 3-state system's; a 10-state system would have thousands.
+const CHEAPEST_BUDGET: usize = 64;
 /// The grammar's forms that change a law, fitted along the data, that go
 /// on to the fit through the model.
 const PRESCREEN_KEPT: usize = 6;
@@ -184,7 +189,7 @@ impl DeclaredDiscoverer {
             for place in &a.along.places {
                 nats.extend(library::terms(&place.symbols).iter().map(|t| t.nats));
             }
-            let cheapest: Vec<Candidate> = cheapest_unscreened(a, &out, to).collect();
+            let cheapest = cheapest_unscreened(a, &out, to);
             out.extend(cheapest);
             covered = a.targets.clone();
         }
@@ -246,18 +251,25 @@ impl DeclaredDiscoverer {
 /// fitted; the model's own rate rescaled was named in its place). These
 /// terms were counted among those searched already, so fitting them costs
 /// no prior odds, only a few fits.
-fn cheapest_unscreened<'a>(
-    a: &'a along::DeclaredAlong,
-    kept: &'a [Candidate],
-    to: To,
-) -> impl Iterator<Item = Candidate> + 'a {
-    a.along.places.iter().zip(&a.targets).flat_map(move |(place, target)| {
-        library::terms(&place.symbols)
-            .into_iter()
-            .filter(|t| t.nonlinear.is_empty() && t.nats <= CHEAPEST_NATS)
-            .map(move |t| Candidate::from_term(&t, &place.symbols, to, target))
-            .filter(|c| !kept.iter().any(|k| k.name == c.name))
-    })
+fn cheapest_unscreened(a: &along::DeclaredAlong, kept: &[Candidate], to: To) -> Vec<Candidate> {
+    let mut cheapest: Vec<Candidate> = a
+        .along
+        .places
+        .iter()
+        .zip(&a.targets)
+        .flat_map(|(place, target)| {
+            library::terms(&place.symbols)
+                .into_iter()
+                .filter(|t| t.nonlinear.is_empty() && t.nats <= CHEAPEST_NATS)
+                .map(move |t| Candidate::from_term(&t, &place.symbols, to, target))
+        })
+        .filter(|c| !kept.iter().any(|k| k.name == c.name))
+        .collect();
+    // Cheapest first across places (a stable sort keeps the library's order
+    // among equals), within a budget.
+    cheapest.sort_by(|x, y| x.nats.total_cmp(&y.nats));
+    cheapest.truncate(CHEAPEST_BUDGET);
+    cheapest
 }
 
 /// The free powers a single fixed-power term is a special case of: the
