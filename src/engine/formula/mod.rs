@@ -8,6 +8,7 @@ pub mod notation;
 mod ops;
 pub mod polynomial;
 pub mod tape;
+pub mod terms;
 
 use anyhow::{bail, Result};
 use tape::Tape;

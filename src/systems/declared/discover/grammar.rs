@@ -211,14 +211,15 @@ pub fn instances(forms: &[TermForm], d: &Declared) -> Vec<Instance> {
         };
         for (target, own) in &targets {
             for combo in combinations(&symbols, arity(f)) {
-                for (origin, from) in origins(f, d, combo.first()) {
+                for ((origin, from), flux) in pairs(origins(f, d, combo.first()), fluxes(f, d, target)) {
                     let mut form = f.form.replace("{rate}", &format!("({own})")).replace("{y}", &format!("({own})"));
                     form = form.replace("{t}", &d.input).replace("{theta}", target).replace("{s0}", &from);
+                    form = form.replace("{flux}", &format!("({})", flux.text));
                     for (k, s) in combo.iter().enumerate() {
                         form = form.replace(["{s}", "{s2}", "{s3}", "{s4}"][k], s).replace("{u}", s);
                     }
                     let mut name = f.name.clone();
-                    for s in combo.iter().chain(&origin) {
+                    for s in combo.iter().chain(&origin).chain(&flux.name) {
                         name.push('_');
                         name.push_str(s);
                     }
@@ -233,11 +234,74 @@ pub fn instances(forms: &[TermForm], d: &Declared) -> Vec<Instance> {
                         parameters: f.parameters.iter().map(|(k, v)| (k.clone(), v.clone())).collect(),
                         meaning: combo
                             .first()
-                            .map_or(f.meaning.clone(), |s| f.meaning.replace("{s}", s).replace("{u}", s)),
+                            .map_or(f.meaning.clone(), |s| f.meaning.replace("{s}", s).replace("{u}", s))
+                            .replace("{flux}", &flux.text)
+                            .replace("{from}", &flux.from)
+                            .replace("{target}", target),
                         operations: f.operations,
                         power: f.power.clone().filter(|_| combo.iter().all(|s| Some(s) == combo.first())),
                     });
                 }
+            }
+        }
+    }
+    out
+}
+
+/// Every pair of an origin and a flux (each list has one empty entry
+/// when the form does not use it).
+fn pairs<A: Clone, B: Clone>(a: Vec<A>, b: Vec<B>) -> Vec<(A, B)> {
+    a.iter().flat_map(|x| b.iter().map(move |y| (x.clone(), y.clone()))).collect()
+}
+
+/// A term of another law that `{flux}` takes: its text, the law it is
+/// taken from, and the name's suffix (`x_2_3`: the third term of dx_2/dt).
+#[derive(Clone, Default)]
+struct Flux {
+    text: String,
+    from: String,
+    name: Option<String>,
+}
+
+/// Most terms one law is read as: a product of long sums multiplies out
+/// into more than a physicist reads as separate processes.
+const FLUX_TERMS: usize = 16;
+
+/// The values `{flux}` may take in the law of `target`: each term of every
+/// other law (multiplied out, as `engine::formula::terms` reads a law)
+/// that reads a state and one of the model's constants, and is not already
+/// a term of `target`'s own law. In a model of exchanges (kinetics,
+/// compartments, populations) what one state loses another gains, so a
+/// process written in one law and left out of another is the first
+/// suspect; its constants are the model's own, already calibrated. A term
+/// of states alone is the library's (a product of states), not taken here.
+/// One empty flux when the form has no `{flux}`.
+fn fluxes(f: &TermForm, d: &Declared, target: &str) -> Vec<Flux> {
+    use crate::engine::formula::notation::parse;
+    use crate::engine::formula::terms::{additive, render};
+    if !f.form.contains("{flux}") {
+        return vec![Flux::default()];
+    }
+    let terms_of = |rate: &str| -> Vec<String> {
+        let Ok(e) = parse(rate) else { return Vec::new() };
+        additive(&e, FLUX_TERMS).unwrap_or_default().iter().map(|(_, t)| render(t)).collect()
+    };
+    let states = state_names(d);
+    let reads = |text: &str| {
+        let mut names = Vec::new();
+        if let Ok(e) = parse(text) {
+            e.names(&mut names);
+        }
+        let state = names.iter().any(|n| states.contains(n));
+        let constant = names.iter().any(|n| !states.contains(n) && *n != d.input);
+        state && constant
+    };
+    let own: Vec<String> = laws(d).iter().filter(|(s, _)| s == target).flat_map(|(_, r)| terms_of(r)).collect();
+    let mut out: Vec<Flux> = Vec::new();
+    for (from, rate) in laws(d).iter().filter(|(s, _)| s != target) {
+        for (k, text) in terms_of(rate).into_iter().enumerate() {
+            if reads(&text) && !own.contains(&text) && !out.iter().any(|x| x.text == text) {
+                out.push(Flux { text, from: from.clone(), name: Some(format!("{from}_{}", k + 1)) });
             }
         }
     }
@@ -375,21 +439,28 @@ mod identity_tests {
     use super::kinematic_identity;
     use crate::base::config::Config;
 
-    /// dh/dt = -v is a definition (h falls as the downward speed grows);
-    /// dv/dt = g is a law; dc/dt = -c, a decay, is a law, not an identity.
-    #[test]
-    fn a_rate_that_is_another_state_is_a_definition_and_its_own_is_a_law() {
-        let dir = std::env::temp_dir().join(format!("mdpipe-identity-{}", std::process::id()));
+    /// The declared model of a config's text.
+    fn declared(tag: &str, text: &str) -> Declared {
+        let dir = std::env::temp_dir().join(format!("mdpipe-{tag}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("m.toml");
-        let text =
-            "name = \"m\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\nh = \"1\"\nv = \"0\"\nc = \"1\"\n\
-            [model.rates]\nh = \"-v\"\nv = \"g\"\nc = \"-c\"\n[model.observables]\nheight = \"h\"\n\
-            [data]\nmeasurements = \"d.csv\"\n[parameters.g]\nmin = 0.0\nmax = 20.0\n";
         std::fs::write(&path, text).unwrap();
         let config = Config::load(&path).unwrap();
         let table: ModelTable = config.decode_family_table(&config.model, "model").unwrap();
         let d = Declared::base(&config, &table, true).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        d
+    }
+
+    /// dh/dt = -v is a definition (h falls as the downward speed grows);
+    /// dv/dt = g is a law; dc/dt = -c, a decay, is a law, not an identity.
+    #[test]
+    fn a_rate_that_is_another_state_is_a_definition_and_its_own_is_a_law() {
+        let text =
+            "name = \"m\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\nh = \"1\"\nv = \"0\"\nc = \"1\"\n\
+            [model.rates]\nh = \"-v\"\nv = \"g\"\nc = \"-c\"\n[model.observables]\nheight = \"h\"\n\
+            [data]\nmeasurements = \"d.csv\"\n[parameters.g]\nmin = 0.0\nmax = 20.0\n";
+        let d = declared("identity", text);
         let rate = |name: &str| d.states.iter().find(|s| s.name == name).unwrap().rate.text.clone();
         let v = d.states.iter().position(|s| s.name == "v").unwrap();
         assert_eq!(kinematic_identity(&d, "h", &rate("h")), Some((v, -1.0)));
@@ -398,6 +469,30 @@ mod identity_tests {
         let mut laws: Vec<String> = super::laws(&d).into_iter().map(|(s, _)| s).collect();
         laws.sort();
         assert_eq!(laws, ["c", "v"]);
-        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A process written in one law is offered to every other law that
+    /// lacks it (what A loses, B may gain): each term of another law that
+    /// reads a state and a constant, not a product of states alone (the
+    /// library's), and not a term the law has already.
+    #[test]
+    fn a_term_of_one_law_is_offered_to_the_others_as_a_flux() {
+        let text = "name = \"m\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\nA = \"1\"\nB = \"0\"\n\
+            [model.rates]\nA = \"-d*A\"\nB = \"k*A/(K + A) - A*B - d*B\"\n[model.observables]\na = \"A\"\n\
+            [data]\nmeasurements = \"d.csv\"\n[parameters.d]\nmin = 0.0\nmax = 1.0\n\
+            [parameters.k]\nmin = 0.0\nmax = 1.0\n[parameters.K]\nmin = 0.1\nmax = 1.0\n";
+        let d = declared("flux", text);
+        let forms = super::forms(None).unwrap();
+        let mut fluxes: Vec<(String, String)> = super::instances(&forms, &d)
+            .into_iter()
+            .filter(|i| i.name.starts_with("flux_"))
+            .map(|i| (i.name, i.form))
+            .collect();
+        fluxes.sort();
+        let expected =
+            [("flux_A_1_on_B", "{c}*(d*A)"), ("flux_B_1_on_A", "{c}*(k*A/(K + A))"), ("flux_B_3_on_A", "{c}*(d*B)")];
+        assert_eq!(fluxes, expected.map(|(n, f)| (n.to_string(), f.to_string())));
+        let meaning = super::instances(&forms, &d).into_iter().find(|i| i.name == "flux_B_1_on_A").unwrap().meaning;
+        assert!(meaning.contains("k*A/(K + A) of dB/dt acting on A"), "{meaning}");
     }
 }
