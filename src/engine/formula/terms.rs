@@ -59,6 +59,8 @@ fn written(e: &Expr) -> (String, u8) {
         Expr::Number(v) => (format!("{v}"), if *v < 0.0 { 3 } else { 5 }),
         Expr::Name(n) => (n.clone(), 5),
         Expr::Call(f, args) => (format!("{f}({})", args.iter().map(render).collect::<Vec<_>>().join(", ")), 5),
+        // A sign commutes with a product or quotient: -(d*A) reads -d*A.
+        Expr::Neg(a) if matches!(a.as_ref(), Expr::Binary('*' | '/', _, _)) => (format!("-{}", written(a).0), 2),
         Expr::Neg(a) => (format!("-{}", operand(a, 4)), 3),
         Expr::Binary(op, a, b) => {
             let strength = match op {
@@ -128,6 +130,7 @@ mod tests {
             "-(a - x)*(b + y*x) + x^-2",
             "a - (b - x) - -y",
             "2^x^y*(a + b)",
+            "x*-(a*y) - -(b/x)*y + -(a + b)^2",
         ] {
             let terms = additive(&parse(text).unwrap(), 16).unwrap();
             let sum: f64 = terms.iter().map(|(s, t)| s * eval(&render(t), &names, &values)).sum();

@@ -268,7 +268,7 @@ struct Flux {
 const FLUX_TERMS: usize = 16;
 
 /// The values `{flux}` may take in the law of `target`: each term of every
-/// other law (multiplied out, as `engine::formula::terms` reads a law)
+/// other law with its sign there (multiplied out, as `engine::formula::terms` reads a law)
 /// that reads a state and one of the model's constants, and is not already
 /// a term of `target`'s own law. In a model of exchanges (kinetics,
 /// compartments, populations) what one state loses another gains, so a
@@ -277,14 +277,18 @@ const FLUX_TERMS: usize = 16;
 /// of states alone is the library's (a product of states), not taken here.
 /// One empty flux when the form has no `{flux}`.
 fn fluxes(f: &TermForm, d: &Declared, target: &str) -> Vec<Flux> {
-    use crate::engine::formula::notation::parse;
+    use crate::engine::formula::notation::{parse, Expr};
     use crate::engine::formula::terms::{additive, render};
     if !f.form.contains("{flux}") {
         return vec![Flux::default()];
     }
-    let terms_of = |rate: &str| -> Vec<String> {
+    // Each term unsigned (to tell terms apart) and as the law has it, sign
+    // and all: c = −1 then means a conserved exchange whichever side is written.
+    let terms_of = |rate: &str| -> Vec<(String, String)> {
         let Ok(e) = parse(rate) else { return Vec::new() };
-        additive(&e, FLUX_TERMS).unwrap_or_default().iter().map(|(_, t)| render(t)).collect()
+        let terms = additive(&e, FLUX_TERMS).unwrap_or_default();
+        let signed = |s: f64, t: &Expr| if s < 0.0 { render(&Expr::Neg(Box::new(t.clone()))) } else { render(t) };
+        terms.iter().map(|(s, t)| (render(t), signed(*s, t))).collect()
     };
     let states = state_names(d);
     let reads = |text: &str| {
@@ -296,11 +300,14 @@ fn fluxes(f: &TermForm, d: &Declared, target: &str) -> Vec<Flux> {
         let constant = names.iter().any(|n| !states.contains(n) && *n != d.input);
         state && constant
     };
-    let own: Vec<String> = laws(d).iter().filter(|(s, _)| s == target).flat_map(|(_, r)| terms_of(r)).collect();
+    let own: Vec<String> =
+        laws(d).iter().filter(|(s, _)| s == target).flat_map(|(_, r)| terms_of(r)).map(|(u, _)| u).collect();
+    let mut seen: Vec<String> = Vec::new();
     let mut out: Vec<Flux> = Vec::new();
     for (from, rate) in laws(d).iter().filter(|(s, _)| s != target) {
-        for (k, text) in terms_of(rate).into_iter().enumerate() {
-            if reads(&text) && !own.contains(&text) && !out.iter().any(|x| x.text == text) {
+        for (k, (unsigned, text)) in terms_of(rate).into_iter().enumerate() {
+            if reads(&unsigned) && !own.contains(&unsigned) && !seen.contains(&unsigned) {
+                seen.push(unsigned);
                 out.push(Flux { text, from: from.clone(), name: Some(format!("{from}_{}", k + 1)) });
             }
         }
@@ -490,7 +497,7 @@ mod identity_tests {
             .collect();
         fluxes.sort();
         let expected =
-            [("flux_A_1_on_B", "{c}*(d*A)"), ("flux_B_1_on_A", "{c}*(k*A/(K + A))"), ("flux_B_3_on_A", "{c}*(d*B)")];
+            [("flux_A_1_on_B", "{c}*(-d*A)"), ("flux_B_1_on_A", "{c}*(k*A/(K + A))"), ("flux_B_3_on_A", "{c}*(-d*B)")];
         assert_eq!(fluxes, expected.map(|(n, f)| (n.to_string(), f.to_string())));
         let meaning = super::instances(&forms, &d).into_iter().find(|i| i.name == "flux_B_1_on_A").unwrap().meaning;
         assert!(meaning.contains("k*A/(K + A) of dB/dt acting on A"), "{meaning}");
