@@ -14,6 +14,11 @@ rate. Prints each case and the counts with 95% Clopper-Pearson intervals,
 by class; writes results.json.
 
     python3 bench/odebench/run.py --mdpipe target/release/mdpipe --out /tmp/odebench [--cases 0,5,7] [--nulls] [--sindy]
+    python3 bench/odebench/run.py --out /tmp/odebench --rejudge   # the verdicts left there, judged again
+
+A decisive verdict is right or wrong; `ambiguous` is never counted wrong (it
+is not decisive): it is honest when a form it leaves standing has the right
+rates. A run that timed out or failed is counted apart.
 
 Needs numpy, scipy and sympy (and pysindy for --sindy), from the package
 index, never in the build.
@@ -34,7 +39,10 @@ from scipy.stats import beta
 HERE = Path(__file__).resolve().parent
 FIXTURE = HERE.parent.parent / "tests" / "fixtures" / "odebench" / "cases.json"
 TOLERANCE = 0.10
-LABELS = ["right", "ambiguous, right form leading", "unexplained", "none", "wrong"]
+# "wrong" is decisive and wrong only; an `ambiguous` verdict is not decisive,
+# so it is never counted there, whatever form leads it.
+LABELS = ["right", "ambiguous, right form standing", "ambiguous, no standing form right", "unexplained", "none",
+          "timed out or failed", "wrong"]
 
 
 def clopper_pearson(k, n):
@@ -75,6 +83,8 @@ def rates_close(case, rates):
     """Whether sympy rates (states free, every constant in) are within the tolerance on every rate."""
     xs = [sp.Symbol(s) for s in case["states"]]
     judge = np.asarray(case["judge"]["states"], dtype=float)
+    if any(sp.sympify(r).free_symbols - set(xs) for r in rates):
+        return False, math.inf  # a constant the verdict did not estimate: no law to judge
     worst = 0.0
     for k, r in enumerate(rates):
         f = sp.lambdify(xs, r, "numpy")
@@ -113,15 +123,24 @@ def judge_mdpipe(case, diagnosis):
     if best in ("unexplained", "none", "emulator_limited"):
         return best if best != "emulator_limited" else "unexplained", None
     if best == "ambiguous":
-        lead = (diagnosis["verdict"].get("standing") or [None])[0]
-        rates = repaired_rates(case, diagnosis, lead) if lead else None
-        ok = rates is not None and rates_close(case, rates)[0]
-        return ("ambiguous, right form leading" if ok else "wrong"), lead
+        standing = diagnosis["verdict"].get("standing") or []
+        right = [s for s in standing if (rates := repaired_rates(case, diagnosis, s)) is not None and rates_close(case, rates)[0]]
+        if right:
+            return "ambiguous, right form standing", f"{right[0]} (of {', '.join(standing)})"
+        return "ambiguous, no standing form right", ", ".join(standing)
     rates = repaired_rates(case, diagnosis, best)
     if rates is None:
         return "wrong", best
     ok, worst = rates_close(case, rates)
     return ("right" if ok else "wrong"), f"{best} (worst rms {worst:.3f})"
+
+
+def judge_folder(case, folder):
+    """The verdict in `folder`'s diag/diagnosis.json, judged; a folder without one timed out or failed."""
+    path = folder / "diag" / "diagnosis.json"
+    if not path.exists():
+        return "timed out or failed", None
+    return judge_mdpipe(case, json.loads(path.read_text()))
 
 
 def run_mdpipe(case, folder, binary, timeout):
@@ -135,9 +154,8 @@ def run_mdpipe(case, folder, binary, timeout):
         ok = False
     seconds = time.time() - start
     if not ok:
-        return "unexplained", "failed or timed out", seconds
-    diagnosis = json.loads((folder / "diag" / "diagnosis.json").read_text())
-    verdict, what = judge_mdpipe(case, diagnosis)
+        return "timed out or failed", "failed or timed out", seconds
+    verdict, what = judge_folder(case, folder)
     return verdict, what, seconds
 
 
@@ -183,7 +201,7 @@ def summary(label, results, key):
     for kind in kinds:
         k = sum(1 for r in results if r[key] == kind)
         lo, hi = clopper_pearson(k, n)
-        print(f"  {kind:32s} {k:3d} of {n}  95% [{100 * lo:.0f}%, {100 * hi:.0f}%]")
+        print(f"  {kind:34s} {k:3d} of {n}  95% [{100 * lo:.0f}%, {100 * hi:.0f}%]")
     for cls in sorted({r["class"] for r in results if r["class"]}):
         sub = [r for r in results if r["class"] == cls]
         k = sum(1 for r in sub if r[key] == "right")
@@ -199,6 +217,8 @@ def main():
     ap.add_argument("--nulls", action="store_true", help="the nulls: each system as it is, the search forced on")
     ap.add_argument("--sindy", action="store_true")
     ap.add_argument("--no-mdpipe", action="store_true")
+    ap.add_argument("--rejudge", action="store_true",
+                    help="judge the verdicts an earlier run left in --out again, without running mdpipe (its seconds kept)")
     ap.add_argument("--timeout", type=float, default=900)
     ap.add_argument("--sampler", default="", help="e.g. 'particles = 500' for a quicker look, not the protocol's measure")
     args = ap.parse_args()
@@ -206,7 +226,11 @@ def main():
     SAMPLER = args.sampler
     fixture = json.loads(FIXTURE.read_text())
     cases = fixture["nulls"] if args.nulls else fixture["cases"]
-    chosen = [int(i) for i in args.cases.split(",") if i] or range(len(cases))
+    earlier = Path(args.out) / "results.json"
+    seconds_before = {r["index"]: r.get("seconds") for r in json.loads(earlier.read_text())} if earlier.exists() else {}
+    # Judged again, the cases are those the earlier run held unless named.
+    every = sorted(seconds_before) if args.rejudge else range(len(cases))
+    chosen = [int(i) for i in args.cases.split(",") if i] or every
     binary = str(Path(args.mdpipe).resolve())
     results = []
     for i in chosen:
@@ -227,6 +251,9 @@ def main():
                     # A null that times out or fails discovered nothing, but is no clean answer either.
                     row.update(mdpipe="failed or timed out", what=type(e).__name__)
                 row["seconds"] = time.time() - start
+            elif args.rejudge:
+                verdict, what = judge_folder(case, folder)
+                row.update(mdpipe=verdict, what=what, seconds=seconds_before.get(i))
             else:
                 verdict, what, seconds = run_mdpipe(case, folder, binary, args.timeout)
                 row.update(mdpipe=verdict, what=what, seconds=seconds)
@@ -238,8 +265,9 @@ def main():
     (Path(args.out) / ("nulls.json" if args.nulls else "results.json")).write_text(json.dumps(results, indent=1))
     if not args.no_mdpipe:
         summary("mdpipe", results, "mdpipe")
-        times = sorted(r["seconds"] for r in results)
-        print(f"  diagnose wall time: median {times[len(times) // 2]:.1f} s, max {times[-1]:.1f} s")
+        times = sorted(r["seconds"] for r in results if r.get("seconds") is not None)
+        if times:
+            print(f"  diagnose wall time: median {times[len(times) // 2]:.1f} s, max {times[-1]:.1f} s")
     if args.sindy and not args.nulls:
         summary("PySINDy", results, "sindy")
 
