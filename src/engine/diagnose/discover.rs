@@ -60,10 +60,24 @@ pub(super) fn screen(
                 delta_bic: p.delta_bic,
                 prior_log_odds: p.prior_log_odds,
                 toml: p.toml.clone(),
+                readings: p.readings.clone(),
             })
             .collect(),
     };
     Ok((report, screening.proposals.into_iter().map(|p| (p.candidate, p.prior_log_odds)).collect()))
+}
+
+/// The other readings of a screened term: forms whose fits the data could
+/// not tell from its own by the price of a parameter (`distinct`), so one
+/// explanation that a measurement beyond the data may still split.
+fn also_read(s: &ScreenedTerm) -> String {
+    if s.readings.is_empty() {
+        return String::new();
+    }
+    format!(
+        "; on these data the same fit as {}, which the screening merged into it as the simpler",
+        s.readings.join("; or as ")
+    )
 }
 
 /// The lower Cholesky factor of a block's measurement covariance (errors²
@@ -86,7 +100,8 @@ pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
     let standing: Vec<_> =
         verdict.standing.iter().filter_map(|n| report.screened.iter().find(|s| &s.name == n)).collect();
     if found.is_none() && !standing.is_empty() && !partial {
-        let read: Vec<String> = standing.iter().map(|s| format!("{} ({})", s.formula, s.meaning)).collect();
+        let read: Vec<String> =
+            standing.iter().map(|s| format!("{} ({}){}", s.formula, s.meaning, also_read(s))).collect();
         verdict.statement.push_str(&format!(
             " Discovered in a search of {} terms, not declared: {}. Once a measurement settles it, declare the winner; the leader reads:\n{}",
             report.searched,
@@ -97,11 +112,12 @@ pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
     }
     verdict.statement.push_str(&match found {
         Some(s) => format!(
-            " It was discovered, not declared: {} ({}; one of {} terms searched; prior odds 1:{:.0} paid). Declare it with:\n{}",
+            " It was discovered, not declared: {} ({}; one of {} terms searched; prior odds 1:{:.0} paid){}. Declare it with:\n{}",
             s.formula,
             s.meaning,
             report.searched,
             (-s.prior_log_odds).exp(),
+            also_read(s),
             s.toml
         ),
         None => format!(

@@ -378,6 +378,10 @@ pub struct ScreenedTerm {
     pub prior_log_odds: f64,
     /// The `[[candidates]]` block that declares the term.
     pub toml: String,
+    /// Terms screened as the same fit on these data, merged into this one:
+    /// one explanation, read each of these ways too.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub readings: Vec<String>,
 }
 
 /// Everything `diagnose` computed, for the report.

@@ -21,11 +21,31 @@ pub trait Explanation {
     /// Which is simpler (the smaller): parameters, then terms, then
     /// operations, then place in the grammar.
     fn complexity(&self) -> (usize, usize, usize, usize);
+    /// How the explanation reads to a physicist: its formula, what it
+    /// means, and its parameters at the screening's fit.
+    fn reading(&self) -> String;
+    /// The readings of the explanations merged into this one.
+    fn readings_mut(&mut self) -> &mut Vec<String>;
+}
+
+/// `other` merged into `kept`: its reading, and those merged into it
+/// before, become readings of `kept` (one explanation, each reading named).
+fn merge<E: Explanation>(kept: &mut E, mut other: E) {
+    let mut read = vec![other.reading()];
+    read.append(other.readings_mut());
+    let own = kept.reading();
+    let readings = kept.readings_mut();
+    for r in read {
+        if r != own && !readings.contains(&r) {
+            readings.push(r);
+        }
+    }
 }
 
 /// Of two fits whose predictions differ by less than the data can pay for
 /// (their difference standardized by the data's errors or covariance), the
-/// simpler stands for both. Between fits of different numbers of
+/// simpler stands for both, and the other is kept as its reading
+/// (`Explanation::readings_mut`), so that the verdict names both. Between fits of different numbers of
 /// parameters that is a χ² of ln N, BIC's price of one parameter: where the
 /// data cannot pay for the exponent, `c*v*abs(v)` stands for `c*abs(v)^p`
 /// and for `c*(abs(v)^p - abs(v0)^p)` with v0 near 0. Between fits with as
@@ -46,9 +66,75 @@ pub fn distinct<E: Explanation>(ranked: Vec<E>, data: &ScreeningData) -> Vec<E> 
     for s in ranked {
         match kept.iter().position(|k| !apart(k, &s)) {
             None => kept.push(s),
-            Some(i) if s.complexity() < kept[i].complexity() => kept[i] = s,
-            Some(_) => {}
+            Some(i) if s.complexity() < kept[i].complexity() => {
+                let richer = std::mem::replace(&mut kept[i], s);
+                merge(&mut kept[i], richer);
+            }
+            Some(i) => merge(&mut kept[i], s),
         }
     }
     kept
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::engine::model::ScreeningBlock;
+
+    /// A screened form: its name, parameters added, and its prediction at the points.
+    struct Form {
+        name: &'static str,
+        parameters: usize,
+        fitted: Fitted,
+        readings: Vec<String>,
+    }
+
+    impl Explanation for Form {
+        fn fitted(&self) -> &Fitted {
+            &self.fitted
+        }
+        fn added_parameters(&self) -> usize {
+            self.parameters
+        }
+        fn complexity(&self) -> (usize, usize, usize, usize) {
+            (self.parameters, 1, 0, 0)
+        }
+        fn reading(&self) -> String {
+            self.name.to_string()
+        }
+        fn readings_mut(&mut self) -> &mut Vec<String> {
+            &mut self.readings
+        }
+    }
+
+    fn form(name: &'static str, parameters: usize, prediction: &[f64]) -> Form {
+        Form {
+            name,
+            parameters,
+            fitted: Fitted { phi: Vec::new(), chi2: 0.0, prediction: prediction.to_vec() },
+            readings: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_merged_form_is_kept_as_a_reading_of_the_simpler() {
+        let (x, y, error) = ([0.0; 4], [0.0; 4], [1.0; 4]);
+        let block = ScreeningBlock { model_index: 0, x: &x, y: &y, error: &error, covariance_factor: None };
+        let data = ScreeningData { blocks: vec![block], theta: Vec::new(), bounds: Vec::new() };
+        // A free power ranked first, a cube 0.5 apart in χ² (below ln 4, the
+        // price of its exponent), a square with as many parameters 0.8 from
+        // the cube (below SAME_FIT), and a line far from all three.
+        let ranked = vec![
+            form("free power", 2, &[1.0, 2.0, 3.0, 4.0]),
+            form("cube", 1, &[1.5, 2.0, 3.0, 4.0]),
+            form("square", 1, &[1.5, 2.0, 3.0, 3.1]),
+            form("line", 1, &[9.0, 9.0, 9.0, 9.0]),
+        ];
+        let kept = distinct(ranked, &data);
+        let names: Vec<&str> = kept.iter().map(|k| k.name).collect();
+        assert_eq!(names, ["cube", "line"]);
+        // The richer form the cube replaced, and the square merged into the cube.
+        assert_eq!(kept[0].readings, ["free power", "square"]);
+        assert!(kept[1].readings.is_empty());
+    }
 }

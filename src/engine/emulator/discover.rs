@@ -66,6 +66,8 @@ pub(super) struct Screened {
     fitted: Fitted,
     /// The label whose values scale one coefficient shared by every part.
     pub shared_by: Option<String>,
+    /// Corrections the data could not tell from this one, merged into it (`distinct`).
+    readings: Vec<String>,
 }
 
 impl Screened {
@@ -105,6 +107,43 @@ impl Explanation for Screened {
     fn complexity(&self) -> (usize, usize, usize, usize) {
         let operations = self.parts.iter().map(|p| p.form.operations).sum();
         (self.added_parameters(), self.parts.len(), operations, self.parts.iter().map(|p| p.rank).sum())
+    }
+
+    fn reading(&self) -> String {
+        let theta = self.fitted.phi.len() - self.added_parameters();
+        let fitted: Vec<String> = self
+            .parameters()
+            .iter()
+            .zip(&self.fitted.phi[theta..])
+            .map(|((n, _), v)| format!("{n} = {v:.3}"))
+            .collect();
+        format!("{} ({}; at the screening's fit {})", formula_of(&self.parts), meaning_of(self), fitted.join(", "))
+    }
+
+    fn readings_mut(&mut self) -> &mut Vec<String> {
+        &mut self.readings
+    }
+}
+
+/// Each part's correction, as "observable → correction".
+fn formula_of(parts: &[Part]) -> String {
+    parts.iter().map(|p| format!("{} → {}", p.observable, p.correction)).collect::<Vec<_>>().join("; ")
+}
+
+/// What the parts mean, each meaning once, and a shared coefficient's label.
+fn meaning_of(s: &Screened) -> String {
+    let mut meanings: Vec<&str> = Vec::new();
+    for p in &s.parts {
+        if !meanings.contains(&p.form.meaning.as_str()) {
+            meanings.push(&p.form.meaning);
+        }
+    }
+    let meaning = meanings.join("; ");
+    match &s.shared_by {
+        Some(label) => {
+            format!("{meaning}; one coefficient for all the observables, in proportion to each one's {label}")
+        }
+        None => meaning,
     }
 }
 
@@ -251,7 +290,7 @@ impl EmulatedDiscoverer {
         bounds.extend(unique.iter().map(|(_, r)| (r.spec.min, r.spec.max)));
         let ls = LeastSquares { blocks: &data.blocks, model: &model, bounds };
         let fitted = ls.best_of(starts)?;
-        Some(Screened { parts, simulator: Arc::new(model), fitted, shared_by: None })
+        Some(Screened { parts, simulator: Arc::new(model), fitted, shared_by: None, readings: Vec::new() })
     }
 
     /// Corrections of several observables fitted together, chosen by
@@ -320,17 +359,8 @@ struct Priors {
 /// against the model as it is (`observables`: how many were searched).
 fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, priors: &Priors, observables: usize) -> Proposal {
     let name = s.name();
-    let formula = s.parts.iter().map(|p| format!("{} → {}", p.observable, p.correction)).collect::<Vec<_>>().join("; ");
-    let mut meanings: Vec<&str> = Vec::new();
-    for p in &s.parts {
-        if !meanings.contains(&p.form.meaning.as_str()) {
-            meanings.push(&p.form.meaning);
-        }
-    }
-    let mut meaning = meanings.join("; ");
-    if let Some(label) = &s.shared_by {
-        meaning = format!("{meaning}; one coefficient for all the observables, in proportion to each one's {label}");
-    }
+    let formula = formula_of(&s.parts);
+    let meaning = meaning_of(&s);
     let corrections = s.parts.iter().map(|p| format!("{} = {:?}", p.observable, p.correction)).collect::<Vec<_>>();
     let mut toml = format!(
         "[[candidates]]\nname = {name:?}\ndescription = {meaning:?}\ncorrection = {{ {} }}\n",
@@ -352,6 +382,7 @@ fn proposal(s: Screened, base_chi2: f64, delta_bic: f64, priors: &Priors, observ
         meaning,
         toml,
         best_fit,
+        readings: s.readings,
         formula: formula.clone(),
         delta_chi2: base_chi2 - s.fitted.chi2,
         delta_bic,

@@ -304,6 +304,10 @@ pub struct Proposal {
     pub prior_log_odds: f64,
     /// The screening's least-squares fit: θ and the term's parameters, by name.
     pub best_fit: Vec<(String, f64)>,
+    /// The terms merged into this one because the data could not tell them
+    /// apart (`discover::distinct`), each as it reads: one explanation,
+    /// each reading named.
+    pub readings: Vec<String>,
 }
 
 /// What a screening tried and what it proposes, best first.

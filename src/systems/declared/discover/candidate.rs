@@ -126,6 +126,8 @@ pub struct Screened {
     pub table: CandidateTable,
     pub simulator: Arc<dyn Simulator>,
     pub fitted: Fitted,
+    /// Terms the data could not tell from this one, merged into it (`distinct`).
+    pub readings: Vec<String>,
 }
 
 impl Screened {
@@ -133,6 +135,14 @@ impl Screened {
     fn fitted_terms(&self, suffix: &str) -> BTreeMap<String, f64> {
         let theta = self.fitted.phi.len() - self.table.parameters.len();
         self.table.parameters.keys().zip(&self.fitted.phi[theta..]).map(|(n, v)| (format!("{n}{suffix}"), *v)).collect()
+    }
+
+    /// The term as a physicist reads it: where it enters, what it means,
+    /// and its parameters at the screening's fit.
+    pub fn reading(&self) -> String {
+        let meaning = self.parts.iter().map(|i| i.meaning.as_str()).collect::<Vec<_>>().join("; and ");
+        let fitted: Vec<String> = self.fitted_terms("").iter().map(|(n, v)| format!("{n} = {v:.3}")).collect();
+        format!("{} ({meaning}; at the screening's fit {})", describe(&self.table), fitted.join(", "))
     }
 
     /// The screened term as a candidate, with its prior odds.
@@ -150,6 +160,7 @@ impl Screened {
             delta_bic,
             prior_log_odds,
             best_fit,
+            readings: self.readings,
             candidate: CandidateModel {
                 name: self.table.name.clone(),
                 description: format!("discovered: {formula}"),
@@ -397,7 +408,8 @@ impl<'a> Context<'a> {
             all.push(theta.iter().copied().chain(found).collect());
         }
         let fitted = ls.best_of(&all)?;
-        Some(Screened { parts: parts.iter().map(|c| (*c).clone()).collect(), table, simulator, fitted })
+        let parts = parts.iter().map(|c| (*c).clone()).collect();
+        Some(Screened { parts, table, simulator, fitted, readings: Vec::new() })
     }
 
     /// Each part's suffix for its parameters' names (a pair keeps its two

@@ -361,6 +361,14 @@ impl Explanation for Screened {
             self.parts.iter().map(|p| p.rank).sum(),
         )
     }
+
+    fn reading(&self) -> String {
+        Screened::reading(self)
+    }
+
+    fn readings_mut(&mut self) -> &mut Vec<String> {
+        &mut self.readings
+    }
 }
 
 /// Two significant figures, rounded up: a prior bound a person can read.
