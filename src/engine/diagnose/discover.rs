@@ -63,6 +63,7 @@ pub(super) fn screen(
                 readings: p.readings.clone(),
             })
             .collect(),
+        notes: screening.notes,
     };
     Ok((report, screening.proposals.into_iter().map(|p| (p.candidate, p.prior_log_odds)).collect()))
 }
@@ -74,11 +75,21 @@ fn also_read(s: &ScreenedTerm) -> String {
     if s.readings.is_empty() {
         return String::new();
     }
+    let shown = &s.readings[..s.readings.len().min(READINGS_SHOWN)];
+    let more = match s.readings.len() - shown.len() {
+        0 => String::new(),
+        n => format!(", and {n} more (diagnosis.json lists them)"),
+    };
     format!(
-        "; on these data the same fit as {}, which the screening merged into it as the simpler",
-        s.readings.join("; or as ")
+        "; on these data the same fit as {}{more}, which the screening merged into it as the simpler",
+        shown.join("; or as ")
     )
 }
+
+/// Readings named in the verdict's words, in the order the screening ranked
+/// them; the rest are in `diagnosis.json`. Several are often the same term
+/// in another dress (a saturation whose scale fell to zero is a constant).
+const READINGS_SHOWN: usize = 2;
 
 /// The lower Cholesky factor of a block's measurement covariance (errors²
 /// and `[data] covariance`), when it has more than the errors. Covariance
@@ -95,6 +106,9 @@ fn covariance_factor(block: &ObservableBlock) -> Result<Option<Vec<f64>>> {
 
 /// What the verdict says of the search.
 pub(super) fn word(verdict: &mut Verdict, report: &DiscoveryReport) {
+    for note in &report.notes {
+        verdict.statement.push_str(&format!(" The search: {note}."));
+    }
     let partial = verdict.best == "partial";
     let found = report.screened.iter().find(|s| Some(s.name.as_str()) == verdict.named());
     let standing: Vec<_> =

@@ -363,6 +363,9 @@ pub struct DiscoveryReport {
     pub screening_seconds: f64,
     /// What went on to full calibration, best screened first.
     pub screened: Vec<ScreenedTerm>,
+    /// What the search decided about the model itself (`Screening::notes`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]

@@ -194,7 +194,12 @@ impl Discoverer for EmulatedDiscoverer {
             })
             .collect();
         let forms_tried = forms.iter().map(|f| f.form.clone()).collect();
-        Ok(Screening { searched: operations.len() + shared_nats.len(), forms: forms_tried, proposals })
+        Ok(Screening {
+            searched: operations.len() + shared_nats.len(),
+            forms: forms_tried,
+            proposals,
+            notes: Vec::new(),
+        })
     }
 }
 

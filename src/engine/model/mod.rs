@@ -317,6 +317,9 @@ pub struct Screening {
     /// The grammar's forms, for "which forms were tried".
     pub forms: Vec<String>,
     pub proposals: Vec<Proposal>,
+    /// What the search decided about the model itself, in words (a rate
+    /// read as a law though it looks like a definition).
+    pub notes: Vec<String>,
 }
 
 /// A grammar of terms and a cheap screening of them against the data.

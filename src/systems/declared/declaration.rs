@@ -143,6 +143,10 @@ pub struct State {
     pub name: String,
     pub initial: Written,
     pub rate: Written,
+    /// A rate that reads as a kinematic identity (`dx/dt = v`) which the
+    /// data contradict: a law written short, not a definition
+    /// (`discover::identities`).
+    pub law_by_data: bool,
 }
 
 /// One model ready to compile: θ with its prior box, constants, and every
@@ -355,6 +359,7 @@ fn states(file: &str, table: &ModelTable) -> Result<Vec<State>> {
                 name: name.clone(),
                 initial: Written { text: initial.clone(), place: format!("{file}: [model.initial] {name}") },
                 rate: Written { text: rate.clone(), place: format!("{file}: [model.rates] {name}") },
+                law_by_data: false,
             })
         })
         .collect()

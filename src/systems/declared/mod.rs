@@ -28,6 +28,7 @@ use std::sync::Arc;
 
 /// The two declarative kinds, one family type: they differ only in how a
 /// declaration compiles.
+#[derive(Clone)]
 pub struct DeclaredFamily {
     ode: bool,
 }

@@ -18,7 +18,7 @@ use std::sync::Arc;
 /// A smoothed series may not claim a rate more precise than this fraction
 /// of the largest rate it carries: the smoother's own error (a process
 /// that is not quite a Gaussian process) is not in its variance.
-const RATE_FLOOR: f64 = 0.01;
+pub(super) const RATE_FLOOR: f64 = 0.01;
 
 /// The data along the places of a declared model, and the model along them.
 pub struct DeclaredAlong {
@@ -143,7 +143,7 @@ pub fn expression(d: &Declared, data: &ScreeningData, model: Arc<dyn Simulator>)
 
 /// Each state observed as itself (an observable whose formula is the
 /// state's name), smoothed along its data.
-fn observed_series(d: &Declared, data: &ScreeningData) -> BTreeMap<usize, (Vec<f64>, Smoothed)> {
+pub(super) fn observed_series(d: &Declared, data: &ScreeningData) -> BTreeMap<usize, (Vec<f64>, Smoothed)> {
     let mut out = BTreeMap::new();
     for b in &data.blocks {
         let Some((_, formula)) = d.observables.get(b.model_index) else { continue };

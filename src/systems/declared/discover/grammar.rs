@@ -361,9 +361,13 @@ pub fn laws(d: &Declared) -> Vec<(String, String)> {
 /// The state a rate is, and its sign, when the rate is a kinematic identity:
 /// `dx/dt = v` (+1), or `dh/dt = -v` for a height that falls as the
 /// downward speed v grows (−1). Such a rate is a definition: no term joins it.
-/// A rate that is ± its own state (`dx/dt = -x`, a decay) is a law.
+/// A rate that is ± its own state (`dx/dt = -x`, a decay) is a law, and so
+/// is one the data contradict (`State::law_by_data`).
 pub fn kinematic_identity(d: &Declared, own: &str, rate: &str) -> Option<(usize, f64)> {
     use crate::engine::formula::notation::{parse, Expr};
+    if d.states.iter().any(|s| s.name == own && s.law_by_data) {
+        return None;
+    }
     let state = |n: &str| d.states.iter().position(|s| s.name == n && s.name != own);
     match parse(rate).ok()? {
         Expr::Name(n) => Some((state(&n)?, 1.0)),

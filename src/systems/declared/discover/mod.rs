@@ -21,6 +21,7 @@
 mod along;
 mod candidate;
 pub mod grammar;
+mod identities;
 
 use super::declaration::{Declared, Written};
 use super::DeclaredFamily;
@@ -84,7 +85,38 @@ pub struct DeclaredDiscoverer {
 }
 
 impl Discoverer for DeclaredDiscoverer {
+    /// Screens the model as declared, with every rate that reads as a
+    /// kinematic identity but that the data contradict read as a law
+    /// (`identities`), and says so.
     fn screen(&self, data: &ScreeningData) -> Result<Screening> {
+        let contradicted = identities::contradicted(&self.base, data);
+        if contradicted.is_empty() {
+            return self.screen_declared(data);
+        }
+        let mut base = self.base.clone();
+        let mut notes = Vec::new();
+        for c in &contradicted {
+            let state = &mut base.states[c.state];
+            state.law_by_data = true;
+            notes.push(format!(
+                "d{}/dt = {} reads as a definition, but the rate of {} read off the data departs from it by {:+.1}σ on average: it was searched as a law written short",
+                state.name, state.rate.text, state.name, c.bias_sigma
+            ));
+        }
+        let as_laws = DeclaredDiscoverer {
+            family: self.family.clone(),
+            file: self.file.clone(),
+            base,
+            forms: self.forms.clone(),
+        };
+        let mut screening = as_laws.screen_declared(data)?;
+        screening.notes.extend(notes);
+        Ok(screening)
+    }
+}
+
+impl DeclaredDiscoverer {
+    fn screen_declared(&self, data: &ScreeningData) -> Result<Screening> {
         let base_model = self.family.compile(&self.file, &self.base)?;
         let base = LeastSquares { blocks: &data.blocks, model: base_model.as_ref(), bounds: data.bounds.clone() };
         // A model that cannot be computed over the data (an ODE that blows
@@ -160,7 +192,7 @@ impl Discoverer for DeclaredDiscoverer {
                 p
             })
             .collect();
-        Ok(Screening { searched: searched.count, forms: searched.forms, proposals })
+        Ok(Screening { searched: searched.count, forms: searched.forms, proposals, notes: Vec::new() })
     }
 }
 
