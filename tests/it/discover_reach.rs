@@ -98,7 +98,7 @@ fn report(what: &str, first: &[Outcome], followed: &[Outcome]) {
 }
 
 /// The number a discovered form divides a symbol by, read from the formula
-/// it was screened with (`(I - 0)/2.800000e0)^2`, `abs(T/2.500000e1)^p`):
+/// it was screened with (`(I - 0)/2.8)^2`, `abs(T/25)^p`):
 /// the data's span or largest value when the form was built, which grows
 /// when a proposed measurement lies beyond the data.
 fn divisor(d: &Diagnosis, name: &str, before: &str, after: &str) -> Option<f64> {

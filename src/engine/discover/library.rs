@@ -286,13 +286,49 @@ impl Unary {
 }
 
 /// A number written into a formula: enough digits to be exact for the fit.
-fn number(v: f64) -> String {
-    let text = format!("{v:.6e}");
+pub fn number(v: f64) -> String {
+    let text = seven_digits(v);
     if v < 0.0 {
         format!("({text})")
     } else {
         text
     }
+}
+
+/// A fitted value as the verdict's words give it: to four decimals, in
+/// exponent form only when it is very small or very large (a scale that
+/// fell to 3.2e-5 is not "0.000").
+pub fn fitted_value(v: f64) -> String {
+    if v != 0.0 && !(1e-2..1e4).contains(&v.abs()) {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.4}").trim_end_matches('0').trim_end_matches('.').to_string()
+    }
+}
+
+/// `v` to seven significant digits, the decimal `{:.6e}` writes, but as a
+/// physicist writes it where that is short (`25`, `0.6500487`, not
+/// `2.500000e1`, `6.500487e-1`): the same decimal, so the same f64 parsed,
+/// and a formula compiles to the same model either way.
+pub fn seven_digits(v: f64) -> String {
+    let sci = format!("{v:.6e}");
+    let Some((mantissa, exponent)) = sci.split_once('e') else { return sci };
+    let Ok(exponent) = exponent.parse::<i32>() else { return sci };
+    if !(-4..=6).contains(&exponent) {
+        return sci;
+    }
+    let digits: String = mantissa.chars().filter(char::is_ascii_digit).collect();
+    let point = exponent + 1;
+    let text = if point <= 0 {
+        format!("0.{}{digits}", "0".repeat(point.unsigned_abs() as usize))
+    } else {
+        let (whole, fraction) = digits.split_at((point as usize).min(digits.len()));
+        let whole = format!("{whole}{}", "0".repeat((point as usize).saturating_sub(digits.len())));
+        format!("{whole}.{fraction}")
+    };
+    let text = if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.') } else { &text };
+    let sign = if mantissa.starts_with('-') { "-" } else { "" };
+    format!("{sign}{text}")
 }
 
 /// One factor of a term: a primitive of the symbol at `symbol`.
@@ -422,6 +458,39 @@ pub fn terms(symbols: &[Symbol]) -> Vec<Term> {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod number_tests {
+    use super::{fitted_value, number, seven_digits};
+
+    #[test]
+    fn a_number_in_a_formula_reads_plainly_and_parses_to_the_value_it_always_did() {
+        assert_eq!(seven_digits(25.0), "25");
+        assert_eq!(seven_digits(0.6500487123), "0.6500487");
+        assert_eq!(seven_digits(14.5), "14.5");
+        assert_eq!(seven_digits(0.0), "0");
+        assert_eq!(seven_digits(-0.00012345678), "-0.0001234568");
+        assert_eq!(seven_digits(9.9999996), "10");
+        assert_eq!(seven_digits(1234567.8), "1234568");
+        assert_eq!(seven_digits(12345678.0), "1.234568e7");
+        assert_eq!(seven_digits(3.2e-7), "3.200000e-7");
+        assert_eq!(number(-2.5), "(-2.5)");
+        assert_eq!(
+            (fitted_value(3.2e-5), fitted_value(0.3712), fitted_value(6.0)),
+            ("3.200e-5".into(), "0.3712".into(), "6".into())
+        );
+        // Whatever the value, the decimal is the one `{:.6e}` wrote, so the
+        // same f64 is parsed and a formula compiles to the same model.
+        let mut v = 1.234_567_89e-6_f64;
+        while v < 1e8 {
+            for x in [v, -v, v * 0.999_999_97, v * 1.000_000_03] {
+                let before: f64 = format!("{x:.6e}").parse().unwrap();
+                assert_eq!(seven_digits(x).parse::<f64>().unwrap(), before, "{x}: {}", seven_digits(x));
+            }
+            v *= 1.37;
+        }
+    }
 }
 
 #[cfg(test)]

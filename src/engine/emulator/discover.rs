@@ -14,6 +14,7 @@ use super::correction::CorrectedModel;
 use super::forms::{self, start_grid, Form, Range, Scales};
 use super::shared::Label;
 use crate::engine::discover::distinct::{distinct, Explanation};
+use crate::engine::discover::library::fitted_value;
 use crate::engine::discover::prior::FormPrior;
 use crate::engine::gp::CholeskyWorkspace;
 use crate::engine::model::fit::{Fitted, LeastSquares};
@@ -115,7 +116,7 @@ impl Explanation for Screened {
             .parameters()
             .iter()
             .zip(&self.fitted.phi[theta..])
-            .map(|((n, _), v)| format!("{n} = {v:.3}"))
+            .map(|((n, _), v)| format!("{n} = {}", fitted_value(*v)))
             .collect();
         format!("{} ({}; at the screening's fit {})", formula_of(&self.parts), meaning_of(self), fitted.join(", "))
     }

@@ -8,7 +8,7 @@ use super::grammar::{self, Instance, ParameterForm, Power, TermForm, To};
 use super::{round_up, with_states_observed, DeclaredDiscoverer};
 use crate::base::config::ParamSpec;
 use crate::engine::discover::along::Found;
-use crate::engine::discover::library::{Scale, Symbol, Term, Unary};
+use crate::engine::discover::library::{fitted_value, seven_digits, Scale, Symbol, Term, Unary};
 use crate::engine::discover::prior::{self, FormPrior};
 use crate::engine::formula;
 use crate::engine::model::fit::{Fitted, LeastSquares};
@@ -141,7 +141,8 @@ impl Screened {
     /// and its parameters at the screening's fit.
     pub fn reading(&self) -> String {
         let meaning = self.parts.iter().map(|i| i.meaning.as_str()).collect::<Vec<_>>().join("; and ");
-        let fitted: Vec<String> = self.fitted_terms("").iter().map(|(n, v)| format!("{n} = {v:.3}")).collect();
+        let fitted: Vec<String> =
+            self.fitted_terms("").iter().map(|(n, v)| format!("{n} = {}", fitted_value(*v))).collect();
         format!("{} ({meaning}; at the screening's fit {})", describe(&self.table), fitted.join(", "))
     }
 
@@ -296,9 +297,8 @@ impl<'a> Context<'a> {
         let scale = i.symbols.first().and_then(|s| self.scales.get(s));
         let mut template = i.form.clone();
         if let Some(s) = scale {
-            template = template
-                .replace("{sref}", &format!("{:.6e}", s.reference))
-                .replace("{sspan}", &format!("{:.6e}", s.span()));
+            template =
+                template.replace("{sref}", &seven_digits(s.reference)).replace("{sspan}", &seven_digits(s.span()));
         }
         let mut parameters = Vec::new();
         for (p, form) in &i.parameters {
