@@ -333,6 +333,29 @@ fn a_linear_loss_the_smoothed_rates_bury_is_still_proposed() {
     assert!(first_right.is_some(), "no right form among the proposals: {}", shown.join("; "));
 }
 
+/// The cell cycle's constant source left out of dx_1/dt (case 52, data
+/// from the fixture's own integrator) leaves dx_1/dt = -x_0, which reads as
+/// a kinematic identity; the data contradict it, so it is searched as a law
+/// and the right constant is proposed. A true identity on the same protocol
+/// (system 25's dx_0/dt = x_1, case 24) stays a definition.
+#[test]
+fn a_definition_the_data_contradict_is_searched_as_a_law() {
+    let cases = fixture().cases;
+    let case = cases.iter().find(|c| c.id == 41 && c.removed.as_deref() == Some("c_2")).unwrap();
+    let dir = std::env::temp_dir().join(format!("mdpipe-odebench-cell-cycle-{}", std::process::id()));
+    let (screening, _) = screen_case(case, &dir).unwrap();
+    assert!(
+        screening.notes.iter().any(|n| n.starts_with("dx_1/dt = -x_0 reads as a definition")),
+        "{:?}",
+        screening.notes
+    );
+    let (first_right, shown) = first_right(case, &screening);
+    assert_eq!(first_right, Some(1), "{}", shown.join("; "));
+    let kept = cases.iter().find(|c| c.id == 25 && c.removed.as_deref() == Some("-c_0*x_0")).unwrap();
+    let (screening, _) = screen_case(kept, &dir.join("kept")).unwrap();
+    assert!(screening.notes.is_empty(), "{:?}", screening.notes);
+}
+
 /// The screening of one case, as `diagnose` screens it (no MD, θ at the
 /// prior's middle), and its wall time; Err when the case does not load.
 fn screen_case(case: &Case, dir: &Path) -> anyhow::Result<(mdpipe::model::Screening, f64)> {
