@@ -12,7 +12,7 @@
 
 use super::correction::CorrectedModel;
 use super::forms::{self, start_grid, Form, Range, Scales};
-use super::shared::Label;
+use super::labels::Label;
 use crate::engine::discover::distinct::{distinct, Explanation};
 use crate::engine::discover::library::fitted_value;
 use crate::engine::discover::prior::FormPrior;

@@ -138,7 +138,7 @@ impl ModelFamily for EmulatorFamily {
         )?;
         let units = Units { x: table.units.x, observables: table.units.observables, parameters: Default::default() };
         let model = Arc::new(model);
-        let labels = super::shared::labels(&table.observable_labels, model.as_ref())
+        let labels = super::labels::labels(&table.observable_labels, model.as_ref())
             .with_context(|| config.path.display().to_string())?;
         let discoverer = EmulatedDiscoverer { model: model.clone(), labels };
         Ok(Arc::new(EmulatorSetup { model, units, config: config.clone(), discoverer }))

@@ -28,6 +28,7 @@ pub mod correction;
 pub mod discover;
 pub mod family;
 pub mod forms;
+pub mod labels;
 pub mod latent;
 pub mod low_rank;
 pub mod model;

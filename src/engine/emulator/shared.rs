@@ -14,47 +14,10 @@
 
 use super::discover::{EmulatedDiscoverer, Part, Screened};
 use super::forms::{Form, Range, Scales};
+use super::labels::Label;
 use crate::base::config::ParamSpec;
 use crate::engine::model::fit::Fitted;
-use crate::engine::model::{ScreeningBlock, ScreeningData, Simulator};
-use anyhow::{bail, Result};
-use std::collections::BTreeMap;
-
-/// A quantity that sets the observables apart, and its value for each.
-#[derive(Clone, Debug)]
-pub struct Label {
-    pub name: String,
-    pub values: BTreeMap<String, f64>,
-}
-
-/// `[model] observable_labels`, checked against the model's observables:
-/// each value finite, each quantity given for two or more observables and
-/// not the same for all (a common factor is no law).
-pub fn labels(table: &BTreeMap<String, BTreeMap<String, f64>>, model: &dyn Simulator) -> Result<Vec<Label>> {
-    let names = model.observable_names();
-    let mut out = Vec::new();
-    for (label, values) in table {
-        for (observable, v) in values {
-            if !names.contains(observable) {
-                bail!(
-                    "[model] observable_labels.{label}: '{observable}' is not an observable of the model (it has {})",
-                    names.join(", ")
-                );
-            }
-            if !v.is_finite() {
-                bail!("[model] observable_labels.{label}.{observable} = {v}: not a finite number");
-            }
-        }
-        let first = values.values().next().copied();
-        if values.len() < 2 || values.values().all(|v| Some(*v) == first) {
-            bail!(
-                "[model] observable_labels.{label}: give it for two or more observables, with values that differ (a correction it scales is searched across them)"
-            );
-        }
-        out.push(Label { name: label.clone(), values: values.clone() });
-    }
-    Ok(out)
-}
+use crate::engine::model::{ScreeningBlock, ScreeningData};
 
 /// One shared correction before it is fitted: its parts and where its fit starts.
 struct Draft {
