@@ -14,6 +14,12 @@ a numeric factor included, a sign not), / (a quotient), pow2, pow3, sqrt,
 pow (any other power), and each function by name. abs and signum are not
 counted: they are conventions of sign (v*abs(v) is a square that keeps v's
 sign), which the corpus, written for positive quantities, never needs.
+
+One kind is a symbol's role, not an operation: "angle outside a trig
+function", each use of a name outside sin, cos and tan in an equation that
+uses it inside one (an angle or a phase written bare), its m the mean count
+per such name. mdpipe charges it for each bare use, in a form, of a name its
+model (or the form) uses inside a trig function.
 """
 import math
 import re
@@ -78,6 +84,19 @@ def count(e, out):
         count(a, out)
 
 
+TRIG = (sp.sin, sp.cos, sp.tan)
+
+
+def angle_uses(e):
+    """(names e uses inside sin, cos or tan; their uses outside any)."""
+    inside = set()
+    for call in e.atoms(*TRIG):
+        inside |= call.free_symbols
+    bare = e.replace(lambda a: isinstance(a, TRIG), lambda a: sp.Symbol("TRIG_CALL"))
+    uses = sum(1 for node in sp.preorder_traversal(bare) if node in inside)
+    return len(inside), uses
+
+
 def parse(formula):
     """A formula with every name a symbol (gamma, beta, E_n are variables here), pi the number."""
     names = set(re.findall(r"[A-Za-z_][A-Za-z_0-9]*", formula)) - {f for f in dir(sp) if f in FUNCTION_NAMES} - {"pi"}
@@ -102,6 +121,10 @@ def main():
     for k in kinds:
         m = totals[k] / n if totals[k] else 0.5 / n
         out.append(f'"{k}" = {math.log((1 + m) / m):.3f}  # {totals[k]} in {n} equations')
+    angles, bare = (sum(x) for x in zip(*(angle_uses(parse(f)) for f in formulas)))
+    m = bare / angles if bare else 0.5 / angles
+    out.append(f'"angle outside a trig function" = {math.log((1 + m) / m):.3f}  # {bare} uses of the {angles} names '
+               "an equation uses inside sin, cos or tan")
     target = here.parent.parent / "src" / "engine" / "discover" / "operations.toml"
     target.parent.mkdir(parents=True, exist_ok=True)
     target.write_text("\n".join(out) + "\n")

@@ -356,6 +356,26 @@ fn a_definition_the_data_contradict_is_searched_as_a_law() {
     assert!(screening.notes.is_empty(), "{:?}", screening.notes);
 }
 
+/// A rotating body in a shear flow (system 35, cos(x₁)² sin(x₀) left out of
+/// dx₁/dt, the fixture's own data): the model writes x₀ only inside sines
+/// and cosines, so c·x₀, which matches c·sin(x₀) on the data's |x₀| < 1.4,
+/// pays the learned price of an angle written bare and no longer leads it on
+/// prior odds (a plain symbol pays nothing: `library::tests::an_angle_pays_…`).
+#[test]
+fn an_angle_written_bare_pays_the_corpus_price() {
+    let cases = fixture().cases;
+    let case = cases.iter().find(|c| c.id == 35 && c.removed.as_deref() == Some("cos(x_1)^2*sin(x_0)")).unwrap();
+    let dir = std::env::temp_dir().join(format!("mdpipe-odebench-angle-{}", std::process::id()));
+    let (screening, _) = screen_case(case, &dir).unwrap();
+    let odds = |name: &str| screening.proposals.iter().find(|p| p.candidate.name == name).map(|p| p.prior_log_odds);
+    let (linear, sin) = (odds("linear_x_0_on_x_1"), odds("sin_x_0_on_x_1"));
+    // operations.toml: "sin", the one operation c·sin(x) adds to c·x, and an angle written bare.
+    let (sin_cost, bare) = (2.259, 2.375);
+    let (linear, sin) = (linear.expect("c·x₀ proposed"), sin.expect("c·sin(x₀) proposed"));
+    assert!(sin > linear, "an angle: sin {sin} against linear {linear}");
+    assert!((linear - sin - (sin_cost - bare)).abs() < 0.01, "linear − sin = {}", linear - sin);
+}
+
 /// The screening of one case, as `diagnose` screens it (no MD, θ at the
 /// prior's middle), and its wall time; Err when the case does not load.
 fn screen_case(case: &Case, dir: &Path) -> anyhow::Result<(mdpipe::model::Screening, f64)> {

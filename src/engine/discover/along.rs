@@ -376,7 +376,7 @@ fn invert(mut a: Vec<f64>, n: usize) -> Option<Vec<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::discover::library::{self, Scale, Unary};
+    use crate::engine::discover::library::{self, Unary};
 
     /// dy/dt = −k y − b y² along a known trajectory, the model −k y: the
     /// screening names the square of y and recovers b and k.
@@ -397,7 +397,7 @@ mod tests {
         let y: Vec<f64> = (0..30).map(|i| 3.0 * (-0.1 * i as f64).exp()).collect();
         let target: Vec<f64> = y.iter().map(|y| -k * y - b * y * y).collect();
         let sd = vec![0.01; y.len()];
-        let symbol = Symbol { name: "y".into(), scale: Scale::of(&y).unwrap(), values: y.clone() };
+        let symbol = Symbol::of("y", &y, false).unwrap();
         let along =
             Along { target, sd, places: vec![Place { name: "dy/dt".into(), rows: 0..30, symbols: vec![symbol] }] };
         let model = Decay { y };

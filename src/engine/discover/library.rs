@@ -8,6 +8,7 @@
 //! (`c*abs(s/S)^p`: c is the term's size at |s| = S).
 
 use super::prior;
+use crate::engine::formula::notation;
 
 /// A symbol a term may be built from, with its values at the screening's
 /// points and the scales read off them.
@@ -16,6 +17,17 @@ pub struct Symbol {
     pub name: String,
     pub values: Vec<f64>,
     pub scale: Scale,
+    /// The model uses it inside a sine, cosine or tangent (an angle or a
+    /// phase): a form that uses it bare pays the prior's price for that.
+    pub angle: bool,
+}
+
+impl Symbol {
+    /// `name` at `values`, `None` where they give it no scale (not finite,
+    /// or zero throughout).
+    pub fn of(name: &str, values: &[f64], angle: bool) -> Option<Symbol> {
+        Some(Symbol { name: name.to_string(), scale: Scale::of(values)?, values: values.to_vec(), angle })
+    }
 }
 
 /// A symbol's size and range on the data.
@@ -338,6 +350,18 @@ pub struct Factor {
     pub symbol: usize,
 }
 
+impl Factor {
+    /// What the prior charges for this factor's bare uses of its symbol,
+    /// when the model makes that symbol an angle (`s` in `s^2`, not in `sin(s)`).
+    fn angle_nats(&self, symbols: &[Symbol]) -> f64 {
+        if !symbols[self.symbol].angle {
+            return 0.0;
+        }
+        let angle = std::collections::BTreeSet::from(["s".to_string()]);
+        notation::parse(self.unary.canonical()).map_or(0.0, |e| prior::bare_angle_nats(&e, &angle))
+    }
+}
+
 /// A term of the library: its coefficient times a product of factors (none: a constant).
 #[derive(Clone, Debug)]
 pub struct Term {
@@ -355,7 +379,8 @@ impl Term {
             nonlinear.extend(f.unary.nonlinear(&symbols[f.symbol].scale, &tag));
         }
         let canonical: Vec<&str> = factors.iter().map(|f| f.unary.canonical()).collect();
-        let nats = if canonical.is_empty() { 0.0 } else { prior::nats(&format!("c*{}", canonical.join("*"))) };
+        let operations = if canonical.is_empty() { 0.0 } else { prior::nats(&format!("c*{}", canonical.join("*"))) };
+        let nats = operations + factors.iter().map(|f| f.angle_nats(symbols)).sum::<f64>();
         Term { factors, nonlinear, nats }
     }
 
@@ -500,7 +525,7 @@ mod tests {
 
     fn symbol(name: &str, values: Vec<f64>) -> Symbol {
         let scale = Scale::of(&values).unwrap();
-        Symbol { name: name.into(), values, scale }
+        Symbol { name: name.into(), values, scale, angle: false }
     }
 
     /// Each term's column is its formula's value, the formula compiled
@@ -541,6 +566,22 @@ mod tests {
         assert!(cost(Unary::Id) < cost(Unary::Square) && cost(Unary::Square) < cost(Unary::Cube));
         assert!(cost(Unary::Square) < cost(Unary::Hill) && cost(Unary::Sin) < cost(Unary::Log));
         assert_eq!(Term::new(Vec::new(), &symbols).nats, 0.0);
+    }
+
+    /// A symbol the model uses as an angle pays the prior's price for each
+    /// bare use in a form (one in θ, two in θ|θ|), and nothing inside a sine.
+    #[test]
+    fn an_angle_pays_for_each_bare_use_and_nothing_inside_a_sine() {
+        let values = vec![-1.2, -0.4, 0.3, 1.1];
+        let plain = [symbol("theta", values.clone())];
+        let angle = [Symbol { angle: true, ..symbol("theta", values) }];
+        let bare = prior::nats_given("c*x", &["x".to_string()].into()) - prior::nats("c*x");
+        assert!(bare > 2.0, "{bare}");
+        let cost = |symbols: &[Symbol], u: Unary| Term::new(vec![Factor { unary: u, symbol: 0 }], symbols).nats;
+        for (u, uses) in [(Unary::Sin, 0.0), (Unary::Cos2, 0.0), (Unary::Id, 1.0), (Unary::SignedSquare, 2.0)] {
+            let extra = cost(&angle, u) - cost(&plain, u);
+            assert!((extra - uses * bare).abs() < 1e-12, "{u:?}: {extra}");
+        }
     }
 
     /// A temperature near 300 K varies an exponential over its own span,

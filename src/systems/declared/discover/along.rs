@@ -5,9 +5,9 @@
 //! an expression model, each observable as measured, its symbol the input.
 
 use super::super::declaration::{Declared, Variables, MAX_NAMES};
-use super::grammar::kinematic_identity;
+use super::grammar::{angles, kinematic_identity};
 use crate::engine::discover::along::{Along, AlongModel, Place};
-use crate::engine::discover::library::{Scale, Symbol};
+use crate::engine::discover::library::Symbol;
 use crate::engine::discover::smooth::{smooth, Smoothed};
 use crate::engine::formula::notation::{parse, Expr};
 use crate::engine::formula::Formula;
@@ -69,6 +69,7 @@ pub fn ode(
     trajectory: &dyn Fn(&str) -> Option<Vec<f64>>,
 ) -> Option<DeclaredAlong> {
     let known = &observed.known;
+    let angles = angles(d);
     let variables = Variables::of(file, d).ok()?;
     let scope = variables.scope(variables.rate_at);
     let (mut target, mut sd, mut places, mut targets, mut laws) =
@@ -102,7 +103,7 @@ pub fn ode(
             .states
             .iter()
             .zip(&values)
-            .filter_map(|(s, v)| Some(Symbol { name: s.name.clone(), scale: Scale::of(v)?, values: v.clone() }))
+            .filter_map(|(s, v)| Symbol::of(&s.name, v, angles.contains(&s.name)))
             .collect();
         places.push(Place { name: format!("d{}/dt", state.name), rows: start..target.len(), symbols });
         targets.push(state.name.clone());
@@ -123,13 +124,13 @@ pub fn ode(
 pub fn expression(d: &Declared, data: &ScreeningData, model: Arc<dyn Simulator>) -> Option<DeclaredAlong> {
     let (mut target, mut sd, mut places, mut targets, mut blocks) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let angles = angles(d);
     for b in &data.blocks {
         let (name, _) = d.observables.get(b.model_index)?;
-        let scale = Scale::of(b.x)?;
+        let symbols = vec![Symbol::of(&d.input, b.x, angles.contains(&d.input))?];
         let start = target.len();
         target.extend_from_slice(b.y);
         sd.extend_from_slice(b.error);
-        let symbols = vec![Symbol { name: d.input.clone(), values: b.x.to_vec(), scale }];
         places.push(Place { name: name.clone(), rows: start..target.len(), symbols });
         targets.push(name.clone());
         blocks.push((b.model_index, b.x.to_vec()));

@@ -276,11 +276,9 @@ impl<'a> Context<'a> {
         if to != To::Rates {
             return Vec::new();
         }
-        let symbols: Vec<Symbol> = self
-            .trajectories
-            .iter()
-            .filter_map(|(name, v)| Some(Symbol { name: name.clone(), scale: Scale::of(v)?, values: v.clone() }))
-            .collect();
+        let angles = grammar::angles(&self.discoverer.base);
+        let symbols: Vec<Symbol> =
+            self.trajectories.iter().filter_map(|(name, v)| Symbol::of(name, v, angles.contains(name))).collect();
         grammar::laws(&self.discoverer.base)
             .into_iter()
             .filter(|(state, _)| !covered.contains(state))
@@ -314,7 +312,7 @@ impl<'a> Context<'a> {
             target: i.target.clone(),
             template,
             parameters,
-            nats: prior::nats(&named),
+            nats: prior::nats_given(&named, &grammar::angles(&self.discoverer.base)),
             meaning: i.meaning.clone(),
             rank: 1 + i.rank,
             power: i.power.clone(),

@@ -5,7 +5,7 @@
 use super::super::declaration::Declared;
 use crate::engine::formula::{Formula, Scope};
 use anyhow::{anyhow, bail, Context, Result};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 /// Most starting points of one parameter: the screening fits from each,
 /// so a grammar cannot make it run for hours.
@@ -346,6 +346,20 @@ fn state_names(d: &Declared) -> Vec<String> {
 
 fn observables(d: &Declared) -> Vec<(String, String)> {
     d.observables.iter().map(|(n, w)| (n.clone(), w.text.clone())).collect()
+}
+
+/// The names the model uses inside a sine, cosine or tangent, in its rates
+/// or its observables: its angles and phases, which a new term should keep
+/// inside such functions (`engine::discover::prior::nats_given`).
+pub fn angles(d: &Declared) -> BTreeSet<String> {
+    let mut out = BTreeSet::new();
+    let rates = d.states.iter().map(|s| &s.rate.text);
+    for text in rates.chain(d.observables.iter().map(|(_, w)| &w.text)) {
+        if let Ok(e) = crate::engine::formula::notation::parse(text) {
+            crate::engine::discover::prior::inside_trig(&e, false, &mut out);
+        }
+    }
+    out
 }
 
 /// The states whose rate is a law, with the rate: not a kinematic identity

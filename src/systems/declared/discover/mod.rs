@@ -425,9 +425,9 @@ mod tests {
 
     #[test]
     fn a_whole_power_is_the_saturating_form_whose_scale_is_out_of_reach() {
-        use crate::engine::discover::library::{Scale, Symbol};
+        use crate::engine::discover::library::Symbol;
         let values: Vec<f64> = (0..20).map(|i| -1.0 + 0.15 * i as f64).collect();
-        let symbols = vec![Symbol { name: "x".into(), scale: Scale::of(&values).unwrap(), values }];
+        let symbols = vec![Symbol::of("x", &values, false).unwrap()];
         let terms = library::terms(&symbols);
         let pick = |u: Unary| {
             let term = terms.iter().find(|t| matches!(t.factors.as_slice(), [f] if f.unary == u)).unwrap();
