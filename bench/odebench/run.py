@@ -220,11 +220,13 @@ def main():
     ap.add_argument("--rejudge", action="store_true",
                     help="judge the verdicts an earlier run left in --out again, without running mdpipe (its seconds kept)")
     ap.add_argument("--timeout", type=float, default=900)
+    ap.add_argument("--fixture", default=str(FIXTURE),
+                    help="cases made by make_cases.py from other systems (default: the ODEBench odd ids)")
     ap.add_argument("--sampler", default="", help="e.g. 'particles = 500' for a quicker look, not the protocol's measure")
     args = ap.parse_args()
     global SAMPLER
     SAMPLER = args.sampler
-    fixture = json.loads(FIXTURE.read_text())
+    fixture = json.loads(Path(args.fixture).read_text())
     cases = fixture["nulls"] if args.nulls else fixture["cases"]
     earlier = Path(args.out) / "results.json"
     seconds_before = {r["index"]: r.get("seconds") for r in json.loads(earlier.read_text())} if earlier.exists() else {}

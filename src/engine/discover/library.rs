@@ -94,6 +94,9 @@ pub enum Unary {
     Hill,
     /// 1/(1 + exp(a (s − b)/S)), a and b free.
     Logistic,
+    /// s·log(K/|s|), K free: growth that slows as the log of the distance
+    /// to a scale (Gompertz), or an entropy's s·ln s.
+    XLog,
 }
 
 /// A nonlinear parameter of a term: its prior range and the grid the
@@ -121,7 +124,7 @@ fn spread(lo: f64, hi: f64, n: usize, log: bool) -> Vec<f64> {
 }
 
 impl Unary {
-    pub const ALL: [Unary; 15] = [
+    pub const ALL: [Unary; 16] = [
         Unary::Id,
         Unary::Square,
         Unary::SignedSquare,
@@ -137,6 +140,7 @@ impl Unary {
         Unary::Saturating,
         Unary::Hill,
         Unary::Logistic,
+        Unary::XLog,
     ];
     /// Those a product of two symbols' functions is built from.
     pub const IN_PRODUCTS: [Unary; 9] = [
@@ -157,7 +161,7 @@ impl Unary {
         match self {
             // Where s keeps one sign, s|s| is ±s².
             Unary::SignedSquare => !s.one_signed,
-            Unary::Reciprocal | Unary::Log => s.away_from_zero,
+            Unary::Reciprocal | Unary::Log | Unary::XLog => s.away_from_zero,
             _ => true,
         }
     }
@@ -179,6 +183,7 @@ impl Unary {
             Unary::Saturating => "saturating",
             Unary::Hill => "hill",
             Unary::Logistic => "logistic",
+            Unary::XLog => "xlog",
         }
     }
 
@@ -201,6 +206,7 @@ impl Unary {
             Unary::Saturating => "s/(K + s)",
             Unary::Hill => "s^2/(K^2 + s^2)",
             Unary::Logistic => "1/(1 + exp(a*s - b))",
+            Unary::XLog => "s*log(K/s)",
         }
     }
 
@@ -219,6 +225,11 @@ impl Unary {
             Unary::Saturating | Unary::Hill => {
                 let (lo, hi) = (0.01 * s.largest, 30.0 * s.largest);
                 vec![Nonlinear { name: named("K"), min: 0.0, max: hi, grid: spread(lo, hi, 16, true) }]
+            }
+            Unary::XLog => {
+                // log(K/|s|) is finite only for K > 0: the prior stops at the grid's smallest scale.
+                let (lo, hi) = (0.01 * s.largest, 30.0 * s.largest);
+                vec![Nonlinear { name: named("K"), min: lo, max: hi, grid: spread(lo, hi, 16, true) }]
             }
             Unary::Logistic => {
                 let mut rates = spread(0.5, 16.0, 6, true);
@@ -251,6 +262,7 @@ impl Unary {
             Unary::Saturating => format!("{s}/({} + abs({s}))", p[0]),
             Unary::Hill => format!("{s}^2/({}^2 + {s}^2)", p[0]),
             Unary::Logistic => format!("1/(1 + exp({}*({s} - {})/{span}))", p[0], p[1]),
+            Unary::XLog => format!("{s}*log({}/abs({s}))", p[0]),
         }
     }
 
@@ -272,6 +284,7 @@ impl Unary {
             Unary::Saturating => v / (p[0] + v.abs()),
             Unary::Hill => v * v / (p[0] * p[0] + v * v),
             Unary::Logistic => 1.0 / (1.0 + (p[0] * (v - p[1]) / scale.span()).exp()),
+            Unary::XLog => v * (p[0] / v.abs()).ln(),
         }
     }
 
@@ -293,6 +306,7 @@ impl Unary {
             Unary::Saturating => format!("saturating in {s} above a scale K"),
             Unary::Hill => format!("switching on as {s} passes a scale K (a Hill function of order 2)"),
             Unary::Logistic => format!("a smooth step in {s} at b"),
+            Unary::XLog => format!("{s} times the log of a scale K over {s}"),
         }
     }
 }
