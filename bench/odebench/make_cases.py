@@ -15,6 +15,8 @@ mdpipe.
 
 Run from the repository's root:
     python3 bench/odebench/make_cases.py ../shared/odebench/systems.json
+or, for other systems in the same format, into another fixture (run.py --fixture):
+    python3 bench/odebench/make_cases.py bench/odebench/textbook_systems.json /tmp/textbook_cases.json
 (needs numpy, scipy and sympy; only the fixture it writes is used by the tests).
 """
 import json
@@ -42,7 +44,7 @@ def symbols(system):
 
 def mdpipe_text(expr):
     """A sympy expression in mdpipe's (and exmex's) notation."""
-    return sp.sstr(expr, order="none").replace("**", "^").replace("pi", "PI")
+    return sp.sstr(expr, order="none").replace("**", "^").replace("pi", "PI").replace("Abs(", "abs(")
 
 
 def rounded(values):
@@ -175,7 +177,7 @@ def main(path, out):
                 cases.append(c)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(allow_nan=False, obj={"source": "ODEBench odd ids (../shared/odebench/systems.json)", "cases": cases, "nulls": nulls, "left_out": left_out}, indent=None))
+    out.write_text(json.dumps(allow_nan=False, obj={"source": "ODEBench odd ids (../shared/odebench/systems.json)" if str(path).endswith("odebench/systems.json") else str(path), "cases": cases, "nulls": nulls, "left_out": left_out}, indent=None))
     by_class = {}
     for c in cases:
         by_class[c["class"]] = by_class.get(c["class"], 0) + 1
@@ -185,4 +187,5 @@ def main(path, out):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "../shared/odebench/systems.json", "tests/fixtures/odebench/cases.json")
+    main(sys.argv[1] if len(sys.argv) > 1 else "../shared/odebench/systems.json",
+         sys.argv[2] if len(sys.argv) > 2 else "tests/fixtures/odebench/cases.json")
