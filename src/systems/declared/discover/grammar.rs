@@ -348,18 +348,21 @@ fn observables(d: &Declared) -> Vec<(String, String)> {
     d.observables.iter().map(|(n, w)| (n.clone(), w.text.clone())).collect()
 }
 
-/// The names the model uses inside a sine, cosine or tangent, in its rates
-/// or its observables: its angles and phases, which a new term should keep
-/// inside such functions (`engine::discover::prior::nats_given`).
+/// The variables (states, the input, t) the model uses inside a sine,
+/// cosine or tangent, in its rates or its observables: its angles and
+/// phases, which a new term should keep inside such functions
+/// (`engine::discover::prior::nats_given`). A parameter inside one (a
+/// frequency ω) is not counted: a term may vary it as it varies any other.
 pub fn angles(d: &Declared) -> BTreeSet<String> {
-    let mut out = BTreeSet::new();
+    let mut inside = BTreeSet::new();
     let rates = d.states.iter().map(|s| &s.rate.text);
     for text in rates.chain(d.observables.iter().map(|(_, w)| &w.text)) {
         if let Ok(e) = crate::engine::formula::notation::parse(text) {
-            crate::engine::discover::prior::inside_trig(&e, false, &mut out);
+            crate::engine::discover::prior::inside_trig(&e, false, &mut inside);
         }
     }
-    out
+    let variable = |n: &String| n == &d.input || n == "t" || d.states.iter().any(|s| &s.name == n);
+    inside.into_iter().filter(variable).collect()
 }
 
 /// The states whose rate is a law, with the rate: not a kinematic identity
@@ -494,6 +497,19 @@ mod identity_tests {
         let mut laws: Vec<String> = super::laws(&d).into_iter().map(|(s, _)| s).collect();
         laws.sort();
         assert_eq!(laws, ["c", "v"]);
+    }
+
+    /// A driven pendulum: θ inside a sine and t inside a cosine are its
+    /// angle and phase; ω, a parameter inside the cosine, and v, written
+    /// bare, are not.
+    #[test]
+    fn the_angles_are_the_variables_written_inside_trig_functions() {
+        let text = "name = \"m\"\n[model]\nkind = \"ode\"\nt0 = 0.0\n[model.initial]\ntheta = \"1\"\nv = \"0\"\n\
+            [model.rates]\ntheta = \"v\"\nv = \"-g*sin(theta) + a*cos(w*t)\"\n[model.observables]\nangle = \"theta\"\n\
+            [data]\nmeasurements = \"d.csv\"\n[parameters.g]\nmin = 0.0\nmax = 20.0\n\
+            [parameters.a]\nmin = 0.0\nmax = 1.0\n[parameters.w]\nmin = 0.1\nmax = 5.0\n";
+        let d = declared("angles", text);
+        assert_eq!(super::angles(&d).into_iter().collect::<Vec<_>>(), ["t", "theta"]);
     }
 
     /// A process written in one law is offered to every other law that
