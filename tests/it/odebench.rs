@@ -326,9 +326,7 @@ fn a_product_left_out_of_lotka_volterra_is_found_and_repaired() {
 #[test]
 fn a_linear_loss_the_smoothed_rates_bury_is_still_proposed() {
     let cases = fixture().cases;
-    let case = cases.iter().find(|c| c.id == 45 && c.removed.as_deref() == Some("-c_1*x_1")).unwrap();
-    let dir = std::env::temp_dir().join(format!("mdpipe-odebench-gray-scott-{}", std::process::id()));
-    let (screening, _) = screen_case(case, &dir).unwrap();
+    let (case, screening) = screened(&cases, 45, "-c_1*x_1", "gray-scott");
     let (first_right, shown) = first_right(case, &screening);
     assert!(first_right.is_some(), "no right form among the proposals: {}", shown.join("; "));
 }
@@ -341,9 +339,7 @@ fn a_linear_loss_the_smoothed_rates_bury_is_still_proposed() {
 #[test]
 fn a_definition_the_data_contradict_is_searched_as_a_law() {
     let cases = fixture().cases;
-    let case = cases.iter().find(|c| c.id == 41 && c.removed.as_deref() == Some("c_2")).unwrap();
-    let dir = std::env::temp_dir().join(format!("mdpipe-odebench-cell-cycle-{}", std::process::id()));
-    let (screening, _) = screen_case(case, &dir).unwrap();
+    let (case, screening) = screened(&cases, 41, "c_2", "cell-cycle");
     assert!(
         screening.notes.iter().any(|n| n.starts_with("dx_1/dt = -x_0 reads as a definition")),
         "{:?}",
@@ -351,8 +347,7 @@ fn a_definition_the_data_contradict_is_searched_as_a_law() {
     );
     let (first_right, shown) = first_right(case, &screening);
     assert_eq!(first_right, Some(1), "{}", shown.join("; "));
-    let kept = cases.iter().find(|c| c.id == 25 && c.removed.as_deref() == Some("-c_0*x_0")).unwrap();
-    let (screening, _) = screen_case(kept, &dir.join("kept")).unwrap();
+    let (_, screening) = screened(&cases, 25, "-c_0*x_0", "cell-cycle-kept");
     assert!(screening.notes.is_empty(), "{:?}", screening.notes);
 }
 
@@ -364,9 +359,7 @@ fn a_definition_the_data_contradict_is_searched_as_a_law() {
 #[test]
 fn an_angle_written_bare_pays_the_corpus_price() {
     let cases = fixture().cases;
-    let case = cases.iter().find(|c| c.id == 35 && c.removed.as_deref() == Some("cos(x_1)^2*sin(x_0)")).unwrap();
-    let dir = std::env::temp_dir().join(format!("mdpipe-odebench-angle-{}", std::process::id()));
-    let (screening, _) = screen_case(case, &dir).unwrap();
+    let (_, screening) = screened(&cases, 35, "cos(x_1)^2*sin(x_0)", "angle");
     let odds = |name: &str| screening.proposals.iter().find(|p| p.candidate.name == name).map(|p| p.prior_log_odds);
     let (linear, sin) = (odds("linear_x_0_on_x_1"), odds("sin_x_0_on_x_1"));
     // operations.toml: "sin", the one operation c·sin(x) adds to c·x, and an angle written bare.
@@ -374,6 +367,14 @@ fn an_angle_written_bare_pays_the_corpus_price() {
     let (linear, sin) = (linear.expect("c·x₀ proposed"), sin.expect("c·sin(x₀) proposed"));
     assert!(sin > linear, "an angle: sin {sin} against linear {linear}");
     assert!((linear - sin - (sin_cost - bare)).abs() < 0.01, "linear − sin = {}", linear - sin);
+}
+
+/// The case of system `id` with `removed` left out, and its screening (in a
+/// folder of its own, named by `tag`).
+fn screened<'c>(cases: &'c [Case], id: u32, removed: &str, tag: &str) -> (&'c Case, mdpipe::model::Screening) {
+    let case = cases.iter().find(|c| c.id == id && c.removed.as_deref() == Some(removed)).unwrap();
+    let dir = std::env::temp_dir().join(format!("mdpipe-odebench-{tag}-{}", std::process::id()));
+    (case, screen_case(case, &dir).unwrap().0)
 }
 
 /// The screening of one case, as `diagnose` screens it (no MD, θ at the
