@@ -166,6 +166,10 @@ pub struct Declared {
     pub states: Vec<State>,
     pub t0: f64,
     pub solver: SolverSettings,
+    /// Multiple shooting from the data every this long in t (`ode::shooting`):
+    /// how discovery screens a flow one trajectory cannot follow. None: one
+    /// trajectory from t0, as every calibration is.
+    pub shooting: Option<f64>,
 }
 
 impl Declared {
@@ -204,6 +208,7 @@ impl Declared {
             states,
             t0: table.t0.unwrap_or(0.0),
             solver: table.solver,
+            shooting: None,
         };
         declared.check_names(&file, kind)?;
         check_solver(&file, &table.solver)?;

@@ -94,6 +94,7 @@ mod tests {
             states: vec![state("x", "v"), state("v", "-2*x")],
             t0: 0.0,
             solver: Default::default(),
+            shooting: None,
         }
     }
 

@@ -22,6 +22,7 @@ mod along;
 mod candidate;
 pub mod grammar;
 mod identities;
+mod shoot;
 
 use super::declaration::{Declared, Written};
 use super::DeclaredFamily;
@@ -35,6 +36,7 @@ use anyhow::Result;
 use candidate::{Candidate, Screened};
 use grammar::{Power, TermForm, To};
 use rayon::prelude::*;
+use shoot::Best;
 
 /// How many screened terms (or pairs) go on to full calibration.
 const PROPOSALS: usize = 3;
@@ -91,7 +93,7 @@ impl Discoverer for DeclaredDiscoverer {
     fn screen(&self, data: &ScreeningData) -> Result<Screening> {
         let contradicted = identities::contradicted(&self.base, data);
         if contradicted.is_empty() {
-            return self.screen_declared(data);
+            return self.screen_or_shoot(data);
         }
         let mut base = self.base.clone();
         let mut notes = Vec::new();
@@ -109,15 +111,23 @@ impl Discoverer for DeclaredDiscoverer {
             base,
             forms: self.forms.clone(),
         };
-        let mut screening = as_laws.screen_declared(data)?;
+        let mut screening = as_laws.screen_or_shoot(data)?;
         screening.notes.extend(notes);
         Ok(screening)
     }
 }
 
 impl DeclaredDiscoverer {
-    fn screen_declared(&self, data: &ScreeningData) -> Result<Screening> {
+    /// The screening, and the best fit of a form it made (the base's when none).
+    fn screen_declared(&self, data: &ScreeningData) -> Result<(Screening, Best)> {
         let base_model = self.family.compile(&self.file, &self.base)?;
+        if self.base.shooting.is_some() {
+            // The anchors are the data's (`ode::shooting`).
+            for b in &data.blocks {
+                base_model.check_inputs(b.model_index, b.x)?;
+                base_model.note_measurements(b.model_index, b.y, b.error);
+            }
+        }
         let base = LeastSquares { blocks: &data.blocks, model: base_model.as_ref(), bounds: data.bounds.clone() };
         // A model that cannot be computed over the data (an ODE that blows
         // up) has no fit: terms are then screened along the data and fitted
@@ -151,7 +161,7 @@ impl DeclaredDiscoverer {
         } else {
             singles.iter().map(|s| s.fitted.chi2).fold(0.0, f64::max)
         };
-        let bic = bic_of(reference, points);
+        let bic = bic_of(reference, points, self.dispersion(&singles, points));
         let prior = FormPrior::over(&searched.nats);
         // Ranked by ΔBIC/2 (about a log Bayes factor) plus the prior's log
         // odds: about a log posterior odds, the order the calibrations will judge in.
@@ -175,6 +185,14 @@ impl DeclaredDiscoverer {
         ranked.sort_by(|a, b| score(b).total_cmp(&score(a)));
         let ranked = distinct(ranked, data);
         let best = ranked.first().map_or(f64::NEG_INFINITY, &score);
+        let best_fit = ranked.iter().min_by(|a, b| a.fitted.chi2.total_cmp(&b.fitted.chi2));
+        let best_fit = match best_fit {
+            Some(s) if s.fitted.chi2 < base_fit.chi2 => {
+                Best { chi2: s.fitted.chi2, table: Some(s.table.clone()), phi: s.fitted.phi.clone() }
+            }
+            _ => Best { chi2: base_fit.chi2, table: None, phi: base_fit.phi.clone() },
+        };
+        let unshot = self.without_shooting();
         let mut pairs = 0;
         let proposals = ranked
             .into_iter()
@@ -184,6 +202,13 @@ impl DeclaredDiscoverer {
                 s.parts.len() == 1 || pairs <= PAIRS_PROPOSED
             })
             .take(PROPOSALS)
+            .filter_map(|mut s| {
+                if let Some(unshot) = &unshot {
+                    // Calibrated as every model is: one trajectory from t0.
+                    s.simulator = unshot.compile(&s.table)?;
+                }
+                Some(s)
+            })
             .map(|s| {
                 let special = special_cases(&s.parts, &all, &context);
                 let delta_bic = bic(&s);
@@ -192,7 +217,33 @@ impl DeclaredDiscoverer {
                 p
             })
             .collect();
-        Ok(Screening { searched: searched.count, forms: searched.forms, proposals, notes: Vec::new() })
+        let screening = Screening { searched: searched.count, forms: searched.forms, proposals, notes: Vec::new() };
+        Ok((screening, best_fit))
+    }
+
+    /// How much wider than the data's errors the residuals are: 1, but
+    /// for a screening by shooting, whose anchors' errors move every point
+    /// predicted from them, the best single form's χ² per degree of freedom
+    /// (at least 1). Unscaled, those inflated χ² made any flexible second
+    /// term worth its parameters by BIC.
+    fn dispersion(&self, singles: &[Screened], points: f64) -> f64 {
+        if self.base.shooting.is_none() {
+            return 1.0;
+        }
+        let per_dof = |s: &Screened| s.fitted.chi2 / (points - s.fitted.phi.len() as f64).max(1.0);
+        singles.iter().map(per_dof).filter(|d| d.is_finite()).fold(f64::INFINITY, f64::min).clamp(1.0, f64::MAX)
+    }
+
+    /// This discoverer integrating from t0, when it shoots.
+    fn without_shooting(&self) -> Option<DeclaredDiscoverer> {
+        let mut base = self.base.clone();
+        base.shooting.take()?;
+        Some(DeclaredDiscoverer {
+            family: self.family.clone(),
+            file: self.file.clone(),
+            base,
+            forms: self.forms.clone(),
+        })
     }
 }
 
@@ -370,8 +421,10 @@ fn whole_power_cases(term: &Candidate, all: &[Candidate], context: &candidate::C
     out
 }
 
-fn bic_of(base_chi2: f64, points: f64) -> impl Fn(&Screened) -> f64 {
-    move |s| base_chi2 - s.fitted.chi2 - (s.table.parameters.len() as f64) * points.ln()
+/// ΔBIC of a screened form against the base, its Δχ² divided by the
+/// residuals' dispersion (1 but where the screening shoots).
+fn bic_of(base_chi2: f64, points: f64, dispersion: f64) -> impl Fn(&Screened) -> f64 {
+    move |s| (base_chi2 - s.fitted.chi2) / dispersion - (s.table.parameters.len() as f64) * points.ln()
 }
 
 impl Explanation for Screened {

@@ -31,8 +31,10 @@
 mod dense;
 mod expanded;
 mod grid;
+mod integrate;
 mod linear;
 mod rhs;
+mod shooting;
 mod tolerance;
 
 use super::declaration::{check_parameters_used, corners, describe, Declared, SolverSettings, Variables, MAX_NAMES};
@@ -41,12 +43,10 @@ use crate::engine::model::{ObservedData, Simulator};
 use anyhow::{bail, Result};
 use dense::Dense;
 use grid::Grid;
-use nalgebra::allocator::Allocator;
-use nalgebra::{Const, DefaultAllocator, Dim, Dyn, OVector, U1};
-use ode_solvers::continuous_output_model::ContinuousOutputModel;
-use ode_solvers::{Dop853, Dopri5, OutputType};
-use rhs::{Checks, Rhs, Watch};
-use std::cell::{Cell, RefCell};
+use nalgebra::{Const, Dyn};
+use rhs::Checks;
+use shooting::Shooting;
+use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use tolerance::Precision;
@@ -89,6 +89,9 @@ pub struct OdeModel {
     /// different data may run at once).
     checks: RwLock<Vec<Arc<Checks>>>,
     failures: AtomicU64,
+    /// Multiple shooting from the data (`shooting`): discovery's screening
+    /// of a flow one trajectory cannot follow.
+    shooting: Option<Shooting>,
 }
 
 /// One integration at one θ, kept per thread: the likelihood asks for each
@@ -203,6 +206,10 @@ impl OdeModel {
             grid: RwLock::new(None),
             checks: RwLock::new(Vec::new()),
             failures: AtomicU64::new(0),
+            shooting: d.shooting.map(|every| {
+                let state_of = d.observables.iter().map(|(_, w)| d.states.iter().position(|s| s.name == w.text.trim()));
+                Shooting::new(every, state_of.collect(), d.states.len())
+            }),
         })
     }
 
@@ -260,72 +267,7 @@ impl OdeModel {
             solved.far = watch.filter(|_| exceeded).map(|(checks, limit)| (checks.data, limit));
             return;
         }
-        let v = *v;
-        solved.dense = match y0.len() {
-            1 => self.integrate::<Const<1>>(v, y0, t_end).map(Dense::S1),
-            2 => self.integrate::<Const<2>>(v, y0, t_end).map(Dense::S2),
-            3 => self.integrate::<Const<3>>(v, y0, t_end).map(Dense::S3),
-            4 => self.integrate::<Const<4>>(v, y0, t_end).map(Dense::S4),
-            _ => self.integrate::<Dyn>(v, y0, t_end).map(Dense::Heap),
-        };
-    }
-
-    /// DOP853 from t0 to the grid's end, interpolating the state at every
-    /// grid point; `y0` ends with t0 when the rates read t. None when the
-    /// integration fails or its watch stopped it (then true).
-    fn integrate_on_grid<D: Dim>(
-        &self,
-        values: [f64; MAX_NAMES],
-        y0: &[f64],
-        grid: Grid,
-        watch: Option<(&Checks, f64)>,
-    ) -> (Option<Dense>, bool)
-    where
-        DefaultAllocator: Allocator<D>,
-        OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
-    {
-        let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
-        let (rtol, atol) = self.precision.tolerances(&self.solver);
-        // Half a grid step past the last point: the crate's interpolation
-        // at the very end of an integration is off (1e-5 where 1e-8 was
-        // asked, measured on the oscillator), inside a step it is right.
-        let t_end = grid.end() + 0.5 * grid.dx;
-        let span = t_end - self.t0;
-        let exceeded = Cell::new(false);
-        let watch = watch.map(|(checks, limit)| Watch::new(checks, limit, &exceeded));
-        let rhs = Rhs::new(self, values, !self.autonomous, watch);
-        // Hairer's defaults for DOP853: safety 0.9, no PI term, step factors
-        // in [0.333, 6], stiffness tested every 1000 steps.
-        let mut stepper = Dop853::from_param(
-            rhs,
-            self.t0,
-            t_end,
-            grid.dx,
-            y,
-            rtol,
-            atol,
-            0.9,
-            0.0,
-            0.333,
-            6.0,
-            span,
-            0.0,
-            self.solver.max_steps,
-            1000,
-            OutputType::Dense,
-        );
-        let ended = stepper.integrate().is_ok();
-        if exceeded.get() {
-            return (None, true);
-        }
-        let (times, ys) = stepper.results().get();
-        // One state per grid point, t0 included; the solver's running sum of
-        // dx must land on the grid.
-        if !ended || ys.len() != grid.last + 1 || times.last().is_none_or(|t| grid.index(*t) != Some(grid.last)) {
-            return (None, false);
-        }
-        let states = ys.iter().flat_map(|y| y.iter().copied()).collect();
-        (Some(Dense::OnGrid { grid, states, stride: y0.len() }), false)
+        solved.dense = self.integrate_from(*v, self.t0, y0, t_end);
     }
 
     /// Moves this model's kept solution at θ to the front of `kept` (true),
@@ -348,7 +290,7 @@ impl OdeModel {
     /// when there is no grid, it does not reach them, or the model solves
     /// exactly (nothing to stop).
     fn checks_for(&self, data: &ObservedData) -> Option<Arc<Checks>> {
-        if self.affine.is_some() {
+        if self.affine.is_some() || self.shooting.is_some() {
             return None;
         }
         let grid = (*self.grid.read().unwrap_or_else(|e| e.into_inner()))?;
@@ -373,44 +315,6 @@ impl OdeModel {
         times.sort_by(f64::total_cmp);
         times.dedup();
         *self.grid.write().unwrap_or_else(|e| e.into_inner()) = Grid::holding(self.t0, &times);
-    }
-
-    /// Dormand–Prince 5(4) from t0 to `t_end` with the state in vectors of
-    /// dimension `D`; None when the integration fails.
-    fn integrate<D: Dim>(
-        &self,
-        values: [f64; MAX_NAMES],
-        y0: &[f64],
-        t_end: f64,
-    ) -> Option<ContinuousOutputModel<f64, OVector<f64, D>>>
-    where
-        DefaultAllocator: Allocator<D>,
-        OVector<f64, D>: std::ops::Mul<f64, Output = OVector<f64, D>>,
-    {
-        let y = OVector::<f64, D>::from_iterator_generic(D::from_usize(y0.len()), U1, y0.iter().copied());
-        let (rtol, atol) = self.precision.tolerances(&self.solver);
-        let span = t_end - self.t0;
-        let rhs = Rhs::new(self, values, false, None);
-        let mut stepper = Dopri5::from_param(
-            rhs,
-            self.t0,
-            t_end,
-            span,
-            y,
-            rtol,
-            atol,
-            0.9,
-            0.04,
-            0.2,
-            10.0,
-            span,
-            0.0,
-            self.solver.max_steps,
-            1000,
-            OutputType::Dense,
-        );
-        let mut dense = ContinuousOutputModel::new();
-        stepper.integrate_with_continuous_output_model(&mut dense).ok().map(|_| dense)
     }
 
     /// The state at `t` from a solution (its initial state `y0`, its dense
@@ -481,6 +385,9 @@ impl Simulator for OdeModel {
     }
 
     fn predict(&self, observable: usize, x: &[f64], theta: &[f64], out: &mut [f64]) {
+        if let Some(shooting) = &self.shooting {
+            return self.predict_shot(shooting, observable, x, theta, out);
+        }
         SOLVED.with(|cell| {
             let mut kept = cell.borrow_mut();
             let found = self.to_front(&mut kept, theta);
@@ -512,10 +419,20 @@ impl Simulator for OdeModel {
     fn note_measurements(&self, observable: usize, values: &[f64], errors: &[f64]) {
         let state = self.observed_states.get(observable).copied().unwrap_or(false);
         self.precision.note(values, errors, state);
+        if let Some(shooting) = &self.shooting {
+            shooting.note_values(observable, values, self.t0);
+        }
     }
 
     fn numerics(&self) -> Option<String> {
         let tolerances = self.precision.describe(&self.solver);
+        if let Some(shooting) = &self.shooting {
+            return Some(format!(
+                "ODE by multiple shooting from the data: restarted from the measured states at {} anchors about {} apart, each stretch integrated by Dormand–Prince 5(4) at {tolerances}",
+                shooting.anchors().list.len(),
+                shooting.every
+            ));
+        }
         Some(if self.affine.is_some() {
             format!("ODE affine in its state: solved exactly on the data's time grid, else integrated at {tolerances}")
         } else {
@@ -523,13 +440,16 @@ impl Simulator for OdeModel {
         })
     }
 
-    fn check_inputs(&self, _observable: usize, x: &[f64]) -> Result<()> {
+    fn check_inputs(&self, observable: usize, x: &[f64]) -> Result<()> {
         if let Some(t) = x.iter().find(|t| **t < self.t0) {
             bail!("a data point at t = {t} lies before t0 = {} of the ODE model, where it has no state", self.t0);
         }
         let latest = x.iter().copied().fold(self.horizon(), f64::max);
         self.horizon.store(latest.to_bits(), Ordering::Relaxed);
         self.remember_times(x);
+        if let Some(shooting) = &self.shooting {
+            shooting.note_times(observable, x);
+        }
         for theta in corners(&self.bounds) {
             let mut v = self.variables.at(&theta);
             v[0] = self.t0;
