@@ -132,7 +132,16 @@ impl DeclaredDiscoverer {
         // A model that cannot be computed over the data (an ODE that blows
         // up) has no fit: terms are then screened along the data and fitted
         // from there, and ranked by their own χ².
-        let base_fit = base.fit(&data.theta).unwrap_or_else(|| Fitted {
+        // By shooting, θ's fit from the base's calibration (a model one
+        // trajectory could not follow) may sit in a basin of its own: the
+        // prior's middle is a second start.
+        let base_fit = match self.base.shooting {
+            Some(_) => {
+                base.best_of(&[data.theta.clone(), data.bounds.iter().map(|(lo, hi)| 0.5 * (lo + hi)).collect()])
+            }
+            None => base.fit(&data.theta),
+        };
+        let base_fit = base_fit.unwrap_or_else(|| Fitted {
             phi: data.theta.clone(),
             chi2: f64::INFINITY,
             prediction: vec![f64::NAN; base.points()],
