@@ -371,4 +371,23 @@ mod tests {
         }
         assert!((moved[0] - 0.5f64.cos()).abs() < 1e-5);
     }
+
+    /// States measured at different times (here v's values not even
+    /// finite) share no anchor: the model is then one trajectory from t0,
+    /// with no panic and no NaN start.
+    #[test]
+    fn without_a_time_every_state_was_measured_the_model_is_one_trajectory() {
+        let model = oscillator("apart", Some(0.5));
+        let x_at = index(&model, "x");
+        let v_at = 1 - x_at;
+        let (tx, tv): (Vec<f64>, Vec<f64>) =
+            ((1..=8).map(|k| 0.5 * k as f64).collect(), (1..=8).map(|k| 0.5 * k as f64 - 0.25).collect());
+        model.check_inputs(x_at, &tx).unwrap();
+        model.note_measurements(x_at, &vec![5.0; 8], &vec![0.01; 8]);
+        model.check_inputs(v_at, &tv).unwrap();
+        model.note_measurements(v_at, &vec![f64::NAN; 8], &vec![0.01; 8]);
+        let mut x = vec![0.0; 8];
+        model.predict(x_at, &tx, &[1.0], &mut x);
+        assert!(tx.iter().zip(&x).all(|(t, x)| (x - t.cos()).abs() < 1e-5), "{x:?}");
+    }
 }
