@@ -383,9 +383,9 @@ mod tests {
         let (tx, tv): (Vec<f64>, Vec<f64>) =
             ((1..=8).map(|k| 0.5 * k as f64).collect(), (1..=8).map(|k| 0.5 * k as f64 - 0.25).collect());
         model.check_inputs(x_at, &tx).unwrap();
-        model.note_measurements(x_at, &vec![5.0; 8], &vec![0.01; 8]);
+        model.note_measurements(x_at, &[5.0; 8], &[0.01; 8]);
         model.check_inputs(v_at, &tv).unwrap();
-        model.note_measurements(v_at, &vec![f64::NAN; 8], &vec![0.01; 8]);
+        model.note_measurements(v_at, &[f64::NAN; 8], &[0.01; 8]);
         let mut x = vec![0.0; 8];
         model.predict(x_at, &tx, &[1.0], &mut x);
         assert!(tx.iter().zip(&x).all(|(t, x)| (x - t.cos()).abs() < 1e-5), "{x:?}");
